@@ -1,0 +1,31 @@
+# Set-up and the two commands README.md promises.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: run test install clean bench
+
+$(STAMP): pyproject.toml
+	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+## make run: the whole pipeline on the bundled sample trial, into reports/sample/
+run: $(STAMP)
+	$(BIN)/vesselid run trials/sample/trial.toml --out reports/sample
+
+## make test: the test suite, in the same venv
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/ingest.py
+	$(BIN)/python benchmarks/accuracy.py
+	$(BIN)/python benchmarks/diagnose.py
+
+clean:
+	rm -rf $(VENV) reports/sample

@@ -1,0 +1,389 @@
+"""The records that flow between stages, top to bottom in flow order.
+
+``ingest`` -> :class:`RawLog`; ``align`` -> :class:`Trial`; ``segment`` -> :class:`Segments`;
+``fit`` -> :class:`Fits`. Every record is frozen: a stage returns a new record and never mutates
+its input. Units are SI and angles radians throughout (see ``CHANNEL_UNITS``); frames are Fossen's
+(NED world, body x forward, y starboard, z down).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+import pandas as pd
+
+# --------------------------------------------------------------------------- channels
+#: Canonical state channels and their SI units (DESIGN.md, "Canonical CSV log").
+STATE_UNITS: Mapping[str, str] = {
+    "u": "m/s", "v": "m/s", "w": "m/s",
+    "p": "rad/s", "q": "rad/s", "r": "rad/s",
+    "phi": "rad", "theta": "rad", "psi": "rad",
+    "x_n": "m", "y_e": "m",
+    "lat": "deg", "lon": "deg",
+    "sog": "m/s", "cog": "rad",
+    "ax": "m/s^2", "ay": "m/s^2", "az": "m/s^2",
+}
+#: Canonical input channels and their SI units.
+INPUT_UNITS: Mapping[str, str] = {
+    "delta": "rad",
+    "tau_x": "N", "tau_y": "N",
+    "tau_k": "N m", "tau_m": "N m", "tau_n": "N m",
+}
+CHANNEL_UNITS: Mapping[str, str] = {**STATE_UNITS, **INPUT_UNITS}
+#: Channels that are angles and wrap at +-pi.
+ANGLE_CHANNELS = frozenset({"phi", "theta", "psi", "cog"})
+
+#: DOF order of the 5-DOF damping matrix (AAUSHIP seed): velocity symbol -> DOF name.
+DOFS: tuple[str, ...] = ("u", "v", "p", "q", "r")
+DOF_NAMES: Mapping[str, str] = {"u": "surge", "v": "sway", "p": "roll", "q": "pitch", "r": "yaw"}
+#: DOF name -> (velocity channel, generalised-force channel).
+DOF_CHANNELS: Mapping[str, tuple[str, str]] = {
+    "surge": ("u", "tau_x"), "sway": ("v", "tau_y"), "roll": ("p", "tau_k"),
+    "pitch": ("q", "tau_m"), "yaw": ("r", "tau_n"),
+}
+#: DOF name -> attitude channel, for the DOFs that have restoring.
+DOF_ANGLE: Mapping[str, str] = {"roll": "phi", "pitch": "theta", "yaw": "psi"}
+
+
+# --------------------------------------------------------------------------- ingest
+@dataclass(frozen=True)
+class Channel:
+    """One canonical channel as sampled by one sensor.
+
+    Attributes
+    ----------
+    name : str
+        Canonical name (``CHANNEL_UNITS``).
+    t : numpy.ndarray
+        Sample times [s] on the source clock, strictly increasing.
+    values : numpy.ndarray
+        Samples in the canonical SI unit of ``name``.
+    source : str
+        Where the samples came from (message type, topic or CSV column).
+    """
+
+    name: str
+    t: np.ndarray
+    values: np.ndarray
+    source: str = ""
+
+    @property
+    def unit(self) -> str:
+        """SI unit of the channel."""
+        return CHANNEL_UNITS.get(self.name, "")
+
+
+@dataclass(frozen=True)
+class IngestSummary:
+    """What a reader did with a file: messages read and skipped per type, and warnings.
+
+    Attributes
+    ----------
+    path : str
+        The file read.
+    format : str
+        Format name (``csv``, ``tlog``, ...).
+    read : Mapping[str, int]
+        Messages (or rows) used, per message type.
+    skipped : Mapping[str, int]
+        Messages seen but not used, per type (unmapped types, bad CRC, out-of-order stamps).
+    warnings : tuple[str, ...]
+        Human-readable notes on anything unusual, each with counts.
+    """
+
+    path: str
+    format: str
+    read: Mapping[str, int] = field(default_factory=dict)
+    skipped: Mapping[str, int] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+
+    def text(self) -> str:
+        """One-paragraph summary for the terminal and the report."""
+        used = ", ".join(f"{k} {v}" for k, v in sorted(self.read.items())) or "none"
+        skip = ", ".join(f"{k} {v}" for k, v in sorted(self.skipped.items())) or "none"
+        lines = [f"{self.path} [{self.format}]: read {used}; skipped {skip}"]
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class RawLog:
+    """A log file read into canonical channels, each on its own timestamps.
+
+    The simulator produces the same record (``format='sim'``) before a writer puts it in a file,
+    so a round trip write -> read can be compared channel by channel.
+
+    Attributes
+    ----------
+    source : str
+        Path of the file, or a description for simulated logs.
+    format : str
+        Format name.
+    channels : Mapping[str, Channel]
+        Canonical channels; a second sensor of the same quantity uses ``name@sensor``
+        (for example ``sog@gps2``).
+    summary : IngestSummary
+        Reader summary.
+    time_reference : str
+        What ``t = 0`` means: ``boot`` (autopilot boot), ``trial`` (trial start), ``gps``, ``unix``.
+    """
+
+    source: str
+    format: str
+    channels: Mapping[str, Channel]
+    summary: IngestSummary
+    time_reference: str = "trial"
+
+    def channel(self, name: str) -> Channel:
+        """Return channel ``name`` or raise ``KeyError`` naming the channels present."""
+        try:
+            return self.channels[name]
+        except KeyError:
+            raise KeyError(f"channel {name!r} not in {self.source}; found {sorted(self.channels)}") from None
+
+
+# --------------------------------------------------------------------------- align
+@dataclass(frozen=True)
+class Gap:
+    """A dropout in one channel, longer than the aligner's gap threshold.
+
+    Attributes
+    ----------
+    channel : str
+        Channel with the dropout.
+    t_start, t_end : float
+        Last sample before and first sample after the gap [s, trial clock].
+    """
+
+    channel: str
+    t_start: float
+    t_end: float
+
+
+@dataclass(frozen=True)
+class Trial:
+    """All logs of one trial on one uniform clock, in SI units and Fossen's body frame.
+
+    Attributes
+    ----------
+    name : str
+        Trial name.
+    data : pandas.DataFrame
+        Column ``t`` [s] from trial start on a uniform grid of rate ``fs``, and canonical channels.
+        Samples inside a :class:`Gap` are NaN.
+    fs : float
+        Sample rate [Hz].
+    gaps : tuple[Gap, ...]
+        Dropouts; no segment may span one.
+    sources : tuple[str, ...]
+        Files the trial came from.
+    notes : tuple[str, ...]
+        What the aligner derived or estimated (clock offsets, derived body velocities, ...).
+    summaries : tuple[IngestSummary, ...]
+        Reader summaries of the source files.
+    """
+
+    name: str
+    data: pd.DataFrame
+    fs: float
+    gaps: tuple[Gap, ...] = ()
+    sources: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+    summaries: tuple[IngestSummary, ...] = ()
+
+    @property
+    def t(self) -> np.ndarray:
+        """Time [s] from trial start."""
+        return self.data["t"].to_numpy()
+
+    def has(self, channel: str) -> bool:
+        """True when ``channel`` is present and holds at least one finite sample."""
+        return channel in self.data.columns and bool(np.isfinite(self.data[channel].to_numpy()).any())
+
+    def window(self, t_start: float, t_end: float) -> pd.DataFrame:
+        """Rows with ``t_start <= t <= t_end`` [s]."""
+        t = self.t
+        return self.data.loc[(t >= t_start) & (t <= t_end)]
+
+
+# --------------------------------------------------------------------------- segment
+#: Segment kinds the detector and the manifest know.
+SEGMENT_KINDS = ("coast_down", "step", "free_decay", "rudder_step", "zigzag", "sinusoid")
+#: DOF names a segment may refer to.
+SEGMENT_DOFS = ("surge", "sway", "heave", "roll", "pitch", "yaw")
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A stretch of a trial that one manoeuvre produced.
+
+    Attributes
+    ----------
+    kind : str
+        One of ``SEGMENT_KINDS``.
+    dof : str
+        DOF excited (``SEGMENT_DOFS``).
+    t_start, t_end : float
+        Bounds [s, trial clock]. For coast-downs and steps ``t_start`` is the input change.
+    input_channel : str or None
+        The input that drives the segment (``tau_x``, ``delta``, ...), None for free decays.
+    input_before, input_after : float
+        Input level before and after ``t_start`` [SI unit of ``input_channel``].
+    quality : float
+        0 (unusable) to 1 (clean): excitation over noise, length over time constant.
+    origin : str
+        ``detected`` or ``manifest``.
+    label : str
+        Free text (manifest name, detector note).
+    """
+
+    kind: str
+    dof: str
+    t_start: float
+    t_end: float
+    input_channel: str | None = None
+    input_before: float = 0.0
+    input_after: float = 0.0
+    quality: float = 1.0
+    origin: str = "detected"
+    label: str = ""
+
+    @property
+    def duration(self) -> float:
+        """Segment length [s]."""
+        return self.t_end - self.t_start
+
+
+@dataclass(frozen=True)
+class Segments:
+    """The segments of one trial, in time order."""
+
+    trial: str
+    items: tuple[Segment, ...]
+
+    def of(self, kind: str | None = None, dof: str | None = None) -> tuple[Segment, ...]:
+        """Segments of one kind and/or DOF."""
+        return tuple(s for s in self.items if (kind is None or s.kind == kind) and (dof is None or s.dof == dof))
+
+
+# --------------------------------------------------------------------------- fit
+@dataclass(frozen=True)
+class SegmentFit:
+    """The least-squares fit of one model to one segment (lmfit-style result).
+
+    Attributes
+    ----------
+    segment : Segment
+        The segment fitted.
+    model : str
+        Model name (``first_order_decay``, ``first_order_step``, ``damped_oscillation``, ...).
+    channel : str
+        Channel fitted.
+    param_names : tuple[str, ...]
+        Parameter names, in covariance order.
+    params, stderr : Mapping[str, float]
+        Values and standard errors (NaN where they could not be computed; ``message`` says why).
+    covariance : numpy.ndarray
+        Parameter covariance (Jacobian estimate scaled by the residual variance).
+    t, y, y_fit : numpy.ndarray
+        Time from segment start [s], data and model, for the figures.
+    rmse : float
+        Residual RMS [unit of ``channel``].
+    aic, bic : float
+        Information criteria of the fit.
+    success : bool
+        False when the fit did not converge or failed a sanity check.
+    message : str
+        Why a fit failed or what is doubtful about it.
+    """
+
+    segment: Segment
+    model: str
+    channel: str
+    param_names: tuple[str, ...]
+    params: Mapping[str, float]
+    stderr: Mapping[str, float]
+    covariance: np.ndarray
+    t: np.ndarray
+    y: np.ndarray
+    y_fit: np.ndarray
+    rmse: float
+    aic: float
+    bic: float
+    success: bool
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One identified coefficient, combined over segments.
+
+    Attributes
+    ----------
+    name : str
+        Coefficient name (``X_u``, ``K_p``, ``K_nomoto``, ...).
+    value, stderr : float
+        Estimate and standard error [``unit``]; NaN when not identified.
+    ci95 : tuple[float, float]
+        95% confidence interval.
+    unit : str
+        SI unit.
+    n_segments : int
+        Segments combined.
+    method : str
+        How it was obtained (model, combination rule).
+    success : bool
+        False when no usable segment was fitted; ``message`` says why.
+    message : str
+        Reasons for failure, and consistency warnings.
+    consistency_p : float
+        p-value of the chi-square test that the per-segment values agree within their errors
+        (NaN for a single segment).
+    per_segment : tuple[float, ...]
+        The per-segment values combined.
+    """
+
+    name: str
+    value: float
+    stderr: float
+    ci95: tuple[float, float]
+    unit: str
+    n_segments: int
+    method: str
+    success: bool = True
+    message: str = ""
+    consistency_p: float = math.nan
+    per_segment: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class Fits:
+    """Everything the fit stage identified for one vessel.
+
+    Attributes
+    ----------
+    vessel : str
+        Vessel name.
+    estimates : Mapping[str, Estimate]
+        Coefficients by name (hydrodynamic derivatives with Fossen's signs, Nomoto K and T, ...).
+    segment_fits : tuple[SegmentFit, ...]
+        Per-segment fits (for figures and residual checks).
+    damping_matrix, damping_stderr : numpy.ndarray
+        5x5 D (positive diagonal) in DOF order ``DOFS`` and its standard errors; NaN where not
+        identified.
+    convention : str
+        Sign convention stated in every table.
+    """
+
+    vessel: str
+    estimates: Mapping[str, Estimate]
+    segment_fits: tuple[SegmentFit, ...]
+    damping_matrix: np.ndarray
+    damping_stderr: np.ndarray
+    convention: str = (
+        "M nu_dot + D nu = tau with D positive definite; hydrodynamic derivatives follow Fossen "
+        "(X_u = -D[0,0] < 0); DOF order u, v, p, q, r; Nomoto psi/delta = K/(s(Ts+1))."
+    )

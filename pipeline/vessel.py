@@ -1,0 +1,322 @@
+"""Vessel configuration: the TOML of DESIGN.md, read into a frozen :class:`Vessel`.
+
+Minimal form is ``name`` alone (a rudder ship whose mass is unknown: only Nomoto is identified).
+All sections are optional; unknown keys are errors that name the key and the allowed ones.
+
+Sections
+--------
+``[rigid_body]``  mass [kg], inertia [Ixx, Iyy, Izz] about the CG [kg m^2], cg [m, body frame].
+``[added_mass]``  positive added mass per DOF (surge, sway, roll, pitch, yaw) [kg or kg m^2].
+``[restoring]``   roll, pitch [N m/rad].
+``[damping]``     ``matrix`` 5x5 D [SI] or ``diagonal`` 5 values, DOF order u v p q r; truth for the
+                  simulator and a prior for the fits. ``quadratic`` 5 values [SI] of |x|x damping.
+``[nomoto]``      K [1/s], T [s]: the rudder ship's yaw model for the simulator.
+``[rudder]``      max_angle [rad], max_rate [rad/s], yaw_moment [N m/rad], sway_force [N/rad].
+``[[actuators]]`` map of MAVLink servo / RC channels to canonical inputs (see :class:`ActuatorMap`).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .errors import ConfigError
+from .records import DOF_NAMES, DOFS, INPUT_UNITS
+
+_TOP_KEYS = {"name", "rigid_body", "added_mass", "restoring", "damping", "nomoto", "rudder", "actuators",
+             "thrusters", "topics", "sensors"}
+_SECTION_KEYS: Mapping[str, set[str]] = {
+    "rigid_body": {"mass", "inertia", "cg"},
+    "added_mass": set(DOF_NAMES.values()),
+    "restoring": {"roll", "pitch"},
+    "damping": {"matrix", "diagonal", "quadratic"},
+    "nomoto": {"K", "T"},
+    "rudder": {"max_angle", "max_rate", "yaw_moment", "sway_force"},
+}
+_ACTUATOR_KEYS = {"source", "channel", "target", "pwm_trim", "pwm_span", "full_scale", "reverse_scale"}
+
+
+@dataclass(frozen=True)
+class ActuatorMap:
+    """How one PWM channel maps to a canonical input.
+
+    ``value = full_scale * (pwm - pwm_trim) / pwm_span`` for pwm above trim, and
+    ``reverse_scale * (pwm - pwm_trim) / pwm_span`` below it (thrusters are often weaker in reverse).
+
+    Attributes
+    ----------
+    source : str
+        ``servo`` (SERVO_OUTPUT_RAW / RCOU) or ``rc`` (RC_CHANNELS / RCIN).
+    channel : int
+        1-based channel number.
+    target : str
+        Canonical input (``delta``, ``tau_x``, ...).
+    pwm_trim, pwm_span : float
+        Neutral PWM and PWM distance to full scale [us].
+    full_scale, reverse_scale : float
+        Input at ``pwm_trim + pwm_span`` and magnitude at ``pwm_trim - pwm_span`` [SI unit of target].
+    """
+
+    source: str
+    channel: int
+    target: str
+    pwm_trim: float = 1500.0
+    pwm_span: float = 400.0
+    full_scale: float = 1.0
+    reverse_scale: float = 1.0
+
+    def to_input(self, pwm: np.ndarray) -> np.ndarray:
+        """Convert PWM [us] to the target input [SI]."""
+        x = (np.asarray(pwm, float) - self.pwm_trim) / self.pwm_span
+        return np.where(x >= 0, self.full_scale * x, self.reverse_scale * x)
+
+    def to_pwm(self, value: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`to_input` [us]."""
+        v = np.asarray(value, float)
+        x = np.where(v >= 0, v / self.full_scale, v / self.reverse_scale)
+        return self.pwm_trim + self.pwm_span * x
+
+
+@dataclass(frozen=True)
+class Vessel:
+    """A vessel's known physical data (not the identified coefficients).
+
+    Attributes
+    ----------
+    name : str
+        Vessel name.
+    mass : float or None
+        Mass [kg]; None for a rudder ship identified by Nomoto only.
+    inertia : numpy.ndarray
+        Ixx, Iyy, Izz about the CG [kg m^2].
+    cg : numpy.ndarray
+        Centre of gravity in the body frame [m].
+    added_mass : Mapping[str, float]
+        Positive added mass per DOF name [kg or kg m^2].
+    restoring : Mapping[str, float]
+        Restoring stiffness for roll and pitch [N m/rad].
+    damping : numpy.ndarray or None
+        Linear damping D (5x5, DOF order u v p q r) [SI]; None if not given.
+    quadratic_damping : numpy.ndarray or None
+        |x|x damping coefficients per DOF [SI]; None if not given.
+    nomoto : Mapping[str, float]
+        ``K`` [1/s] and ``T`` [s] when given.
+    rudder : Mapping[str, float]
+        Rudder limits and effectiveness (``max_angle`` [rad], ``max_rate`` [rad/s],
+        ``yaw_moment`` [N m/rad], ``sway_force`` [N/rad]).
+    actuators : tuple[ActuatorMap, ...]
+        PWM channel map for MAVLink / DataFlash logs.
+    extra : Mapping[str, Any]
+        Sections that later stages read themselves (``thrusters``, ``topics``, ``sensors``).
+    path : str
+        File it was read from.
+    """
+
+    name: str
+    mass: float | None = None
+    inertia: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    cg: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    added_mass: Mapping[str, float] = field(default_factory=dict)
+    restoring: Mapping[str, float] = field(default_factory=dict)
+    damping: np.ndarray | None = None
+    quadratic_damping: np.ndarray | None = None
+    nomoto: Mapping[str, float] = field(default_factory=dict)
+    rudder: Mapping[str, float] = field(default_factory=dict)
+    actuators: tuple[ActuatorMap, ...] = ()
+    extra: Mapping[str, Any] = field(default_factory=dict)
+    path: str = ""
+
+    @property
+    def has_rigid_body(self) -> bool:
+        """True when mass and inertia are known (the 5-DOF damping matrix can be identified)."""
+        return self.mass is not None and bool(np.all(np.isfinite(self.inertia)))
+
+    def rigid_body_mass_matrix(self) -> np.ndarray:
+        """M_RB about the body origin for DOFs u, v, p, q, r [SI] (Fossen 2021, eq. 3.44).
+
+        The CG offset couples DOFs (for example m z_g between sway and roll); inertia given about
+        the CG is moved to the origin by the parallel-axis theorem.
+        """
+        if not self.has_rigid_body:
+            raise ConfigError(f"{self.name}: rigid_body.mass and rigid_body.inertia are needed for M_RB; found "
+                              f"mass={self.mass}, inertia={self.inertia.tolist()}")
+        m = float(self.mass)
+        xg, yg, zg = (float(c) for c in self.cg)
+        ixx, iyy, izz = (float(i) for i in self.inertia)
+        # Full 6x6 M_RB with r_g = [xg, yg, zg]; products of inertia neglected.
+        m6 = np.array([
+            [m, 0, 0, 0, m * zg, -m * yg],
+            [0, m, 0, -m * zg, 0, m * xg],
+            [0, 0, m, m * yg, -m * xg, 0],
+            [0, -m * zg, m * yg, ixx + m * (yg**2 + zg**2), -m * xg * yg, -m * xg * zg],
+            [m * zg, 0, -m * xg, -m * xg * yg, iyy + m * (xg**2 + zg**2), -m * yg * zg],
+            [-m * yg, m * xg, 0, -m * xg * zg, -m * yg * zg, izz + m * (xg**2 + yg**2)],
+        ])
+        keep = [0, 1, 3, 4, 5]  # drop heave: u, v, p, q, r
+        return m6[np.ix_(keep, keep)]
+
+    def added_mass_matrix(self) -> np.ndarray:
+        """M_A, diagonal, DOF order u v p q r [SI] (zero where not given)."""
+        return np.diag([float(self.added_mass.get(DOF_NAMES[d], 0.0)) for d in DOFS])
+
+    def mass_matrix(self) -> np.ndarray:
+        """M = M_RB + M_A for DOFs u, v, p, q, r [SI]."""
+        return self.rigid_body_mass_matrix() + self.added_mass_matrix()
+
+    def effective_mass(self, dof: str) -> float:
+        """Diagonal M[i, i] for one DOF name (surge ... yaw) [kg or kg m^2].
+
+        This is the single-DOF inertia a first-order fit uses: T = M[i, i] / D[i, i].
+        """
+        i = DOFS.index(_velocity_of(dof))
+        return float(self.mass_matrix()[i, i])
+
+    def restoring_matrix(self) -> np.ndarray:
+        """G: diagonal restoring on (phi, theta) placed in DOF order u v p q r [SI]."""
+        g = np.zeros((5, 5))
+        g[2, 2] = float(self.restoring.get("roll", 0.0))
+        g[3, 3] = float(self.restoring.get("pitch", 0.0))
+        return g
+
+
+def _velocity_of(dof: str) -> str:
+    for vel, name in DOF_NAMES.items():
+        if name == dof or vel == dof:
+            return vel
+    raise ConfigError(f"unknown DOF {dof!r}; expected one of {list(DOF_NAMES.values())}")
+
+
+def _check_keys(where: str, found: Mapping[str, Any], allowed: set[str]) -> None:
+    unknown = sorted(set(found) - allowed)
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+
+
+def _vector(where: str, value: Any, n: int) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where}: expected {n} numbers, found {value!r}") from None
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise ConfigError(f"{where}: expected {n} finite numbers, found {value!r}")
+    return arr
+
+
+def _number(where: str, value: Any, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{where}: expected a finite number, found {value!r}")
+    if positive and value <= 0:
+        raise ConfigError(f"{where}: expected a positive number, found {value!r}")
+    return float(value)
+
+
+def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
+    """Build a :class:`Vessel` from a parsed TOML document.
+
+    Parameters
+    ----------
+    doc : Mapping
+        Parsed TOML.
+    path : str
+        Where it came from, for error messages.
+
+    Raises
+    ------
+    ConfigError
+        Unknown keys, wrong types, missing ``name``.
+    """
+    _check_keys(path, doc, _TOP_KEYS)
+    if not isinstance(doc.get("name"), str) or not doc["name"]:
+        raise ConfigError(f"{path}: expected a non-empty string 'name', found {doc.get('name')!r}")
+    for sec, allowed in _SECTION_KEYS.items():
+        if sec in doc:
+            if not isinstance(doc[sec], Mapping):
+                raise ConfigError(f"{path}: [{sec}] must be a table, found {type(doc[sec]).__name__}")
+            _check_keys(f"{path} [{sec}]", doc[sec], allowed)
+    kw: dict[str, Any] = {"name": doc["name"], "path": path}
+
+    rb = doc.get("rigid_body", {})
+    if "mass" in rb:
+        kw["mass"] = _number(f"{path} rigid_body.mass", rb["mass"], positive=True)
+    if "inertia" in rb:
+        inertia = _vector(f"{path} rigid_body.inertia", rb["inertia"], 3)
+        if np.any(inertia <= 0):
+            raise ConfigError(f"{path} rigid_body.inertia: expected positive Ixx, Iyy, Izz, found {rb['inertia']!r}")
+        kw["inertia"] = inertia
+    if "cg" in rb:
+        kw["cg"] = _vector(f"{path} rigid_body.cg", rb["cg"], 3)
+    if ("mass" in rb) != ("inertia" in rb):
+        raise ConfigError(f"{path} [rigid_body]: expected both mass and inertia, found only {sorted(rb)}")
+
+    kw["added_mass"] = {k: _number(f"{path} added_mass.{k}", v) for k, v in doc.get("added_mass", {}).items()}
+    for k, v in kw["added_mass"].items():
+        if v < 0:
+            raise ConfigError(f"{path} added_mass.{k}: expected a positive number (-X_udot style), found {v}")
+    kw["restoring"] = {k: _number(f"{path} restoring.{k}", v) for k, v in doc.get("restoring", {}).items()}
+
+    dmp = doc.get("damping", {})
+    if "matrix" in dmp and "diagonal" in dmp:
+        raise ConfigError(f"{path} [damping]: give either matrix or diagonal, found both")
+    if "matrix" in dmp:
+        mat = np.asarray(dmp["matrix"], dtype=float)
+        if mat.shape != (5, 5):
+            raise ConfigError(f"{path} damping.matrix: expected 5x5 (u v p q r), found shape {mat.shape}")
+        kw["damping"] = mat
+    elif "diagonal" in dmp:
+        kw["damping"] = np.diag(_vector(f"{path} damping.diagonal", dmp["diagonal"], 5))
+    if "quadratic" in dmp:
+        kw["quadratic_damping"] = _vector(f"{path} damping.quadratic", dmp["quadratic"], 5)
+
+    kw["nomoto"] = {k: _number(f"{path} nomoto.{k}", v, positive=(k == "T")) for k, v in doc.get("nomoto", {}).items()}
+    kw["rudder"] = {k: _number(f"{path} rudder.{k}", v) for k, v in doc.get("rudder", {}).items()}
+
+    acts = []
+    for i, a in enumerate(doc.get("actuators", [])):
+        where = f"{path} actuators[{i}]"
+        if not isinstance(a, Mapping):
+            raise ConfigError(f"{where}: expected a table, found {a!r}")
+        _check_keys(where, a, _ACTUATOR_KEYS)
+        for req in ("source", "channel", "target"):
+            if req not in a:
+                raise ConfigError(f"{where}: missing key {req!r}; expected source, channel, target")
+        if a["source"] not in ("servo", "rc"):
+            raise ConfigError(f"{where}.source: expected 'servo' or 'rc', found {a['source']!r}")
+        if a["target"] not in INPUT_UNITS:
+            raise ConfigError(f"{where}.target: expected one of {sorted(INPUT_UNITS)}, found {a['target']!r}")
+        fs = _number(f"{where}.full_scale", a.get("full_scale", 1.0))
+        acts.append(ActuatorMap(source=a["source"], channel=int(a["channel"]), target=a["target"],
+                                pwm_trim=_number(f"{where}.pwm_trim", a.get("pwm_trim", 1500.0)),
+                                pwm_span=_number(f"{where}.pwm_span", a.get("pwm_span", 400.0), positive=True),
+                                full_scale=fs,
+                                reverse_scale=_number(f"{where}.reverse_scale", a.get("reverse_scale", fs))))
+    kw["actuators"] = tuple(acts)
+    kw["extra"] = {k: doc[k] for k in ("thrusters", "topics", "sensors") if k in doc}
+    return Vessel(**kw)
+
+
+def load_vessel(path: str | Path) -> Vessel:
+    """Read a vessel TOML file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+
+    Raises
+    ------
+    ConfigError
+        Missing file, invalid TOML, or invalid content.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"vessel config: expected a TOML file, found no file at {p}")
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: expected valid TOML, found a parse error: {exc}") from None
+    return parse_vessel(doc, str(p))
