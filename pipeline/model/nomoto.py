@@ -5,7 +5,8 @@
 
 so that psi/delta = K / (s (T s + 1)) with positive rudder giving positive yaw rate. ``b`` is a
 rudder bias [rad]: the rudder angle that cancels a constant yaw disturbance (current, wind,
-thrust asymmetry), as in the ship-autopilot seed's Kalman model.
+thrust asymmetry), as in the ship-autopilot seed's Kalman model. An optional ``|r| r`` term gives
+the nonlinear (Norrbin-type) yaw damping the simulator can switch on.
 """
 
 from __future__ import annotations
@@ -30,11 +31,15 @@ class NomotoParams:
         Time constant [s].
     b : float
         Rudder bias [rad].
+    d2 : float
+        Quadratic yaw damping [s/rad]: adds ``-d2 |r| r`` to the numerator (zero for the
+        linear Nomoto model; used by the simulator's nonlinear-damping effect).
     """
 
     K: float
     T: float
     b: float = 0.0
+    d2: float = 0.0
 
 
 def nomoto_rhs(t, x, u, params: NomotoParams):
@@ -58,4 +63,4 @@ def nomoto_rhs(t, x, u, params: NomotoParams):
     """
     o = ops(x)
     r = x[1]
-    return o.stack([r, (-r + params.K * (u[0] - params.b)) / params.T])
+    return o.stack([r, (-r - params.d2 * o.fabs(r) * r + params.K * (u[0] - params.b)) / params.T])

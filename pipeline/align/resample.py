@@ -1,0 +1,52 @@
+"""Put raw channels on one uniform clock: interpolation, input hold, gap detection."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..records import ANGLE_CHANNELS, INPUT_UNITS, Channel, Gap
+
+
+def _base(name: str) -> str:
+    return name.split("@", 1)[0]
+
+
+def find_gaps(channel: Channel, threshold: float | None = None) -> tuple[Gap, ...]:
+    """Dropouts in a channel: intervals longer than ``threshold`` [s].
+
+    The default threshold is five nominal sample intervals (the median spacing) or 0.5 s,
+    whichever is larger, so jitter is not a gap but a lost second of GPS is.
+    """
+    dt = np.diff(channel.t)
+    if len(dt) == 0:
+        return ()
+    limit = threshold if threshold is not None else max(5 * float(np.median(dt)), 0.5)
+    idx = np.flatnonzero(dt > limit)
+    return tuple(Gap(channel.name, float(channel.t[i]), float(channel.t[i + 1])) for i in idx)
+
+
+def resample_channel(channel: Channel, grid: np.ndarray, gaps: tuple[Gap, ...]) -> np.ndarray:
+    """Channel values on ``grid`` [s]; NaN outside its span and inside its gaps.
+
+    States are interpolated linearly (angles after unwrapping, then wrapped back to (-pi, pi]);
+    inputs are held from the last command (zero-order hold), because an actuator command is
+    piecewise constant and linear interpolation would smear every step into a ramp.
+    """
+    t, v = channel.t, channel.values
+    base = _base(channel.name)
+    if len(t) == 0:
+        return np.full(len(grid), np.nan)
+    if base in INPUT_UNITS:
+        idx = np.searchsorted(t, grid + 1e-9, side="right") - 1
+        out = np.where(idx >= 0, v[np.clip(idx, 0, len(v) - 1)], np.nan)
+        out[grid > t[-1] + 1e-9] = np.nan
+    else:
+        if base in ANGLE_CHANNELS:
+            out = np.interp(grid, t, np.unwrap(v))
+            out = np.pi - np.mod(np.pi - out, 2 * np.pi)
+        else:
+            out = np.interp(grid, t, v)
+        out[(grid < t[0] - 1e-9) | (grid > t[-1] + 1e-9)] = np.nan
+    for g in gaps:
+        out[(grid > g.t_start) & (grid < g.t_end)] = np.nan
+    return out

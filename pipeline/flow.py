@@ -1,0 +1,70 @@
+"""The flow, stage by stage: each function starts from the record of the stage before it.
+
+``read_logs`` -> ``align`` -> ``segment_trial`` -> ``fit_trial`` -> ``write_report`` (+ autopilot,
+diagnosis). The CLI and ``vesselid run`` are thin layers over these functions, so a script can
+start at any stage (a re-fit never re-parses logs when it keeps the Trial).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from .align import align
+from .atomic import atomic_path
+from .errors import SegmentError
+from .ingest import read_log
+from .records import RawLog, Segment, Segments, Trial
+from .segment import apply_manifest_segments, detect_segments
+from .vessel import Vessel
+
+
+def show_progress() -> bool:
+    """Progress bars on an interactive terminal only; quiet under CI and when piped."""
+    return sys.stderr.isatty() and not os.environ.get("CI")
+
+
+def read_logs(paths: Sequence[str | Path], vessel: Vessel | None = None,
+              columns: Mapping[str, str] | None = None, units: Mapping[str, str] | None = None) -> list[RawLog]:
+    """Read every log file (ingest stage)."""
+    return [read_log(p, vessel=vessel, columns=columns, units=units) for p in paths]
+
+
+def load_trial(paths: Sequence[str | Path], vessel: Vessel | None = None, name: str | None = None,
+               fs: float | None = None, columns: Mapping[str, str] | None = None,
+               units: Mapping[str, str] | None = None) -> Trial:
+    """Ingest and align log files into one Trial."""
+    logs = read_logs(paths, vessel, columns, units)
+    return align(logs, name=name or Path(paths[0]).stem, fs=fs)
+
+
+def segment_trial(trial: Trial, manual: Sequence[Mapping[str, Any]] = (), mode: str = "replace") -> Segments:
+    """Detect segments, then apply hand-named ones from a manifest."""
+    return apply_manifest_segments(trial, detect_segments(trial), manual, mode)
+
+
+def segments_to_json(segments: Segments) -> dict:
+    """Segments as a JSON-ready dict (the ``segments.json`` a later ``fit --segments`` reads)."""
+    return {"trial": segments.trial, "segments": [asdict(s) for s in segments.items]}
+
+
+def segments_from_json(path: str | Path) -> Segments:
+    """Read ``segments.json`` written by :func:`segments_to_json`."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+        items = tuple(Segment(**s) for s in doc["segments"])
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise SegmentError(f"{p}: expected a segments JSON {{'trial', 'segments': [...]}}, found: {exc}") from None
+    return Segments(str(doc.get("trial", p.stem)), items)
+
+
+def write_json(obj: Any, path: str | Path) -> Path:
+    """Write JSON atomically (strict: NaN is not allowed, callers turn it into null)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(obj, indent=2, allow_nan=False) + "\n")
+    return Path(path)

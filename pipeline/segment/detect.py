@@ -1,0 +1,245 @@
+"""Detect coast-downs, steps, rudder steps, zig-zags, sinusoids and free decays in a Trial.
+
+Input-driven segments start at a command change and end at the next change of any input, a
+dropout, or once the response has settled (about five time constants later, estimated from the
+data). Free decays in roll and pitch are found in the attitude itself: a sudden large angle,
+released with no input, oscillating down. Each segment carries a quality score in [0, 1] built
+from the response's signal-to-noise ratio and its length in time constants.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..records import DOF_CHANNELS, INPUT_UNITS, Segment, Segments, Trial
+from .inputs import Level, split_levels
+
+#: Input channel -> (DOF, response channel) for input-driven segments.
+INPUT_DOF = {
+    "tau_x": ("surge", "u"), "tau_y": ("sway", "v"), "tau_n": ("yaw", "r"),
+    "tau_k": ("roll", "p"), "tau_m": ("pitch", "q"), "delta": ("yaw", "r"),
+}
+#: Attitude channel -> DOF for free decays.
+DECAY_DOF = {"phi": "roll", "theta": "pitch"}
+
+
+def noise_std(y: np.ndarray) -> float:
+    """Robust white-noise level of a signal [unit of y]: MAD of first differences / (0.6745 sqrt 2)."""
+    d = np.diff(y[np.isfinite(y)])
+    if len(d) < 3:
+        return np.nan
+    return float(np.median(np.abs(d - np.median(d))) / 0.6745 / np.sqrt(2))
+
+
+def _settle_index(y: np.ndarray, fs: float, noise: float) -> tuple[int, float]:
+    """Index at which a first-order-like response is within 2% of its final change, and T [s].
+
+    The final value is the median of the last fifth; T is the time to 63% of the change.
+    """
+    n = len(y)
+    if n < 5:
+        return n, np.nan
+    final = float(np.nanmedian(y[-max(n // 5, 2):]))
+    start = float(np.nanmedian(y[: max(int(0.02 * fs), 1)]))
+    change = final - start
+    if not np.isfinite(change) or abs(change) < 3 * max(noise, 1e-12):
+        return n, np.nan
+    frac = (y - start) / change
+    # Smooth over ~0.1 s so noise does not trigger the thresholds early.
+    w = max(int(0.1 * fs), 1)
+    frac = np.convolve(np.nan_to_num(frac), np.ones(w) / w, mode="same")
+    i63 = int(np.argmax(frac >= 0.632)) if np.any(frac >= 0.632) else n
+    return n, (i63 / fs if i63 < n else np.nan)
+
+
+def _quality(snr: float, length_in_t: float) -> float:
+    """Quality in [0, 1]: saturating in SNR (good above ~50) and in length (good above ~4 T)."""
+    if not np.isfinite(snr) or not np.isfinite(length_in_t):
+        return 0.0
+    return float(np.clip(1 - np.exp(-snr / 20), 0, 1) * np.clip(1 - np.exp(-length_in_t / 2), 0, 1))
+
+
+def _gap_cut(trial: Trial, t_start: float, t_end: float, channel: str) -> float:
+    for g in trial.gaps:
+        if g.t_start >= t_start and g.t_start < t_end:
+            t_end = g.t_start
+    return t_end
+
+
+def _input_segments(trial: Trial) -> list[Segment]:
+    t = trial.t
+    fs = trial.fs
+    inputs = [c for c in trial.data.columns if c in INPUT_UNITS and trial.has(c)]
+    # All change instants of every input: a segment ends at the next change of any input.
+    changes: list[float] = []
+    per_input: dict[str, tuple[list[Level], list]] = {}
+    for ch in inputs:
+        levels, varying = split_levels(trial.data[ch].to_numpy(), fs)
+        per_input[ch] = (levels, varying)
+        changes += [t[lv.i_start] for lv in levels] + [t[v.i_start] for v in varying]
+    changes = sorted(set(changes))
+    segs: list[Segment] = []
+    for ch in inputs:
+        if ch not in INPUT_DOF:
+            continue
+        dof, resp = INPUT_DOF[ch]
+        if not trial.has(resp):
+            continue
+        levels, varying = per_input[ch]
+        zig_idx = _zigzag_runs(levels) if ch == "delta" else []
+        in_zig = {i for run in zig_idx for i in run}
+        for run in zig_idx:
+            a, b = levels[run[0]], levels[run[-1]]
+            segs.append(Segment("zigzag", dof, float(t[a.i_start]), float(t[b.i_end - 1]), ch,
+                                levels[run[0] - 1].value if run[0] > 0 else 0.0, a.value,
+                                quality=1.0, label=f"{len(run)} rudder reversals"))
+        for v in varying:
+            seg = _sinusoid(trial, ch, dof, v.i_start, v.i_end)
+            if seg is not None:
+                segs.append(seg)
+        for k, lv in enumerate(levels):
+            if k == 0 or k in in_zig:
+                continue
+            prev = levels[k - 1]
+            if prev.i_end != lv.i_start:
+                continue  # a varying stretch or missing data came between: not a clean step
+            t0 = float(t[lv.i_start])
+            later = [c for c in changes if c > t0 + 0.5 / fs]
+            t_end = min(later[0] if later else float(t[-1]), float(t[lv.i_end - 1]))
+            t_end = _gap_cut(trial, t0, t_end, resp)
+            window = trial.window(t0, t_end)
+            y = window[resp].to_numpy()
+            noise = noise_std(y)
+            _, tau = _settle_index(y, fs, noise)
+            if np.isfinite(tau):
+                t_end = min(t_end, t0 + 8 * tau)
+            if t_end - t0 < 5 / fs:
+                continue
+            if ch == "delta":
+                kind = "rudder_step"
+            elif abs(lv.value) <= 0.05 * max(abs(prev.value), 1e-12):
+                kind = "coast_down"
+            else:
+                kind = "step"
+            y = trial.window(t0, t_end)[resp].to_numpy()
+            snr = abs(np.nanmedian(y[-max(len(y) // 10, 2):]) - np.nanmedian(y[:3])) / max(noise, 1e-12)
+            if kind == "coast_down":
+                snr = abs(np.nanmedian(y[:3])) / max(noise, 1e-12)
+            q = _quality(snr, (t_end - t0) / tau if np.isfinite(tau) else np.nan)
+            segs.append(Segment(kind, dof, t0, float(t_end), ch, prev.value, lv.value, quality=q,
+                                label=f"T~{tau:.2f} s, SNR {snr:.0f}" if np.isfinite(tau) else f"SNR {snr:.0f}"))
+    return segs
+
+
+def _zigzag_runs(levels: list[Level]) -> list[list[int]]:
+    """Runs of at least 3 consecutive rudder levels alternating +a, -a (same magnitude)."""
+    runs: list[list[int]] = []
+    cur: list[int] = []
+    for k, lv in enumerate(levels):
+        if lv.value == 0:
+            if len(cur) >= 3:
+                runs.append(cur)
+            cur = []
+            continue
+        if cur:
+            p = levels[cur[-1]]
+            if p.i_end == lv.i_start and np.sign(p.value) == -np.sign(lv.value) and \
+                    abs(abs(p.value) - abs(lv.value)) <= 0.05 * abs(lv.value):
+                cur.append(k)
+                continue
+            if len(cur) >= 3:
+                runs.append(cur)
+        cur = [k]
+    if len(cur) >= 3:
+        runs.append(cur)
+    return runs
+
+
+def _sinusoid(trial: Trial, ch: str, dof: str, i0: int, i1: int) -> Segment | None:
+    u = trial.data[ch].to_numpy()[i0:i1]
+    if len(u) < 8:
+        return None
+    spec = np.abs(np.fft.rfft(u - u.mean()))
+    freqs = np.fft.rfftfreq(len(u), 1 / trial.fs)
+    k = int(np.argmax(spec[1:]) + 1)
+    periods = freqs[k] * len(u) / trial.fs
+    if periods < 1.0:
+        return None
+    t = trial.t
+    return Segment("sinusoid", dof, float(t[i0]), float(t[i1 - 1]), ch, 0.0, float(np.ptp(u) / 2),
+                   quality=float(np.clip(periods / 3, 0, 1)),
+                   label=f"omega {2 * np.pi * freqs[k]:.4g} rad/s, {periods:.1f} periods")
+
+
+def _decay_segments(trial: Trial, busy: list[tuple[float, float]]) -> list[Segment]:
+    """Roll and pitch free decays: large releases from an angle, oscillating out with no input."""
+    segs = []
+    t = trial.t
+    fs = trial.fs
+    for ang, dof in DECAY_DOF.items():
+        if not trial.has(ang):
+            continue
+        y = trial.data[ang].to_numpy()
+        noise = noise_std(y)
+        base = float(np.nanmedian(y))
+        dev = np.abs(np.nan_to_num(y - base))
+        thresh = max(20 * noise, np.radians(1.0))
+        i = 0
+        n = len(y)
+        while i < n:
+            hits = np.flatnonzero(dev[i:] > thresh)
+            if len(hits) == 0:
+                break
+            j = i + int(hits[0])
+            # The release is the largest excursion within the next half second.
+            win = slice(j, min(j + int(0.5 * fs) + 1, n))
+            k0 = j + int(np.argmax(dev[win]))
+            # Decay ends when the deviation stays below the threshold for a second.
+            below = dev[k0:] < max(3 * noise, 0.05 * dev[k0])
+            run = np.convolve(below.astype(int), np.ones(int(fs)), mode="valid") if len(below) >= fs else np.array([])
+            done = np.flatnonzero(run >= int(fs))
+            k1 = k0 + (int(done[0]) if len(done) else len(below) - 1)
+            t0, t1 = float(t[k0]), float(t[min(k1, n - 1)])
+            t1 = _gap_cut(trial, t0, t1, ang)
+            seg_y = y[k0:min(k1, n - 1) + 1] - base
+            crossings = int(np.sum(np.diff(np.sign(seg_y)) != 0))
+            overlaps_input = any(a < t1 and t0 < b for a, b in busy)
+            if crossings >= 2 and t1 - t0 > 10 / fs and not overlaps_input:
+                snr = dev[k0] / max(noise, 1e-12)
+                segs.append(Segment("free_decay", dof, t0, t1, None, 0.0, 0.0,
+                                    quality=_quality(snr, crossings / 2),
+                                    label=f"from {np.degrees(y[k0]):.1f} deg, {crossings} zero crossings"))
+            i = max(k1, k0 + 1) + 1
+    return segs
+
+
+def detect_segments(trial: Trial) -> Segments:
+    """Detect every segment kind in ``trial``.
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial.
+
+    Returns
+    -------
+    Segments
+        In time order, ``origin='detected'``.
+    """
+    segs = _input_segments(trial)
+    # Roll/pitch excursions during input-driven manoeuvres are forced responses, not free decays.
+    busy = [(s.t_start, s.t_end) for s in segs if s.kind in ("step", "zigzag", "sinusoid")
+            and s.dof in ("roll", "pitch")]
+    segs += _decay_segments(trial, busy)
+    segs.sort(key=lambda s: (s.t_start, s.dof))
+    return Segments(trial.name, tuple(segs))
+
+
+def segment_table(segments: Segments) -> str:
+    """Plain-text table of segments for the terminal."""
+    head = f"{'#':>3} {'kind':<12} {'dof':<6} {'start [s]':>10} {'end [s]':>10} {'input':<6} {'level':>10} {'quality':>7} {'origin':<9} label"
+    rows = [head, "-" * len(head)]
+    for i, s in enumerate(segments.items):
+        rows.append(f"{i:>3} {s.kind:<12} {s.dof:<6} {s.t_start:>10.2f} {s.t_end:>10.2f} {s.input_channel or '-':<6} "
+                    f"{s.input_after:>10.4g} {s.quality:>7.2f} {s.origin:<9} {s.label}")
+    return "\n".join(rows)

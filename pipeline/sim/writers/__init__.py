@@ -1,0 +1,1 @@
+"""Log writers: the simulator writes every format the ingest stage reads."""
