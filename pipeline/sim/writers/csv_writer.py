@@ -43,15 +43,17 @@ def write_csv_log(log: RawLog, path: str | Path, time_resolution: float = 1e-6) 
         col = np.full(len(all_ticks), np.nan)
         col[np.searchsorted(all_ticks, ticks[n])] = log.channels[n].values
         frame[n] = col
-    # lat/lon need ~1e-8 deg (1 mm); everything else is well served by 8 significant digits.
+    # lat/lon need ~1e-8 deg (1 mm) and time 1 us; 7 significant digits are far below the
+    # noise of every other channel.
     fmt = {n: "{:.9f}".format for n in names if n.split("@")[0] in ("lat", "lon")}
+    fmt["t"] = "{:.6f}".format
     with atomic_path(path) as tmp:
         with open(tmp, "w", newline="") as fh:
             fh.write(",".join(frame.columns) + "\n")
             cols = []
             for c in frame.columns:
                 v = frame[c].to_numpy()
-                f = fmt.get(c, "{:.8g}".format)
+                f = fmt.get(c, "{:.7g}".format)
                 cols.append(np.array(["" if not np.isfinite(x) else f(x) for x in v], dtype=object))
             for row in zip(*cols):
                 fh.write(",".join(row) + "\n")

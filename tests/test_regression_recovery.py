@@ -1,0 +1,78 @@
+"""The lab's regression suite: simulate the sample vessel, write real log files, read them back
+through the readers a user's file would take, run the real pipeline, and recover the truth.
+
+Truth is the simulator's own configuration (vessel_configs/aauship.toml): D diagonal and the
+rudder's yaw moment, so Nomoto K = yaw_moment / D_r and T = Izz / D_r.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.fit import fit_trial
+from pipeline.flow import load_trial, segment_trial
+from pipeline.sim import sea_trial, simulate
+from pipeline.sim.sensors import default_sensors
+from pipeline.sim.writers import write_log
+from pipeline.vessel import load_vessel
+
+ROOT = Path(__file__).resolve().parents[1]
+VESSEL = load_vessel(ROOT / "vessel_configs" / "aauship.toml")
+D = np.diag(VESSEL.damping)
+TRUTH = {
+    "X_u": -D[0], "Y_v": -D[1], "K_p": -D[2], "M_q": -D[3], "N_r": -D[4],
+    "K_nomoto": VESSEL.rudder["yaw_moment"] / D[4],
+    "T_nomoto": VESSEL.inertia[2] / D[4],
+}
+SCHEDULE = sea_trial(VESSEL)
+
+CASES = [("csv", level, seed) for level in ("low", "nominal", "high") for seed in (11, 12, 13)]
+CASES += [("tlog", level, 21) for level in ("low", "nominal", "high")]
+
+
+@pytest.fixture(scope="module")
+def recovered(tmp_path_factory):
+    """Fits for every (format, noise level, seed) case, run through real files."""
+    out = {}
+    folder = tmp_path_factory.mktemp("regression")
+    for fmt, level, seed in CASES:
+        res = simulate(VESSEL, SCHEDULE, sensors=default_sensors(level), seed=seed)
+        path = write_log(res.log, folder / f"trial_{level}_{seed}.{fmt}", vessel=VESSEL)
+        trial = load_trial([path], VESSEL)
+        segments = segment_trial(trial)
+        out[(fmt, level, seed)] = fit_trial(trial, segments, VESSEL)
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", CASES, ids=lambda c: f"{c[0]}-{c[1]}-{c[2]}")
+@pytest.mark.parametrize("name", sorted(TRUTH))
+def test_recovers_truth_within_three_sigma(recovered, case, name):
+    est = recovered[case].estimates[name]
+    assert est.success, f"{name} not identified: {est.message}"
+    err = est.value - TRUTH[name]
+    assert abs(err) < 3 * est.stderr, (f"{name}: {est.value:.5g} +- {est.stderr:.2g}, truth {TRUTH[name]:.5g}, "
+                                       f"error {err / est.stderr:.1f} sigma ({est.method})")
+    lo, hi = est.ci95
+    assert lo <= est.value <= hi
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", [c for c in CASES if c[1] in ("low", "nominal")], ids=lambda c: f"{c[0]}-{c[1]}-{c[2]}")
+@pytest.mark.parametrize("name", sorted(TRUTH))
+def test_within_two_percent_at_nominal_noise(recovered, case, name):
+    est = recovered[case].estimates[name]
+    rel = abs(est.value / TRUTH[name] - 1)
+    assert rel < 0.02, f"{name}: {est.value:.5g} vs truth {TRUTH[name]:.5g} ({100 * rel:.2f}%)"
+
+
+@pytest.mark.slow
+def test_damping_matrix_holds_identified_diagonal(recovered):
+    fits = recovered[("csv", "nominal", 11)]
+    dm = fits.damping_matrix
+    assert dm.shape == (5, 5)
+    np.testing.assert_allclose(np.diag(dm), D, rtol=0.02)
+    assert np.all(np.diag(dm) > 0), "D holds positive damping (Fossen sign convention)"
