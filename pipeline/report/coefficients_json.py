@@ -1,0 +1,319 @@
+"""``coefficients.json``: the identified coefficients as a contract other stages and scripts read.
+
+Structure (every number in SI; ``null`` wherever a value is not identified, never ``NaN``)::
+
+    {"vessel": str, "convention": str,
+     "damping_matrix": {"dofs": ["u", "v", "p", "q", "r"],
+                        "values": 5x5 number|null,     # D, positive diagonal
+                        "stderr": 5x5 number|null},
+     "coefficients": {"X_u": {"value", "stderr", "ci95": [lo, hi], "unit", "n_segments",
+                              "method", "success", "message", "consistency_p"},
+                      ...,                             # all of DERIVATIVES, then
+                      "K_nomoto": {...}, "T_nomoto": {...},
+                      ...}}                            # any further coefficients the fit returned
+
+Derivatives carry Fossen's signs (``X_u = -D[0, 0] < 0``). A coefficient whose fit did not succeed
+has ``value``, ``stderr`` and both ``ci95`` bounds ``null``, ``success`` false and the reason in
+``message``. New keys may be added in later versions; existing ones keep their meaning.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import ReportError
+from ..records import DOFS, Estimate, Fits
+from ._common import (STANDARD_COEFFICIENTS, MISSING_NOTE, check_fits, checked_matrices,
+                      default_unit, estimate_notes, finite, is_identified, ordered_names)
+from .atomic import atomic_write_text
+
+#: Keys of one coefficient entry, in the order written.
+COEFFICIENT_KEYS: tuple[str, ...] = ("value", "stderr", "ci95", "unit", "n_segments", "method",
+                                     "success", "message", "consistency_p")
+#: Top-level keys.
+TOP_KEYS: tuple[str, ...] = ("vessel", "convention", "damping_matrix", "coefficients")
+#: Keys of ``damping_matrix``.
+DAMPING_KEYS: tuple[str, ...] = ("dofs", "values", "stderr")
+
+
+def _num(x) -> float | None:
+    """Float for JSON, None for NaN/inf (JSON has no NaN)."""
+    return float(x) if finite(x) else None
+
+
+def _matrix(a: np.ndarray) -> list[list[float | None]]:
+    return [[_num(x) for x in row] for row in a]
+
+
+def estimate_to_dict(est: Estimate | None, name: str = "") -> dict[str, Any]:
+    """One coefficient entry of the contract.
+
+    Parameters
+    ----------
+    est : Estimate or None
+        The estimate; None gives an entry that says the fit stage returned nothing.
+    name : str
+        Coefficient name, for the default unit of a missing estimate.
+
+    Returns
+    -------
+    dict
+        Keys ``COEFFICIENT_KEYS``; numbers are floats or None.
+    """
+    if est is None:
+        return {"value": None, "stderr": None, "ci95": [None, None], "unit": default_unit(name),
+                "n_segments": 0, "method": "", "success": False, "message": MISSING_NOTE,
+                "consistency_p": None}
+    ident = is_identified(est)
+    message = (est.message or "").strip()
+    if not ident:
+        # The reason, with any value the fit itself rejected moved into the text, so a script that
+        # forgets to check "success" cannot pick that value up.
+        message = estimate_notes(est)[0]
+    ci = tuple(est.ci95) if est.ci95 is not None else (math.nan, math.nan)
+    if len(ci) != 2:
+        raise ReportError(f"Estimate {est.name or name!r}: ci95 expected 2 bounds, found {len(ci)}")
+    return {
+        "value": _num(est.value) if ident else None,
+        "stderr": _num(est.stderr) if ident else None,
+        "ci95": [_num(ci[0]) if ident else None, _num(ci[1]) if ident else None],
+        "unit": est.unit or default_unit(name),
+        "n_segments": int(est.n_segments),
+        "method": est.method or "",
+        "success": bool(est.success) and ident,
+        "message": message,
+        "consistency_p": _num(est.consistency_p),
+    }
+
+
+def fits_to_dict(fits: Fits) -> dict[str, Any]:
+    """The ``coefficients.json`` contract for ``fits`` (module docstring), as plain Python.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results; not modified.
+
+    Returns
+    -------
+    dict
+        JSON-serialisable with ``allow_nan=False``.
+
+    Raises
+    ------
+    ReportError
+        When ``fits`` is malformed (damping matrix not 5x5, estimates not Estimate records).
+    """
+    check_fits(fits)
+    D, D_se = checked_matrices(fits)
+    return {
+        "vessel": str(fits.vessel),
+        "convention": str(fits.convention),
+        "damping_matrix": {"dofs": list(DOFS), "values": _matrix(D), "stderr": _matrix(D_se)},
+        "coefficients": {name: estimate_to_dict(fits.estimates.get(name), name)
+                         for name in ordered_names(fits.estimates)},
+    }
+
+
+def dumps(fits: Fits) -> str:
+    """``coefficients.json`` text for ``fits``.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
+
+    Returns
+    -------
+    str
+        Strict JSON (no NaN tokens), two-space indent, final newline.
+    """
+    return _pretty(fits_to_dict(fits)) + "\n"
+
+
+def _pretty(obj, level: int = 0) -> str:
+    """Indented JSON with flat lists on one line, so each matrix row reads as a row."""
+    pad, inner = "  " * level, "  " * (level + 1)
+    if isinstance(obj, dict) and obj:
+        items = [f"{inner}{json.dumps(str(k))}: {_pretty(v, level + 1)}" for k, v in obj.items()]
+        return "{\n" + ",\n".join(items) + f"\n{pad}}}"
+    if isinstance(obj, list) and any(isinstance(x, (dict, list)) for x in obj):
+        return "[\n" + ",\n".join(inner + _pretty(x, level + 1) for x in obj) + f"\n{pad}]"
+    # allow_nan=False: a NaN that slipped past _num fails here instead of writing invalid JSON.
+    return json.dumps(obj, allow_nan=False)
+
+
+def write_coefficients_json(fits: Fits, path: str | os.PathLike) -> Path:
+    """Write ``coefficients.json`` atomically.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
+    path : str or os.PathLike
+        Destination file.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
+    return atomic_write_text(path, dumps(fits))
+
+
+# --------------------------------------------------------------------------- reading back
+def _reject_constant(token: str):
+    raise ValueError(f"{token} is not valid JSON; expected null for a missing number")
+
+
+def _type_name(x) -> str:
+    return "null" if x is None else type(x).__name__
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _expect(cond: bool, where: str, expected: str, found) -> None:
+    if not cond:
+        shown = repr(found)
+        if len(shown) > 60:
+            shown = shown[:57] + "..."
+        raise ReportError(f"{where}: expected {expected}, found {_type_name(found)} {shown}")
+
+
+def _check_matrix(m, where: str) -> None:
+    n = len(DOFS)
+    _expect(isinstance(m, list) and len(m) == n, where, f"a list of {n} rows", m)
+    for i, row in enumerate(m):
+        _expect(isinstance(row, list) and len(row) == n, f"{where}[{i}]", f"a list of {n} numbers or null", row)
+        for j, x in enumerate(row):
+            _expect(x is None or _is_number(x), f"{where}[{i}][{j}]", "a number or null", x)
+
+
+def validate_coefficients(data: Any, source: str = "coefficients.json") -> None:
+    """Check that ``data`` follows the ``coefficients.json`` contract (module docstring).
+
+    Extra keys are allowed (later versions may add some); missing keys and wrong types are not.
+
+    Parameters
+    ----------
+    data : Any
+        Parsed JSON.
+    source : str
+        File name used in error messages.
+
+    Raises
+    ------
+    ReportError
+        Naming the first key whose value is missing or of the wrong type, what was expected and
+        what was found.
+    """
+    _expect(isinstance(data, dict), source, "a JSON object at top level", data)
+    for key in TOP_KEYS:
+        if key not in data:
+            raise ReportError(f"{source}: missing key {key!r}; expected keys {list(TOP_KEYS)}, "
+                              f"found {sorted(data)}")
+    _expect(isinstance(data["vessel"], str), f"{source}: vessel", "a string", data["vessel"])
+    _expect(isinstance(data["convention"], str), f"{source}: convention", "a string", data["convention"])
+    dm = data["damping_matrix"]
+    _expect(isinstance(dm, dict), f"{source}: damping_matrix", "an object", dm)
+    for key in DAMPING_KEYS:
+        if key not in dm:
+            raise ReportError(f"{source}: damping_matrix: missing key {key!r}; expected keys "
+                              f"{list(DAMPING_KEYS)}, found {sorted(dm)}")
+    _expect(dm["dofs"] == list(DOFS), f"{source}: damping_matrix.dofs", f"{list(DOFS)}", dm["dofs"])
+    _check_matrix(dm["values"], f"{source}: damping_matrix.values")
+    _check_matrix(dm["stderr"], f"{source}: damping_matrix.stderr")
+    coefs = data["coefficients"]
+    _expect(isinstance(coefs, dict), f"{source}: coefficients", "an object name -> entry", coefs)
+    missing = [n for n in STANDARD_COEFFICIENTS if n not in coefs]
+    if missing:
+        raise ReportError(f"{source}: coefficients: missing {missing}; expected at least "
+                          f"{list(STANDARD_COEFFICIENTS)}")
+    for name, entry in coefs.items():
+        where = f"{source}: coefficients.{name}"
+        _expect(isinstance(entry, dict), where, "an object", entry)
+        absent = [k for k in COEFFICIENT_KEYS if k not in entry]
+        if absent:
+            raise ReportError(f"{where}: missing keys {absent}; expected {list(COEFFICIENT_KEYS)}, "
+                              f"found {sorted(entry)}")
+        for key in ("value", "stderr", "consistency_p"):
+            _expect(entry[key] is None or _is_number(entry[key]), f"{where}.{key}", "a number or null",
+                    entry[key])
+        ci = entry["ci95"]
+        _expect(isinstance(ci, list) and len(ci) == 2 and all(x is None or _is_number(x) for x in ci),
+                f"{where}.ci95", "[lo, hi] with numbers or null", ci)
+        for key in ("unit", "method", "message"):
+            _expect(isinstance(entry[key], str), f"{where}.{key}", "a string", entry[key])
+        n = entry["n_segments"]
+        _expect(isinstance(n, int) and not isinstance(n, bool) and n >= 0, f"{where}.n_segments",
+                "an integer >= 0", n)
+        _expect(isinstance(entry["success"], bool), f"{where}.success", "true or false", entry["success"])
+        if entry["success"]:
+            _expect(entry["value"] is not None, f"{where}.value", "a number when success is true",
+                    entry["value"])
+
+
+def load_coefficients(path: str | os.PathLike) -> dict[str, Any]:
+    """Read and validate a ``coefficients.json`` written by :func:`write_coefficients_json`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    dict
+        The parsed contract (module docstring); missing numbers are None.
+
+    Raises
+    ------
+    ReportError
+        When the file is missing, is not strict JSON (``NaN`` tokens included) or does not follow
+        the contract; the message names what was expected and what was found.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ReportError(f"{path}: no such file; expected a coefficients.json from 'vesselid report'") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ReportError(f"{path}: cannot read: {exc}") from exc
+    if not text.strip():
+        raise ReportError(f"{path}: empty file; expected a JSON object")
+    try:
+        data = json.loads(text, parse_constant=_reject_constant)
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{path}: not valid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from exc
+    except ValueError as exc:
+        raise ReportError(f"{path}: {exc}") from exc
+    validate_coefficients(data, source=str(path))
+    return data
+
+
+def damping_from_dict(data: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """D and its standard errors from a loaded contract, NaN where ``null``.
+
+    Parameters
+    ----------
+    data : Mapping
+        The dict :func:`load_coefficients` returns.
+
+    Returns
+    -------
+    D, D_stderr : numpy.ndarray, shape (5, 5)
+        Damping matrix (positive diagonal) [SI, see :func:`~pipeline.report._common.damping_unit`]
+        in DOF order u, v, p, q, r, and its standard errors.
+    """
+    dm = data["damping_matrix"]
+    conv = [[math.nan if x is None else float(x) for x in row] for row in dm["values"]]
+    conv_se = [[math.nan if x is None else float(x) for x in row] for row in dm["stderr"]]
+    return np.array(conv, dtype=float), np.array(conv_se, dtype=float)

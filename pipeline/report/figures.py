@@ -1,0 +1,315 @@
+"""Report figures: one per segment fit (data, fit, residual) and a trial overview.
+
+Figures are built on :class:`matplotlib.figure.Figure` with the Agg canvas directly, not through
+``pyplot``: no global figure registry or backend switch, so the report can run next to other code
+(an interactive session, another thread) without closing or stealing its figures. Angles are
+radians inside the pipeline and are converted to degrees here, for display only; every label that
+was converted says so.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import re
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+from matplotlib.transforms import blended_transform_factory
+
+from ..errors import ReportError
+from ..records import CHANNEL_UNITS, INPUT_UNITS, SEGMENT_KINDS, Segment, SegmentFit, Trial
+from ._common import finite, format_number, format_uncertain
+from .atomic import atomic_write_bytes
+
+#: Resolution of every PNG [dots per inch].
+DPI = 120
+#: Trial channels the overview shows, when present (states first, then every input).
+OVERVIEW_STATES: tuple[str, ...] = ("u", "v", "r", "phi", "theta")
+OVERVIEW_INPUTS: tuple[str, ...] = tuple(INPUT_UNITS)
+#: Name of the trial overview figure.
+OVERVIEW_NAME = "segments.png"
+
+_SAFE = re.compile(r"[^A-Za-z0-9_-]+")
+
+
+def display_scale(channel: str) -> tuple[float, str, str]:
+    """Factor, unit and label note to show ``channel`` (degrees for angles).
+
+    Parameters
+    ----------
+    channel : str
+        Canonical channel name (``CHANNEL_UNITS``); ``name@sensor`` is accepted.
+
+    Returns
+    -------
+    factor : float
+        Multiply SI values by this for display.
+    unit : str
+        Displayed unit.
+    note : str
+        ``" (converted from rad/s for display)"`` or empty.
+    """
+    unit = CHANNEL_UNITS.get(channel.split("@")[0], "")
+    if unit.startswith("rad"):
+        shown = "deg" + unit[3:]
+        return math.degrees(1.0), shown, f" (converted from {unit} for display)"
+    return 1.0, unit, ""
+
+
+def axis_label(channel: str) -> str:
+    """Axis label with the displayed unit: ``r [deg/s] (converted from rad/s for display)``.
+
+    Parameters
+    ----------
+    channel : str
+        Canonical channel name; an unknown channel gets ``[-]``.
+
+    Returns
+    -------
+    str
+        The label.
+    """
+    _, unit, note = display_scale(channel)
+    return f"{channel} [{unit or '-'}]{note}"
+
+
+def safe_name(text: str) -> str:
+    """File-name-safe token: letters, digits, ``_`` and ``-`` only.
+
+    Parameters
+    ----------
+    text : str
+        Any text (segment kind, DOF).
+
+    Returns
+    -------
+    str
+        Runs of other characters replaced by ``_``; ``x`` when nothing is left.
+    """
+    return _SAFE.sub("_", str(text)).strip("_") or "x"
+
+
+def fit_figure_name(index: int, sf: SegmentFit) -> str:
+    """Stable file name of the figure of one segment fit.
+
+    Parameters
+    ----------
+    index : int
+        Position of the fit in ``Fits.segment_fits``.
+    sf : SegmentFit
+        The fit; its segment's kind and DOF go into the name.
+
+    Returns
+    -------
+    str
+        ``fit_<index>_<kind>_<dof>.png``, index zero-padded to two digits.
+    """
+    return f"fit_{index:02d}_{safe_name(sf.segment.kind)}_{safe_name(sf.segment.dof)}.png"
+
+
+def _param_text(sf: SegmentFit) -> str:
+    """``tau = 4.52 ± 0.13, u0 = 1.234 ± 0.005`` in SI; says why an error bar is missing."""
+    names = tuple(sf.param_names) or tuple(sf.params)
+    parts = []
+    for name in names:
+        v = sf.params.get(name, math.nan)
+        se = sf.stderr.get(name, math.nan)
+        if not finite(v):
+            parts.append(f"{name} = n/a")
+            continue
+        f = format_uncertain(v, se)
+        txt = f"{f.value} ± {f.stderr}" if f.stderr is not None else f"{f.value} ± n/a"
+        if f.exponent:
+            txt = f"({txt})e{f.exponent}"
+        parts.append(f"{name} = {txt}")
+    lines = [", ".join(parts[k:k + 3]) for k in range(0, len(parts), 3)]
+    return "\n".join(lines)
+
+
+def _arrays(sf: SegmentFit) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """Float copies of t, y, y_fit, and why they cannot be drawn (empty when they can)."""
+    try:
+        t = np.asarray(sf.t, dtype=float).ravel()
+        y = np.asarray(sf.y, dtype=float).ravel()
+        yf = np.asarray(sf.y_fit, dtype=float).ravel()
+    except (TypeError, ValueError) as exc:
+        return np.empty(0), np.empty(0), np.empty(0), f"arrays are not numeric ({exc})"
+    if not (t.size == y.size == yf.size):
+        return t, y, yf, f"t, y and y_fit have different lengths ({t.size}, {y.size}, {yf.size})"
+    if t.size == 0:
+        return t, y, yf, "the fit holds no samples"
+    return t, y, yf, ""
+
+
+def figure_problem(sf: SegmentFit) -> str:
+    """Why the data of a segment fit cannot be plotted.
+
+    Parameters
+    ----------
+    sf : SegmentFit
+        The fit.
+
+    Returns
+    -------
+    str
+        The reason (arrays not numeric, of different lengths, empty); empty when plottable.
+    """
+    return _arrays(sf)[3]
+
+
+def plot_segment_fit(sf: SegmentFit, index: int | None = None) -> Figure:
+    """Figure of one segment fit: data and fit on top, residual below.
+
+    Parameters
+    ----------
+    sf : SegmentFit
+        The fit; ``t`` [s from segment start], ``y`` and ``y_fit`` [SI unit of ``sf.channel``].
+    index : int, optional
+        Fit number shown in the title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        With an Agg canvas; the title gives kind, DOF, time span, model, parameters +- standard
+        error [SI] and the RMSE. A failed fit is titled in red with its message.
+    """
+    seg = sf.segment
+    factor, unit, _ = display_scale(sf.channel)
+    t, y, yf, problem = _arrays(sf)
+    fig = Figure(figsize=(8.0, 5.6), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax, axr = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    head = f"fit {index}: " if index is not None else ""
+    title = (f"{head}{seg.kind} / {seg.dof}, t = {seg.t_start:.1f}-{seg.t_end:.1f} s "
+             f"({seg.duration:.1f} s); {sf.model} on {sf.channel}")
+    sub = _param_text(sf)
+    rmse = f"RMSE = {format_number(sf.rmse * factor, 3)} {unit}".rstrip() if finite(sf.rmse) else "RMSE n/a"
+    sub = f"{sub}\n{rmse}  (parameters in SI units)" if sub else rmse
+    fig.suptitle(title, fontsize=10, fontweight="bold")
+    color = "black"
+    if not sf.success or problem:
+        why = problem or (sf.message or "no reason given")
+        sub += f"\nFIT FAILED: {why}" if not sf.success else f"\ncannot plot: {why}"
+        color = "tab:red"
+    ax.set_title(sub, fontsize=8.5, color=color, loc="left")
+    if not problem:
+        order = np.argsort(t, kind="stable")
+        ts, ys, yfs = t[order], y[order] * factor, yf[order] * factor
+        # Thousands of samples as big markers hide the fit line; shrink them with density.
+        ms = 4.0 if ts.size < 300 else 2.5 if ts.size < 2000 else 1.5
+        ax.plot(ts, ys, "o", ms=ms, color="tab:blue", alpha=0.6, label="data", zorder=2)
+        ax.plot(ts, yfs, "-", lw=2.0, color="tab:orange", label=f"fit ({sf.model})", zorder=3)
+        ax.legend(loc="best", fontsize=8)
+        axr.axhline(0.0, color="0.4", lw=0.8)
+        axr.plot(ts, ys - yfs, "o", ms=ms, color="tab:blue", alpha=0.6)
+        if not np.isfinite(yfs).any():
+            axr.text(0.5, 0.5, "no residual: the fit gave no model curve", transform=axr.transAxes,
+                     ha="center", va="center", fontsize=8, color="tab:red")
+    else:
+        ax.text(0.5, 0.5, f"no plot: {problem}", transform=ax.transAxes, ha="center", va="center",
+                color="tab:red", wrap=True)
+    ax.set_ylabel(axis_label(sf.channel), fontsize=9)
+    axr.set_ylabel(f"residual [{unit or '-'}]", fontsize=9)
+    axr.set_xlabel(f"time from segment start [s] (segment starts at t = {seg.t_start:.2f} s)", fontsize=9)
+    for a in (ax, axr):
+        a.grid(True, alpha=0.3)
+        a.tick_params(labelsize=8)
+    return fig
+
+
+_KIND_COLORS = {k: f"C{i}" for i, k in enumerate(SEGMENT_KINDS)}
+
+
+def plot_trial_overview(trial: Trial, segments: Sequence[Segment]) -> Figure:
+    """Time series of the main trial channels with the segments shaded and labelled by kind.
+
+    Parameters
+    ----------
+    trial : Trial
+        The aligned trial (SI units).
+    segments : sequence of Segment
+        Segments to shade; each is numbered as in the report's segment table.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One panel per channel present among ``OVERVIEW_STATES`` and ``OVERVIEW_INPUTS``; angles in
+        degrees. Gaps in the data are hatched.
+
+    Raises
+    ------
+    ReportError
+        When the trial has no ``t`` column.
+    """
+    if "t" not in trial.data.columns:
+        raise ReportError(f"trial {trial.name!r}: expected a 't' column, found {list(trial.data.columns)}")
+    t = trial.data["t"].to_numpy(dtype=float)
+    channels = [c for c in OVERVIEW_STATES + OVERVIEW_INPUTS if trial.has(c)]
+    n = max(len(channels), 1)
+    fig = Figure(figsize=(10.0, 1.0 + 1.5 * n), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = np.atleast_1d(fig.subplots(n, 1, sharex=True))
+    # Per-panel "(converted from rad ...)" notes crowd stacked panels; the title says it once.
+    fig.suptitle(f"Trial {trial.name}: channels and segments (angles converted from rad to deg for "
+                 f"display)",
+                 fontsize=10, fontweight="bold")
+    if not channels:
+        axes[0].text(0.5, 0.5, "no state or input channel with finite samples", ha="center",
+                     va="center", transform=axes[0].transAxes)
+    for ax, ch in zip(axes, channels):
+        factor, _, _ = display_scale(ch)
+        ax.plot(t, trial.data[ch].to_numpy(dtype=float) * factor, lw=0.9, color="k")
+        ax.set_ylabel(f"{ch} [{display_scale(ch)[1] or '-'}]", fontsize=8)
+        ax.tick_params(labelsize=8)
+        ax.grid(True, alpha=0.3)
+    kinds_seen = []
+    for k, seg in enumerate(segments):
+        color = _KIND_COLORS.get(seg.kind, "0.5")
+        if seg.kind not in kinds_seen:
+            kinds_seen.append(seg.kind)
+        for ax in axes:
+            ax.axvspan(seg.t_start, seg.t_end, color=color, alpha=0.18, lw=0)
+        # Label at the top of the first panel: number and kind, so the shading maps to the table.
+        trans = blended_transform_factory(axes[0].transData, axes[0].transAxes)
+        axes[0].text(0.5 * (seg.t_start + seg.t_end), 0.97, f"{k}: {seg.kind}", transform=trans,
+                     ha="center", va="top", fontsize=7, rotation=90, color=color, clip_on=True)
+    for gap in trial.gaps:
+        for ax in axes:
+            ax.axvspan(gap.t_start, gap.t_end, facecolor="none", edgecolor="0.5", hatch="///", lw=0)
+    handles = [Patch(color=_KIND_COLORS.get(k, "0.5"), alpha=0.35, label=k) for k in kinds_seen]
+    if trial.gaps:
+        handles.append(Patch(facecolor="none", edgecolor="0.5", hatch="///", label="data gap"))
+    if handles:
+        fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 6), fontsize=8)
+    axes[-1].set_xlabel("time from trial start [s]", fontsize=9)
+    if t.size:
+        axes[-1].set_xlim(float(np.nanmin(t)), float(np.nanmax(t)))
+    return fig
+
+
+def save_figure(fig: Figure, path: str | os.PathLike, dpi: int = DPI) -> Path:
+    """Render ``fig`` to PNG and write it atomically.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure.
+    path : str or os.PathLike
+        Destination ``.png``.
+    dpi : int
+        Resolution [dots per inch].
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return atomic_write_bytes(path, buf.getvalue())
