@@ -1,0 +1,133 @@
+"""Combine per-segment values of one coefficient into an :class:`~pipeline.records.Estimate`.
+
+Inverse-variance weighted mean ``x = sum(w_i x_i) / sum(w_i)``, ``w_i = 1/se_i^2``, standard error
+``1/sqrt(sum w_i)``. The chi-square ``sum w_i (x_i - x)^2`` with ``k - 1`` degrees of freedom tests
+whether the segments agree within their errors; when they do not (p < ``CONSISTENCY_ALPHA``) the
+standard error is scaled by the Birge ratio ``sqrt(chi2 / (k - 1))`` so that it reflects the observed
+scatter (Birge 1932; Particle Data Group "scale factor").
+
+The 95% interval is Student's t with the fit's residual degrees of freedom for a single segment,
+normal for a consistent combination, and t with ``k - 1`` degrees of freedom once the error comes
+from the scatter (Birge-inflated).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy import stats
+
+from ..records import Estimate
+from .least_squares import confidence_interval
+from .segment_fit import MAX_RELATIVE_STDERR
+
+#: p-value below which repeated segments are called inconsistent.
+CONSISTENCY_ALPHA = 0.01
+
+
+@dataclass(frozen=True)
+class Contribution:
+    """One segment's value of a coefficient.
+
+    Attributes
+    ----------
+    value, stderr : float
+        Value and standard error [unit of the coefficient].
+    source : str
+        Segment label, for messages.
+    dof : float
+        Residual degrees of freedom of the fit (for a single-segment t interval).
+    ok : bool
+        False when the segment fit failed; the value is then not combined.
+    reason : str
+        Why the segment is not usable.
+    """
+
+    value: float
+    stderr: float
+    source: str
+    dof: float = math.inf
+    ok: bool = True
+    reason: str = ""
+
+
+def failed_estimate(name: str, unit: str, method: str, message: str) -> Estimate:
+    """An :class:`Estimate` that was not identified, with the reason.
+
+    Parameters
+    ----------
+    name, unit, method : str
+        Coefficient name, SI unit and method description.
+    message : str
+        Why it was not identified.
+    """
+    return Estimate(name=name, value=math.nan, stderr=math.nan, ci95=(math.nan, math.nan), unit=unit,
+                    n_segments=0, method=method, success=False, message=message)
+
+
+def combine(name: str, unit: str, method: str, contributions: Sequence[Contribution],
+            notes: Sequence[str] = ()) -> Estimate:
+    """Inverse-variance weighted mean of the usable contributions, with a consistency test.
+
+    Parameters
+    ----------
+    name : str
+        Coefficient name (``X_u``, ``K_nomoto``, ...).
+    unit : str
+        SI unit.
+    method : str
+        How the per-segment values were obtained (the combination rule is appended).
+    contributions : sequence of Contribution
+        Per-segment values; those with ``ok=False`` or no finite standard error are left out and
+        named in the message.
+    notes : sequence of str
+        Further remarks for the message (a model mismatch, a missing config value).
+
+    Returns
+    -------
+    Estimate
+        ``success=False`` when no segment is usable or the combined relative standard error exceeds
+        ``MAX_RELATIVE_STDERR``.
+    """
+    usable = [c.ok and math.isfinite(c.value) and math.isfinite(c.stderr) and c.stderr > 0
+              for c in contributions]
+    used = [c for c, u in zip(contributions, usable) if u]
+    left_out = [f"{c.source} left out: {c.reason or 'no finite standard error'}"
+                for c, u in zip(contributions, usable) if not u]
+    messages = list(notes)
+    if not used:
+        return failed_estimate(name, unit, method,
+                               "; ".join(["not identified: no usable segment"] + left_out + messages))
+    x = np.array([c.value for c in used])
+    w = 1.0 / np.array([c.stderr for c in used]) ** 2
+    k = len(used)
+    mean = float(w @ x / w.sum())
+    se = float(1.0 / math.sqrt(w.sum()))
+    p_value = math.nan
+    if k == 1:
+        ci = confidence_interval(mean, se, used[0].dof)
+        rule = "single segment"
+    else:
+        chi2 = float(w @ (x - mean) ** 2)
+        p_value = float(stats.chi2.sf(chi2, k - 1))
+        rule = f"inverse-variance mean of {k} segments"
+        if p_value < CONSISTENCY_ALPHA:
+            birge = math.sqrt(chi2 / (k - 1))
+            se *= birge
+            # With the error taken from the scatter of k values, the interval has k - 1 dof.
+            ci = confidence_interval(mean, se, k - 1)
+            messages.insert(0, f"segments disagree (chi2 = {chi2:.3g} on {k - 1} dof, p = {p_value:.2g} "
+                               f"< {CONSISTENCY_ALPHA}): stderr inflated by the Birge ratio {birge:.3g}")
+        else:
+            ci = confidence_interval(mean, se, math.inf)
+    success = True
+    if abs(se) > MAX_RELATIVE_STDERR * abs(mean):
+        success = False
+        messages.insert(0, f"relative standard error {se / abs(mean) if mean else math.inf:.0%} above "
+                           f"{MAX_RELATIVE_STDERR:.0%}: not identified")
+    return Estimate(name=name, value=mean, stderr=se, ci95=ci, unit=unit, n_segments=k,
+                    method=f"{method}; {rule}", success=success, message="; ".join(messages + left_out),
+                    consistency_p=p_value, per_segment=tuple(float(v) for v in x))

@@ -1,0 +1,282 @@
+"""First-order exponential models: coast-downs and steps in surge, sway and yaw ("method one" of the
+AAUSHIP identification journal).
+
+With the input cut at ``t0`` the homogeneous equation ``m_eff y_dot + D y = 0`` gives
+``y = y0 exp(-(t - t0)/T)`` with ``T = m_eff / D`` (Fossen 2021, sec. 6.4: one DOF of
+``M nu_dot + D nu = tau``). A step of the generalised force gives
+``y = y_ss + (y0 - y_ss) exp(-(t - t0)/T)`` with ``y_ss - y0 = delta_tau / D`` if the vessel was
+settled before the step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import FitError
+from ..records import DOF_CHANNELS, Segment, SegmentFit, Trial
+from .data import input_levels, noise_sigma, pick_channel, segment_label, segment_samples
+from .least_squares import fit_least_squares
+from .segment_fit import build_segment_fit
+
+#: Fewest samples a first-order fit accepts.
+MIN_SAMPLES = 20
+#: A segment shorter than this many time constants (of the start guess) cannot be fitted at all.
+MIN_TIME_CONSTANTS = 0.5
+#: Time constants a segment should span for a well-determined T and steady state.
+RECOMMENDED_TIME_CONSTANTS = 3.0
+#: Response (initial value or step size) needed, in multiples of the noise standard deviation.
+MIN_SNR = 5.0
+
+DECAY_PARAMS = ("y0", "T")
+STEP_PARAMS = ("y0", "y_ss", "T")
+
+
+# --------------------------------------------------------------------------- models
+def decay(t: np.ndarray, y0: float, T: float) -> np.ndarray:
+    """Free first-order decay ``y0 exp(-t/T)``.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Time since the input was cut [s].
+    y0 : float
+        Value at ``t = 0`` [unit of y].
+    T : float
+        Time constant [s] (``m_eff / D``).
+    """
+    return y0 * np.exp(-np.asarray(t, float) / T)
+
+
+def decay_jacobian(t: np.ndarray, y0: float, T: float) -> np.ndarray:
+    """Jacobian of :func:`decay` with respect to ``(y0, T)``, shape (n, 2)."""
+    e = np.exp(-np.asarray(t, float) / T)
+    return np.column_stack([e, y0 * e * t / T**2])
+
+
+def step_response(t: np.ndarray, y0: float, y_ss: float, T: float) -> np.ndarray:
+    """First-order step response ``y_ss + (y0 - y_ss) exp(-t/T)``.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Time since the input change [s].
+    y0 : float
+        Value at ``t = 0`` [unit of y].
+    y_ss : float
+        Steady state [unit of y].
+    T : float
+        Time constant [s].
+    """
+    return y_ss + (y0 - y_ss) * np.exp(-np.asarray(t, float) / T)
+
+
+def step_jacobian(t: np.ndarray, y0: float, y_ss: float, T: float) -> np.ndarray:
+    """Jacobian of :func:`step_response` with respect to ``(y0, y_ss, T)``, shape (n, 3)."""
+    e = np.exp(-np.asarray(t, float) / T)
+    return np.column_stack([e, 1.0 - e, (y0 - y_ss) * e * t / T**2])
+
+
+# --------------------------------------------------------------------------- closed-form starts
+def guess_step(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
+    """Closed-form start for :func:`step_response` by integral regression.
+
+    Integrating ``T y_dot = y_ss - y`` from the first sample ``t_a`` gives the linear relation
+    ``y(t) = c0 + (y_ss/T) t - (1/T) S(t)`` with ``S(t) = int_{t_a}^t y dt``, so an ordinary linear
+    regression of ``y`` on ``[1, t, S]`` yields ``T`` and ``y_ss`` without iteration, and the
+    integral averages the noise down (Jacquelin 2009, "Regressions et equations integrales").
+
+    Parameters
+    ----------
+    t, y : numpy.ndarray
+        Time since the input change [s] and data.
+
+    Returns
+    -------
+    dict
+        ``y0``, ``y_ss`` [unit of y] and ``T`` [s].
+    """
+    t = np.asarray(t, float)
+    y = np.asarray(y, float)
+    duration = float(t[-1] - t[0])
+    s = np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(t))])
+    c, *_ = np.linalg.lstsq(np.column_stack([np.ones_like(t), t, s]), y, rcond=None)
+    if c[2] < 0 and math.isfinite(c[2]):
+        T = -1.0 / c[2]
+        y_ss = c[1] * T
+        ya = c[0] + c[1] * t[0]
+        y0 = y_ss + (ya - y_ss) * math.exp(min(t[0] / T, 50.0))
+    else:
+        # No decay towards a level: the length check downstream will report the segment as too short.
+        tail = y[t >= t[0] + 0.9 * duration]
+        T, y_ss, y0 = max(duration, 1e-9), float(np.mean(tail)), float(y[0])
+    return {"y0": float(y0), "y_ss": float(y_ss), "T": float(T)}
+
+
+def guess_decay(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
+    """Closed-form start for :func:`decay` by log-linear regression on ``|y|``.
+
+    ``ln|y| = ln|y0| - t/T`` is fitted with weights ``y^2`` (the variance of ``ln|y|`` is
+    ``sigma^2/y^2``) on the samples before ``|y|`` first drops to three noise standard deviations,
+    where the logarithm of a noisy value is no longer informative. Falls back to the integral
+    regression of :func:`guess_step` when too few samples stand above the noise.
+
+    Parameters
+    ----------
+    t, y : numpy.ndarray
+        Time since the input was cut [s] and data.
+
+    Returns
+    -------
+    dict
+        ``y0`` [unit of y] and ``T`` [s].
+    """
+    t = np.asarray(t, float)
+    y = np.asarray(y, float)
+    a = np.abs(y)
+    sigma = noise_sigma(y)
+    thr = max(3.0 * sigma if math.isfinite(sigma) else 0.0, 0.02 * float(a.max(initial=0.0)))
+    below = np.flatnonzero(a <= thr)
+    stop = int(below[0]) if below.size else a.size
+    if stop >= 3:
+        slope, icpt = np.polyfit(t[:stop], np.log(a[:stop]), 1, w=a[:stop])
+        if slope < 0:
+            sign = 1.0 if np.median(y[:stop]) >= 0 else -1.0
+            return {"y0": float(sign * math.exp(icpt)), "T": float(-1.0 / slope)}
+    g = guess_step(t, y)
+    return {"y0": g["y0"], "T": g["T"]}
+
+
+# --------------------------------------------------------------------------- segment checks
+def check_first_order_length(segment: Segment, t: np.ndarray, T_guess: float, response: float,
+                             sigma: float) -> list[str]:
+    """Refuse segments a first-order model cannot be fitted to; return notes for marginal ones.
+
+    Parameters
+    ----------
+    segment : Segment
+        For the message.
+    t : numpy.ndarray
+        Sample times [s].
+    T_guess : float
+        Start value of the time constant [s].
+    response : float
+        Size of the transient (initial value or step size) [unit of y].
+    sigma : float
+        Noise standard deviation [unit of y].
+
+    Raises
+    ------
+    FitError
+        Fewer than ``MIN_SAMPLES`` samples, shorter than ``MIN_TIME_CONSTANTS`` time constants,
+        or a transient below ``MIN_SNR`` noise standard deviations.
+    """
+    where = segment_label(segment)
+    n = t.size
+    duration = float(t[-1] - t[0]) if n else 0.0
+    expected = (f"expected at least {MIN_SAMPLES} samples and {MIN_TIME_CONSTANTS:g} time constants "
+                f"({RECOMMENDED_TIME_CONSTANTS:g} recommended)")
+    if n < MIN_SAMPLES:
+        raise FitError(f"{where}: segment too short: {expected}, found {n} samples over {duration:.3g} s")
+    if not (math.isfinite(T_guess) and duration >= MIN_TIME_CONSTANTS * T_guess):
+        raise FitError(f"{where}: segment too short: {expected}, found {n} samples over {duration:.3g} s "
+                       f"= {duration / T_guess:.2g} time constants (start guess T = {T_guess:.3g} s)")
+    if math.isfinite(sigma) and abs(response) < MIN_SNR * sigma:
+        raise FitError(f"{where}: no excitation: expected a transient of at least {MIN_SNR:g} noise "
+                       f"standard deviations ({MIN_SNR * sigma:.3g}), found {abs(response):.3g}")
+    if duration < RECOMMENDED_TIME_CONSTANTS * T_guess:
+        return [f"segment spans only {duration / T_guess:.2g} time constants "
+                f"(expected {RECOMMENDED_TIME_CONSTANTS:g}): T is less well determined"]
+    return []
+
+
+def time_constant_bounds(t: np.ndarray) -> tuple[float, float]:
+    """Bounds on a time constant [s]: a tenth of a sample interval to 100 segment lengths."""
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    return 0.1 * dt, 100.0 * max(float(t[-1] - t[0]), dt)
+
+
+def _velocity_channel(trial: Trial, segment: Segment) -> str:
+    if segment.dof not in ("surge", "sway", "yaw"):
+        raise FitError(f"{segment_label(segment)}: expected a {segment.kind} in surge, sway or yaw, "
+                       f"found DOF {segment.dof!r}")
+    return pick_channel(trial, segment, [DOF_CHANNELS[segment.dof][0]])
+
+
+# --------------------------------------------------------------------------- segment fits
+def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
+    """Fit ``y = y0 exp(-t/T)`` to a coast-down (input cut to zero at ``segment.t_start``).
+
+    No offset is fitted: with zero input the linear model decays to zero, and a free offset would
+    trade off against ``T`` on segments shorter than a few time constants.
+
+    Parameters
+    ----------
+    trial : Trial
+        Trial holding the velocity channel (``u``, ``v`` or ``r``).
+    segment : Segment
+        A ``coast_down`` segment in surge, sway or yaw.
+
+    Returns
+    -------
+    SegmentFit
+        Model ``first_order_decay`` with parameters ``y0`` [m/s or rad/s] and ``T`` [s].
+
+    Raises
+    ------
+    FitError
+        Missing channel, too few samples, too short or no excitation.
+    """
+    channel = _velocity_channel(trial, segment)
+    t, y, dropped = segment_samples(trial, segment, channel)
+    if t.size < MIN_SAMPLES:
+        check_first_order_length(segment, t, math.nan, math.nan, math.nan)
+    p0 = guess_decay(t, y)
+    sigma = noise_sigma(y)
+    notes = [f"start (log-linear guess): y0 = {p0['y0']:.4g}, T = {p0['T']:.4g} s"]
+    notes += check_first_order_length(segment, t, p0["T"], p0["y0"], sigma)
+    if dropped:
+        notes.append(f"{dropped} non-finite samples dropped")
+    lo_T, hi_T = time_constant_bounds(t)
+    res = fit_least_squares(lambda tt, p: decay(tt, *p), lambda tt, p: decay_jacobian(tt, *p), t, y,
+                            [p0["y0"], p0["T"]], DECAY_PARAMS, [-np.inf, lo_T], [np.inf, hi_T])
+    return build_segment_fit(segment, "first_order_decay", channel, t, y, res, ("T",), notes)
+
+
+def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
+    """Fit ``y = y_ss + (y0 - y_ss) exp(-t/T)`` to a step of the input at ``segment.t_start``.
+
+    Parameters
+    ----------
+    trial : Trial
+        Trial holding the velocity channel (``u``, ``v`` or ``r``).
+    segment : Segment
+        A ``step`` segment in surge, sway or yaw.
+
+    Returns
+    -------
+    SegmentFit
+        Model ``first_order_step`` with parameters ``y0``, ``y_ss`` [m/s or rad/s] and ``T`` [s].
+
+    Raises
+    ------
+    FitError
+        Missing channel, too few samples, too short or no excitation.
+    """
+    channel = _velocity_channel(trial, segment)
+    t, y, dropped = segment_samples(trial, segment, channel)
+    if t.size < MIN_SAMPLES:
+        check_first_order_length(segment, t, math.nan, math.nan, math.nan)
+    p0 = guess_step(t, y)
+    sigma = noise_sigma(y)
+    notes = [f"start (integral-regression guess): y0 = {p0['y0']:.4g}, y_ss = {p0['y_ss']:.4g}, "
+             f"T = {p0['T']:.4g} s"]
+    notes += check_first_order_length(segment, t, p0["T"], p0["y_ss"] - p0["y0"], sigma)
+    _, _, level_note = input_levels(trial, segment)
+    notes += [n for n in (level_note, f"{dropped} non-finite samples dropped" if dropped else "") if n]
+    lo_T, hi_T = time_constant_bounds(t)
+    res = fit_least_squares(lambda tt, p: step_response(tt, *p), lambda tt, p: step_jacobian(tt, *p), t, y,
+                            [p0["y0"], p0["y_ss"], p0["T"]], STEP_PARAMS,
+                            [-np.inf, -np.inf, lo_T], [np.inf, np.inf, hi_T])
+    return build_segment_fit(segment, "first_order_step", channel, t, y, res, ("T",), notes)

@@ -1,0 +1,224 @@
+"""Second-order free decay in roll and pitch ("method two" of the AAUSHIP identification journal).
+
+Released from a heel or trim angle, one DOF of ``M nu_dot + D nu + G eta = 0`` (Fossen 2021,
+sec. 6.4) is ``I_eff phi_ddot + D phi_dot + C phi = 0``, whose under-damped solution is
+
+    phi(t) = A exp(-zeta wn t) cos(wd t + phase) + offset,   wd = wn sqrt(1 - zeta^2)
+
+with ``wn^2 = C / I_eff`` and ``2 zeta wn = D / I_eff``. The offset absorbs a static heel (a trim
+weight, a sensor mounting error). The same form holds for the rate ``p`` (the derivative of a damped
+cosine is a damped cosine with the same ``zeta`` and ``wn``), which is fitted when ``phi`` is absent.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import FitError
+from ..records import DOF_ANGLE, DOF_CHANNELS, Segment, SegmentFit, Trial
+from .data import noise_sigma, pick_channel, segment_label, segment_samples
+from .least_squares import fit_least_squares
+from .segment_fit import build_segment_fit
+
+PARAMS = ("A", "zeta", "wn", "phase", "offset")
+#: Fewest samples a damped-oscillation fit accepts.
+MIN_SAMPLES = 30
+#: Fewest alternating extrema above the noise (3 = one full period) a decay must show.
+MIN_EXTREMA = 3
+#: Largest damping ratio the fit allows; at the bound the decay is not oscillatory.
+MAX_ZETA = 0.99
+#: Extrema smaller than this many noise standard deviations are not used by the guess.
+MIN_PEAK_SNR = 5.0
+
+
+def damped_oscillation(t: np.ndarray, A: float, zeta: float, wn: float, phase: float, offset: float) -> np.ndarray:
+    """Free decay ``A exp(-zeta wn t) cos(wd t + phase) + offset`` with ``wd = wn sqrt(1 - zeta^2)``.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Time since release [s].
+    A : float
+        Amplitude [rad or rad/s].
+    zeta : float
+        Damping ratio [-], 0 <= zeta < 1.
+    wn : float
+        Undamped natural frequency [rad/s].
+    phase : float
+        Phase [rad].
+    offset : float
+        Static offset [rad or rad/s].
+    """
+    t = np.asarray(t, float)
+    wd = wn * math.sqrt(max(1.0 - zeta**2, 0.0))
+    return A * np.exp(-zeta * wn * t) * np.cos(wd * t + phase) + offset
+
+
+def damped_oscillation_jacobian(t: np.ndarray, A: float, zeta: float, wn: float, phase: float,
+                                offset: float) -> np.ndarray:
+    """Jacobian of :func:`damped_oscillation` with respect to ``PARAMS``, shape (n, 5)."""
+    t = np.asarray(t, float)
+    root = math.sqrt(max(1.0 - zeta**2, 1e-12))
+    wd = wn * root
+    e = np.exp(-zeta * wn * t)
+    c = np.cos(wd * t + phase)
+    s = np.sin(wd * t + phase)
+    # d wd / d zeta = -wn zeta / sqrt(1 - zeta^2), d wd / d wn = sqrt(1 - zeta^2)
+    d_zeta = A * e * t * (-wn * c + s * wn * zeta / root)
+    d_wn = -A * e * t * (zeta * c + root * s)
+    return np.column_stack([e * c, d_zeta, d_wn, -A * e * s, np.ones_like(t)])
+
+
+def _extrema(t: np.ndarray, z: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Times and values of the alternating extrema of ``z`` beyond the hysteresis band ``+-h``.
+
+    The band keeps noise near a zero crossing from splitting one half-cycle in two. Extrema on the
+    first or last sample are dropped: they are where the segment was cut, not turning points.
+    """
+    sign = np.where(z > h, 1, np.where(z < -h, -1, 0))
+    nz = np.flatnonzero(sign)
+    if nz.size == 0:
+        return np.empty(0), np.empty(0)
+    # Forward-fill the sign through the band so that each half-cycle is one run.
+    filled = sign[nz][np.searchsorted(nz, np.arange(z.size), side="right") - 1]
+    filled[: nz[0]] = 0
+    edges = np.flatnonzero(np.diff(filled) != 0) + 1
+    times, values = [], []
+    for a, b in zip(np.r_[0, edges], np.r_[edges, z.size]):
+        if filled[a] == 0:
+            continue
+        k = a + int(np.argmax(filled[a] * z[a:b]))
+        if k == 0 or k == z.size - 1:
+            continue
+        # A least-squares parabola over +-30 degrees of phase around the largest sample averages the
+        # noise; the largest sample alone is biased away from zero by the noise near small peaks.
+        w = max(1, (b - a) // 6)
+        lo, hi = max(a, k - w), min(b, k + w + 1)
+        tk, zk = t[k], z[k]
+        if hi - lo >= 3:
+            c2, c1, c0 = np.polyfit(t[lo:hi] - t[k], z[lo:hi], 2)
+            if c2 != 0:
+                vertex = -c1 / (2 * c2)
+                if abs(vertex) <= t[hi - 1] - t[lo]:
+                    tk, zk = t[k] + vertex, c0 - c1**2 / (4 * c2)
+        times.append(tk)
+        values.append(zk)
+    return np.asarray(times), np.asarray(values)
+
+
+def guess_damped_oscillation(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
+    """Closed-form start for :func:`damped_oscillation` from extrema and the logarithmic decrement.
+
+    The spacing of alternating extrema is half the damped period, ``pi / wd``. The peak-to-peak
+    amplitudes ``|a_k - a_(k+1)|`` decay as ``exp(-zeta wn t)`` whatever the offset, so a regression
+    of their logarithm on time gives ``sigma = zeta wn`` (the logarithmic decrement per period is
+    ``delta = 2 pi sigma / wd``). Then ``wn = sqrt(wd^2 + sigma^2)``, ``zeta = sigma / wn``, and a
+    linear least-squares fit on ``exp(-sigma t) cos(wd t)``, ``exp(-sigma t) sin(wd t)`` and 1 gives the
+    amplitude, phase and offset.
+
+    Parameters
+    ----------
+    t, y : numpy.ndarray
+        Time since release [s] and data.
+
+    Returns
+    -------
+    dict
+        ``A``, ``zeta``, ``wn``, ``phase``, ``offset`` and ``log_decrement`` [-].
+
+    Raises
+    ------
+    FitError
+        Fewer than ``MIN_EXTREMA`` extrema stand out of the noise.
+    """
+    t = np.asarray(t, float)
+    y = np.asarray(y, float)
+    sigma = noise_sigma(y)
+    z = y - np.median(y)
+    h = max(3.0 * sigma if math.isfinite(sigma) else 0.0, 1e-3 * float(np.abs(z).max(initial=0.0)))
+    tk, ak = _extrema(t, z, h)
+    # Once the decay has sunk into the noise, "extrema" are noise peaks at random times: stop at the
+    # first one below MIN_PEAK_SNR noise deviations, or the first one far off the half-period rhythm.
+    small = np.flatnonzero(np.abs(ak) < MIN_PEAK_SNR * sigma) if math.isfinite(sigma) else np.empty(0, int)
+    keep = int(small[0]) if small.size else tk.size
+    gaps = np.diff(tk[:keep])
+    if gaps.size >= 2:
+        off_rhythm = np.flatnonzero(gaps > 1.5 * np.median(gaps))
+        if off_rhythm.size:
+            keep = int(off_rhythm[0]) + 1
+    tk, ak = tk[:keep], ak[:keep]
+    if tk.size < MIN_EXTREMA:
+        raise FitError(f"expected at least {MIN_EXTREMA} alternating extrema above the noise "
+                       f"(one full oscillation period), found {tk.size}")
+    half_period = float(np.polyfit(np.arange(tk.size), tk, 1)[0])
+    wd = math.pi / half_period
+    p2p = np.abs(np.diff(ak))
+    tm = 0.5 * (tk[1:] + tk[:-1])
+    slope = float(np.polyfit(tm, np.log(p2p), 1, w=p2p)[0]) if p2p.size >= 2 else 0.0
+    decay_rate = max(-slope, 1e-3 * wd)  # a non-decaying record still starts the fit at small zeta
+    wn = math.hypot(wd, decay_rate)
+    zeta = decay_rate / wn
+    e = np.exp(-decay_rate * t)
+    basis = np.column_stack([e * np.cos(wd * t), e * np.sin(wd * t), np.ones_like(t)])
+    (a, b, off), *_ = np.linalg.lstsq(basis, y, rcond=None)
+    return {"A": float(math.hypot(a, b)), "zeta": float(zeta), "wn": float(wn),
+            "phase": float(math.atan2(-b, a)), "offset": float(off),
+            "log_decrement": float(2 * math.pi * decay_rate / wd)}
+
+
+def fit_free_decay(trial: Trial, segment: Segment) -> SegmentFit:
+    """Fit :func:`damped_oscillation` to a roll or pitch free decay.
+
+    Parameters
+    ----------
+    trial : Trial
+        Trial holding ``phi`` / ``theta`` (or, failing that, ``p`` / ``q``).
+    segment : Segment
+        A ``free_decay`` segment in roll or pitch, starting at release.
+
+    Returns
+    -------
+    SegmentFit
+        Model ``damped_oscillation`` with parameters ``A``, ``zeta`` [-], ``wn`` [rad/s],
+        ``phase`` [rad], ``offset``.
+
+    Raises
+    ------
+    FitError
+        Missing channel, too few samples or fewer than one full period above the noise.
+    """
+    where = segment_label(segment)
+    if segment.dof not in ("roll", "pitch"):
+        raise FitError(f"{where}: expected a free_decay in roll or pitch, found DOF {segment.dof!r}")
+    channel = pick_channel(trial, segment, [DOF_ANGLE[segment.dof], DOF_CHANNELS[segment.dof][0]])
+    t, y, dropped = segment_samples(trial, segment, channel)
+    if t.size < MIN_SAMPLES:
+        raise FitError(f"{where}: segment too short: expected at least {MIN_SAMPLES} samples and "
+                       f"{MIN_EXTREMA} extrema, found {t.size} samples over "
+                       f"{(t[-1] - t[0]) if t.size else 0.0:.3g} s")
+    try:
+        g = guess_damped_oscillation(t, y)
+    except FitError as exc:
+        raise FitError(f"{where}: segment too short or not oscillating: {exc} over {t[-1] - t[0]:.3g} s") from None
+    notes = [f"start (log-decrement guess): wn = {g['wn']:.4g} rad/s, zeta = {g['zeta']:.4g}, "
+             f"log decrement = {g['log_decrement']:.4g}"]
+    if dropped:
+        notes.append(f"{dropped} non-finite samples dropped")
+    fs_nyquist = math.pi / float(np.median(np.diff(t)))
+    p0 = [g[n] for n in PARAMS]
+    res = fit_least_squares(lambda tt, p: damped_oscillation(tt, *p),
+                            lambda tt, p: damped_oscillation_jacobian(tt, *p), t, y, p0, PARAMS,
+                            [-np.inf, 0.0, 0.0, -np.inf, -np.inf], [np.inf, MAX_ZETA, fs_nyquist, np.inf, np.inf])
+    if res.value("A") < 0:
+        # Report a positive amplitude: A -> -A with phase + pi is the same curve; flip the signs of
+        # A's covariance row and column so that correlations stay right.
+        flip = np.array([-1.0, 1, 1, 1, 1])
+        values = res.values * flip + np.array([0, 0, 0, math.pi, 0])
+        res = replace(res, values=values, covariance=res.covariance * np.outer(flip, flip))
+    values = res.values.copy()
+    values[PARAMS.index("phase")] = (values[PARAMS.index("phase")] + math.pi) % (2 * math.pi) - math.pi
+    res = replace(res, values=values)
+    return build_segment_fit(segment, "damped_oscillation", channel, t, y, res, ("zeta", "wn"), notes)

@@ -1,0 +1,254 @@
+"""The fit stage's entry point: every segment of a trial -> per-segment fits -> combined coefficients."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from ..errors import FitError
+from ..records import (CHANNEL_UNITS, DOF_CHANNELS, DOF_NAMES, DOFS, Estimate, Fits, Segment, SegmentFit,
+                       Segments, Trial)
+from ..vessel import Vessel
+from .combine import Contribution, combine
+from .damping import (damping_from_decay, damping_from_gain, damping_from_time_constant,
+                      natural_frequency_ratio, step_gain)
+from .data import input_levels, segment_label
+from .first_order import fit_coast_down, fit_step
+from .nomoto import fit_rudder_step
+from .second_order import fit_free_decay
+from .segment_fit import failed_segment_fit
+
+#: Segment kind -> (fitter, model name).
+FITTERS: Mapping[str, tuple[Callable[[Trial, Segment], SegmentFit], str]] = {
+    "coast_down": (fit_coast_down, "first_order_decay"),
+    "step": (fit_step, "first_order_step"),
+    "free_decay": (fit_free_decay, "damped_oscillation"),
+    "rudder_step": (fit_rudder_step, "nomoto_step"),
+}
+#: DOF name -> Fossen derivative on the diagonal of -D.
+DERIVATIVES: Mapping[str, str] = {"surge": "X_u", "sway": "Y_v", "roll": "K_p", "pitch": "M_q", "yaw": "N_r"}
+DAMPING_UNITS: Mapping[str, str] = {"surge": "kg/s", "sway": "kg/s", "roll": "kg m^2/s", "pitch": "kg m^2/s",
+                                    "yaw": "kg m^2/s"}
+#: Relative mismatch of the fitted and the config's natural frequency that is flagged.
+WN_TOLERANCE = 0.10
+_KIND_WORDS = {"coast_down": ("coast-down", "coast-downs"), "step": ("step", "steps"),
+               "free_decay": ("free decay", "free decays"), "rudder_step": ("rudder step", "rudder steps")}
+# Estimates first in this order (the report's table order); extras follow in insertion order.
+_ORDER = ("X_u", "Y_v", "K_p", "M_q", "N_r", "K_nomoto", "T_nomoto")
+
+
+@dataclass
+class _Pool:
+    """Per-coefficient contributions while the segments are walked (local, never returned)."""
+
+    unit: str
+    method: str
+    items: list[Contribution] = field(default_factory=list)
+    kinds: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def _kinds_text(kinds: list[str]) -> str:
+    parts = []
+    for kind in dict.fromkeys(kinds):
+        n = kinds.count(kind)
+        one, many = _KIND_WORDS.get(kind, (kind, kind + "s"))
+        parts.append(f"{n} {one if n == 1 else many}")
+    return " and ".join(parts)
+
+
+def _fit_segment(trial: Trial, segment: Segment) -> SegmentFit:
+    fitter, model = FITTERS.get(segment.kind, (None, "none"))
+    if fitter is None:
+        return failed_segment_fit(segment, model, "", f"{segment_label(segment)}: segment kind {segment.kind!r} "
+                                  f"is not fitted by this stage; expected one of {sorted(FITTERS)}")
+    try:
+        return fitter(trial, segment)
+    except FitError as exc:
+        return failed_segment_fit(segment, model, "", str(exc))
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        # One pathological segment must not cost the user the other segments' results.
+        return failed_segment_fit(segment, model, "", f"{segment_label(segment)}: fit failed with "
+                                  f"{type(exc).__name__}: {exc}")
+
+
+class _Collector:
+    """Turns segment fits into per-coefficient contributions."""
+
+    def __init__(self, trial: Trial, vessel: Vessel) -> None:
+        self.trial = trial
+        self.vessel = vessel
+        self.pools: dict[str, _Pool] = {}
+
+    def add(self, name: str, unit: str, method: str, kind: str, c: Contribution) -> None:
+        pool = self.pools.setdefault(name, _Pool(unit=unit, method=method))
+        pool.items.append(c)
+        pool.kinds.append(kind)
+
+    def _param(self, sf: SegmentFit, name: str) -> Contribution:
+        label = segment_label(sf.segment)
+        value = sf.params.get(name, math.nan)
+        se = sf.stderr.get(name, math.nan)
+        dof = max(sf.y.size - len(sf.param_names), 1)
+        return Contribution(value, se, label, dof, sf.success, sf.message)
+
+    def _derived(self, sf: SegmentFit, value_se: Callable[[], tuple[float, float]], sign: float = 1.0,
+                 missing: str = "") -> Contribution:
+        label = segment_label(sf.segment)
+        if missing:
+            return Contribution(math.nan, math.nan, label, ok=False, reason=missing)
+        if not sf.success:
+            return Contribution(math.nan, math.nan, label, ok=False, reason=sf.message)
+        value, se = value_se()
+        return Contribution(sign * value, se, label, max(sf.y.size - len(sf.param_names), 1))
+
+    def _mass(self, dof: str) -> tuple[float, str]:
+        if not self.vessel.has_rigid_body:
+            return math.nan, (f"vessel config {self.vessel.name!r} has no rigid_body mass and inertia: "
+                              f"the damping needs M[i, i]; the mass-free parameters (T, wn, zeta) are still reported")
+        return self.vessel.effective_mass(dof), ""
+
+    def collect(self, sf: SegmentFit) -> None:
+        seg = sf.segment
+        kind, dof = seg.kind, seg.dof
+        if kind in ("coast_down", "step") and dof in ("surge", "sway", "yaw"):
+            self._first_order(sf)
+        elif kind == "free_decay" and dof in ("roll", "pitch"):
+            self._free_decay(sf)
+        elif kind == "rudder_step" and dof == "yaw":
+            method = "first-order Nomoto step response r = K delta + (r0 - K delta) exp(-t/T) on {kinds}"
+            self.add("K_nomoto", "1/s", method, kind, self._param(sf, "K"))
+            self.add("T_nomoto", "s", method, kind, self._param(sf, "T"))
+
+    def _first_order(self, sf: SegmentFit) -> None:
+        seg = sf.segment
+        dof, kind = seg.dof, seg.kind
+        self.add(f"T_{dof}", "s", "first-order exponential on {kinds}", kind, self._param(sf, "T"))
+        m, missing = self._mass(dof)
+        T, se_T = sf.params.get("T", math.nan), sf.stderr.get("T", math.nan)
+        m_text = f"{m:.4g} {'kg' if dof != 'yaw' else 'kg m^2'} from config (M_RB + M_A)" if not missing else \
+            "unknown (no rigid_body in config)"
+        self.add(DERIVATIVES[dof], DAMPING_UNITS[dof],
+                 f"first-order exponential on {{kinds}}; {DERIVATIVES[dof]} = -m_eff/T with m_eff = {m_text}",
+                 kind, self._derived(sf, lambda: damping_from_time_constant(m, T, se_T), -1.0, missing))
+        if kind != "step":
+            return
+        before, after, _ = input_levels(self.trial, seg)
+        du = after - before
+        no_input = "" if du != 0 else (f"no input change given (input_before = input_after = {after}): "
+                                       f"the gain needs delta_input")
+        y_unit = CHANNEL_UNITS.get(sf.channel or DOF_CHANNELS[dof][0], "")
+        in_unit = CHANNEL_UNITS.get(seg.input_channel or "", "input unit")
+        force = seg.input_channel == DOF_CHANNELS[dof][1]
+        gain_unit = {"surge": "s/kg", "sway": "s/kg", "yaw": "s/(kg m^2)"}[dof] if force else f"({y_unit})/({in_unit})"
+        self.add(f"gain_{dof}", gain_unit, "first-order step gain (y_ss - y0)/delta_input on {kinds}", kind,
+                 self._derived(sf, lambda: step_gain(sf, du), 1.0, no_input))
+        if force:
+            self.add(f"D_gain_{dof}", DAMPING_UNITS[dof],
+                     "gain-based D = delta_tau/(y_ss - y0) (vessel settled before the step) on {kinds}; "
+                     f"a consistency check only: the damping matrix uses the T-based {DERIVATIVES[dof]}",
+                     kind, self._derived(sf, lambda: damping_from_gain(sf, du), 1.0, no_input))
+
+    def _free_decay(self, sf: SegmentFit) -> None:
+        seg = sf.segment
+        dof, kind = seg.dof, seg.kind
+        method = "damped oscillation A exp(-zeta wn t) cos(wd t + phase) + offset on {kinds}"
+        self.add(f"wn_{dof}", "rad/s", method, kind, self._param(sf, "wn"))
+        self.add(f"zeta_{dof}", "1", method, kind, self._param(sf, "zeta"))
+        inertia, missing = self._mass(dof)
+        name = DERIVATIVES[dof]
+        i_text = (f"{inertia:.4g} kg m^2 from config (M_RB + M_A)" if not missing
+                  else "unknown (no rigid_body in config)")
+        self.add(name, DAMPING_UNITS[dof], f"{method}; {name} = -2 zeta wn I_eff with I_eff = {i_text}",
+                 kind, self._derived(sf, lambda: damping_from_decay(inertia, sf), -1.0, missing))
+        restoring = self.vessel.restoring.get(dof)
+        if missing:
+            return
+        if restoring is None or restoring <= 0:
+            note = f"restoring.{dof} not in vessel config: wn not checked against sqrt(C/I_eff)"
+            if note not in self.pools[name].notes:
+                self.pools[name].notes.append(note)
+            return
+        self.add(f"wn_ratio_{dof}", "1",
+                 f"fitted wn over config sqrt(C/I_eff) with C = {restoring:.4g} N m/rad, "
+                 f"I_eff = {inertia:.4g} kg m^2, on {{kinds}}", kind,
+                 self._derived(sf, lambda: natural_frequency_ratio(sf, restoring, inertia)))
+
+    def estimates(self) -> dict[str, Estimate]:
+        # The wn check is flagged on the damping estimate it qualifies, so it is read first.
+        for dof in ("roll", "pitch"):
+            ratio_pool = self.pools.get(f"wn_ratio_{dof}")
+            if ratio_pool is None:
+                continue
+            ratio = combine(f"wn_ratio_{dof}", ratio_pool.unit, "", ratio_pool.items)
+            if ratio.success and abs(ratio.value - 1.0) > WN_TOLERANCE:
+                flag = (f"fitted wn is {ratio.value:.3g} x sqrt(C/I_eff) of the config (mismatch > "
+                        f"{WN_TOLERANCE:.0%}): check restoring.{dof}, the inertia and the added mass")
+                ratio_pool.notes.append(flag)
+                self.pools[DERIVATIVES[dof]].notes.append(flag)
+        out = {name: combine(name, pool.unit, pool.method.format(kinds=_kinds_text(pool.kinds)), pool.items,
+                             pool.notes)
+               for name, pool in self.pools.items()}
+        first = {k: out[k] for k in _ORDER if k in out}
+        return {**first, **{k: v for k, v in out.items() if k not in first}}
+
+
+def _damping_matrix(estimates: Mapping[str, Estimate]) -> tuple[np.ndarray, np.ndarray]:
+    d = np.full((5, 5), np.nan)
+    se = np.full((5, 5), np.nan)
+    for i, vel in enumerate(DOFS):
+        est = estimates.get(DERIVATIVES[DOF_NAMES[vel]])
+        if est is not None and est.success:
+            # Fossen: X_u = -D[0, 0], so the matrix holds the negated derivative.
+            d[i, i] = -est.value
+            se[i, i] = est.stderr
+    return d, se
+
+
+def fit_trial(trial: Trial, segments: Segments, vessel: Vessel) -> Fits:
+    """Fit every segment of a trial and combine the results into coefficients.
+
+    Per segment kind (Fossen 2021 for the damping; Nomoto et al. 1957 for the ship model):
+
+    - ``coast_down`` (surge/sway/yaw): ``y0 exp(-t/T)`` -> ``T_<dof>``, ``X_u``/``Y_v``/``N_r``
+      ``= -m_eff/T``.
+    - ``step`` (surge/sway/yaw): ``y_ss + (y0 - y_ss) exp(-t/T)`` -> the same ``T`` and derivative,
+      plus ``gain_<dof>`` and, when the input is the DOF's generalised force, ``D_gain_<dof>``.
+    - ``free_decay`` (roll/pitch): damped cosine -> ``wn_<dof>``, ``zeta_<dof>``,
+      ``K_p``/``M_q`` ``= -2 zeta wn I_eff``, ``wn_ratio_<dof>`` against the config's restoring.
+    - ``rudder_step`` (yaw): first-order Nomoto -> ``K_nomoto``, ``T_nomoto``.
+
+    Repeated segments are combined by an inverse-variance weighted mean with a chi-square
+    consistency test (see :func:`pipeline.fit.combine.combine`). A segment that cannot be fitted is
+    recorded as a failed :class:`SegmentFit` (and left out of the estimates, with the reason); it
+    never stops the other segments.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial (SI units, radians, uniform clock).
+    segments : Segments
+        Its segments.
+    vessel : Vessel
+        Mass, inertia, added mass and restoring; a vessel with only ``name`` gets time constants and
+        Nomoto K and T but no damping matrix.
+
+    Returns
+    -------
+    Fits
+        Estimates by name, per-segment fits in segment order, and the 5x5 damping matrix (diagonal
+        only; NaN where not identified, including all coupled terms) with its standard errors.
+    """
+    collector = _Collector(trial, vessel)
+    fits = []
+    for seg in segments.items:
+        sf = _fit_segment(trial, seg)
+        fits.append(sf)
+        collector.collect(sf)
+    estimates = collector.estimates()
+    d, se = _damping_matrix(estimates)
+    return Fits(vessel=vessel.name, estimates=estimates, segment_fits=tuple(fits), damping_matrix=d,
+                damping_stderr=se)
