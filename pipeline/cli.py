@@ -68,9 +68,9 @@ def cmd_segment(args: argparse.Namespace) -> int:
     if args.json:
         write_json(segments_to_json(segments), args.json)
     if args.plot:
-        from .report.figures import plot_segments
+        from .report.figures import plot_trial_overview, save_figure
 
-        plot_segments(trial, segments, args.plot)
+        save_figure(plot_trial_overview(trial, segments.items), args.plot)
         print(f"wrote {args.plot}")
     return 0
 
