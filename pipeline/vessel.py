@@ -59,7 +59,8 @@ class ActuatorMap:
     pwm_trim, pwm_span : float
         Neutral PWM and PWM distance to full scale [us].
     full_scale, reverse_scale : float
-        Input at ``pwm_trim + pwm_span`` and magnitude at ``pwm_trim - pwm_span`` [SI unit of target].
+        Input at ``pwm_trim + pwm_span`` and magnitude at ``pwm_trim - pwm_span`` [SI unit of target];
+        ``reverse_scale`` defaults to ``full_scale``.
     """
 
     source: str
@@ -68,7 +69,12 @@ class ActuatorMap:
     pwm_trim: float = 1500.0
     pwm_span: float = 400.0
     full_scale: float = 1.0
-    reverse_scale: float = 1.0
+    reverse_scale: float | None = None
+
+    def __post_init__(self) -> None:
+        # A symmetric actuator unless told otherwise: reverse scale follows the forward one.
+        if self.reverse_scale is None:
+            object.__setattr__(self, "reverse_scale", self.full_scale)
 
     def to_input(self, pwm: np.ndarray) -> np.ndarray:
         """Convert PWM [us] to the target input [SI]."""
