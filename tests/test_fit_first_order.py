@@ -236,3 +236,37 @@ def test_monte_carlo_coverage_of_T_interval():
     print(f"coverage {coverage:.3f}, mean z {np.mean(z):.3f}, std z {np.std(z):.3f}")
     assert 0.90 <= coverage <= 0.98
     assert abs(np.mean(z)) < 0.25 and 0.8 < np.std(z) < 1.2
+
+
+def test_step_started_before_the_vessel_settled_reads_gain_from_the_level():
+    # The step comes 3 T after a coast-down: u is still 5% of the cruise speed and falling, so
+    # (y_ss - y0)/delta_tau would be 5% off; y_ss/tau_after is not.
+    fs, T, u_ss = 50.0, T_SURGE, 1.0
+    rng = np.random.default_rng(16)
+    t = np.arange(0.0, 40.0, 1 / fs)
+    t_step = 3 * T
+    u_before = u_ss * np.exp(-t / T)
+    u_at_step = u_ss * math.exp(-3)
+    u = np.where(t < t_step, u_before, u_ss + (u_at_step - u_ss) * np.exp(-(t - t_step) / T))
+    trial = Trial("late", pd.DataFrame({"t": t, "u": u + rng.normal(0, 0.01, t.size)}), fs)
+    seg = Segment("step", "surge", t_step, 40.0, "tau_x", 0.0, D_SURGE)
+    fits = fit_trial(trial, Segments("late", (seg,)), vessel())
+    assert "u not steady before the step" in fits.segment_fits[0].message
+    d_gain = fits.estimates["D_gain_surge"]
+    assert "y_ss/input_after" in d_gain.message
+    assert abs(d_gain.value - D_SURGE) < 3 * d_gain.stderr and abs(d_gain.value - D_SURGE) < 0.02
+
+
+def test_steady_start_reads_gain_from_the_change():
+    # From a steady 0.5 m/s (tau 1.43 N) to 1 m/s (2.86 N), with a 0.1 m/s log offset (e.g. a
+    # current in a speed over ground): the change cancels the offset.
+    fs, T = 50.0, T_SURGE
+    rng = np.random.default_rng(17)
+    t = np.arange(0.0, 40.0, 1 / fs)
+    u = np.where(t < 5.0, 0.5, 1.0 - 0.5 * np.exp(-(t - 5.0) / T)) + 0.1
+    trial = Trial("steady", pd.DataFrame({"t": t, "u": u + rng.normal(0, 0.01, t.size)}), fs)
+    seg = Segment("step", "surge", 5.0, 40.0, "tau_x", D_SURGE / 2, D_SURGE)
+    fits = fit_trial(trial, Segments("steady", (seg,)), vessel())
+    assert "u steady before the step" in fits.segment_fits[0].message
+    d_gain = fits.estimates["D_gain_surge"]
+    assert abs(d_gain.value - D_SURGE) < 3 * d_gain.stderr and abs(d_gain.value - D_SURGE) < 0.03

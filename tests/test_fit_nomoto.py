@@ -18,14 +18,17 @@ K_TRUE, T_TRUE = 0.156, 72.4  # the ship-autopilot seed's Nomoto model
 DELTA = math.radians(10)
 
 
-def rudder_trial(seed, noise=1e-3, fs=10.0, t_step=10.0, length=400.0, delta=DELTA, log_delta=True):
-    """Straight course, rudder stepped 0 -> delta at t_step: r = K delta (1 - exp(-(t - t_step)/T))."""
+def rudder_trial(seed, noise=1e-3, fs=10.0, t_step=10.0, length=400.0, delta=DELTA, log_delta=True,
+                 delta_before=0.0, bias=0.0):
+    """Rudder stepped delta_before -> delta at t_step from a steady turn, with a rudder bias b:
+    r = K (delta_before - b) + K (delta - delta_before) (1 - exp(-(t - t_step)/T))."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, length, 1.0 / fs)
-    r = np.where(t < t_step, 0.0, K_TRUE * delta * (1 - np.exp(-(t - t_step) / T_TRUE)))
+    r0 = K_TRUE * (delta_before - bias)
+    r = np.where(t < t_step, r0, r0 + K_TRUE * (delta - delta_before) * (1 - np.exp(-(t - t_step) / T_TRUE)))
     cols = {"t": t, "r": r + rng.normal(0.0, noise, t.size)}
     if log_delta:
-        cols["delta"] = np.where(t < t_step, 0.0, delta)
+        cols["delta"] = np.where(t < t_step, delta_before, delta)
     return Trial("rudder", pd.DataFrame(cols), fs)
 
 
@@ -45,6 +48,21 @@ def test_nomoto_step_recovers_K_and_T():
     assert sf.model == "nomoto_step" and sf.param_names == ("r0", "K", "T")
     # The rudder step says nothing about N_r (T_nomoto mixes sway-yaw coupling): no matrix entry.
     assert "N_r" not in fits.estimates and np.isnan(fits.damping_matrix).all()
+
+
+def test_rudder_return_to_zero_identifies_K_and_T():
+    # The detector reports the rudder going back to midships as a rudder step as well.
+    trial = rudder_trial(seed=10, delta_before=DELTA, delta=0.0)
+    sf = fit_rudder_step(trial, Segment("rudder_step", "yaw", 10.0, 400.0, "delta", DELTA, 0.0))
+    assert sf.success
+    assert abs(sf.params["K"] - K_TRUE) < 3 * sf.stderr["K"] and abs(sf.params["T"] - T_TRUE) < 3 * sf.stderr["T"]
+
+
+def test_rudder_bias_cancels_in_the_step():
+    # A constant yaw moment equivalent to 2 deg of rudder; the vessel was steady before the step.
+    trial = rudder_trial(seed=11, bias=math.radians(2))
+    sf = fit_rudder_step(trial, rudder_segment())
+    assert abs(sf.params["K"] - K_TRUE) < 3 * sf.stderr["K"] and abs(sf.params["K"] - K_TRUE) < 0.004
 
 
 def test_nomoto_guess_is_close_to_truth():
@@ -81,7 +99,7 @@ def test_rudder_levels_are_read_from_the_trial_when_segment_gives_none():
 
 def test_zero_rudder_is_refused():
     seg = Segment("rudder_step", "yaw", 10.0, 400.0, "delta")
-    with pytest.raises(FitError, match="expected a non-zero rudder angle.*found 0"):
+    with pytest.raises(FitError, match=r"expected a rudder change \(input_after != input_before\), found 0.0 -> 0.0"):
         fit_rudder_step(rudder_trial(seed=7, log_delta=False), seg)
 
 
@@ -104,3 +122,22 @@ def test_short_noisy_rudder_step_fails_with_a_reason():
     sf = fits.segment_fits[0]
     assert not sf.success and sf.message.startswith("rudder_step yaw [10.00-20.00 s]: ")
     assert "expected" in sf.message and "found" in sf.message
+
+
+def test_rudder_return_from_an_unsteady_turn_gives_T_only():
+    # Rudder back to midships 20 s into a turn (T = 72 s): r is still rising, so K from the change
+    # would be wrong, and K = r_ss/delta_after is undefined.
+    fs = 10.0
+    t = np.arange(0.0, 400.0, 1 / fs)
+    rng = np.random.default_rng(12)
+    r_turn = K_TRUE * DELTA * (1 - np.exp(-t / T_TRUE))
+    r_at = K_TRUE * DELTA * (1 - math.exp(-40.0 / T_TRUE))
+    r = np.where(t < 40.0, r_turn, r_at * np.exp(-(t - 40.0) / T_TRUE)) + rng.normal(0, 1e-3, t.size)
+    trial = Trial("ret", pd.DataFrame({"t": t, "r": r}), fs)
+    fits = fit_trial(trial, Segments("ret", (Segment("rudder_step", "yaw", 40.0, 400.0, "delta", DELTA, 0.0),)),
+                     parse_vessel({"name": "tanker"}))
+    sf = fits.segment_fits[0]
+    assert sf.success and "K not identified, T only" in sf.message
+    T, K = fits.estimates["T_nomoto"], fits.estimates["K_nomoto"]
+    assert T.success and abs(T.value - T_TRUE) < 3 * T.stderr
+    assert not K.success and "K not identified" in K.message

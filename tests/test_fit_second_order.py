@@ -150,3 +150,13 @@ def test_free_decay_in_yaw_is_refused():
     trial = free_decay_trial(seed=9)
     fits = fit_trial(trial, Segments("x", (roll_segment(dof="yaw"),)), parse_vessel(AAUSHIP))
     assert not fits.segment_fits[0].success and "expected a free_decay in roll or pitch" in fits.segment_fits[0].message
+
+
+def test_heavily_damped_one_second_pitch_decay_uses_the_release_as_first_extremum():
+    # zeta = 0.3: after the release only two turning points stand above the noise.
+    trial = free_decay_trial(seed=10, inertia=I_PITCH, c=C_PITCH, d=D_PITCH, angle0=math.radians(6),
+                             noise_deg=0.1, length=3.0, channel="theta")
+    fits = fit_trial(trial, Segments("pitch", (roll_segment(1.0, 1.96, "pitch"),)), parse_vessel(AAUSHIP))
+    m_q = fits.estimates["M_q"]
+    assert m_q.success, m_q.message
+    assert abs(m_q.value + D_PITCH) < 3 * m_q.stderr and abs(m_q.value + D_PITCH) < 0.3

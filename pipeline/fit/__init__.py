@@ -2,7 +2,8 @@
 
 One module per concern: ``first_order`` (coast-downs and steps), ``second_order`` (roll/pitch free
 decays), ``nomoto`` (rudder steps), ``least_squares`` (solver and Jacobian covariance),
-``segment_fit`` (success checks), ``damping`` (derived coefficients with error propagation),
+``segment_fit`` (success checks), ``data`` (segment samples, noise level, input levels,
+steadiness before a step), ``damping`` (derived coefficients with error propagation),
 ``combine`` (inverse-variance mean over repeated segments) and ``trial`` (:func:`fit_trial`).
 Every model has a closed-form ``guess_*`` that starts the least-squares fit.
 """
@@ -10,14 +11,14 @@ Every model has a closed-form ``guess_*`` that starts the least-squares fit.
 from .combine import Contribution, combine
 from .first_order import decay, fit_coast_down, fit_step, guess_decay, guess_step, step_response
 from .least_squares import LeastSquaresResult, confidence_interval, fit_least_squares
-from .nomoto import fit_rudder_step, guess_nomoto_step, nomoto_step
+from .nomoto import fit_rudder_step, guess_nomoto_step, nomoto_step, nomoto_step_change
 from .second_order import damped_oscillation, fit_free_decay, guess_damped_oscillation
 from .trial import fit_trial
 
 __all__ = [
     "fit_trial",
     "fit_coast_down", "fit_step", "fit_free_decay", "fit_rudder_step",
-    "decay", "step_response", "damped_oscillation", "nomoto_step",
+    "decay", "step_response", "damped_oscillation", "nomoto_step", "nomoto_step_change",
     "guess_decay", "guess_step", "guess_damped_oscillation", "guess_nomoto_step",
     "fit_least_squares", "LeastSquaresResult", "confidence_interval",
     "combine", "Contribution",

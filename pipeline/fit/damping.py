@@ -109,44 +109,52 @@ def natural_frequency_ratio(fit: SegmentFit, restoring: float, inertia: float) -
     return fit.params["wn"] / wn_cfg, fit.stderr["wn"] / wn_cfg
 
 
-def step_gain(fit: SegmentFit, delta_input: float) -> tuple[float, float]:
-    """Input gain ``(y_ss - y0) / delta_input`` of a first-order step.
+def step_gain(fit: SegmentFit, input_before: float, input_after: float, formulation: str) -> tuple[float, float]:
+    """Input gain of a first-order step [unit of y per unit of input].
 
-    It equals ``y_ss / delta_input`` from rest, and ``1 / D`` when the input is the DOF's generalised
-    force and the vessel was settled before the step.
-
-    Parameters
-    ----------
-    fit : SegmentFit
-        A ``first_order_step`` fit.
-    delta_input : float
-        Input change [SI unit of the input], non-zero.
-
-    Returns
-    -------
-    tuple[float, float]
-        Gain and standard error [unit of y per unit of input].
-    """
-    dy = fit.params["y_ss"] - fit.params["y0"]
-    grad = [-1.0 / delta_input, 1.0 / delta_input]
-    return dy / delta_input, propagate(grad, sub_covariance(fit, ("y0", "y_ss")))
-
-
-def damping_from_gain(fit: SegmentFit, delta_tau: float) -> tuple[float, float]:
-    """Gain-based damping ``D = delta_tau / (y_ss - y0)`` of a first-order step in force.
+    ``change``: ``(y_ss - y0) / (input_after - input_before)`` (steady before the step);
+    ``level``: ``y_ss / input_after`` (no offset). See :func:`pipeline.fit.data.gain_formulation`.
+    The gain is ``1 / D`` when the input is the DOF's generalised force.
 
     Parameters
     ----------
     fit : SegmentFit
         A ``first_order_step`` fit.
-    delta_tau : float
-        Change of the generalised force [N or N m], non-zero.
+    input_before, input_after : float
+        Input levels [SI unit of the input].
+    formulation : str
+        ``change`` or ``level``.
 
     Returns
     -------
     tuple[float, float]
-        ``D`` and standard error [kg/s or kg m^2/s].
+        Gain and standard error.
     """
-    dy = fit.params["y_ss"] - fit.params["y0"]
-    grad = [delta_tau / dy**2, -delta_tau / dy**2]
-    return delta_tau / dy, propagate(grad, sub_covariance(fit, ("y0", "y_ss")))
+    cov = sub_covariance(fit, ("y0", "y_ss"))
+    y0, y_ss = fit.params["y0"], fit.params["y_ss"]
+    if formulation == "level":
+        return y_ss / input_after, propagate([0.0, 1.0 / input_after], cov)
+    du = input_after - input_before
+    return (y_ss - y0) / du, propagate([-1.0 / du, 1.0 / du], cov)
+
+
+def damping_from_gain(fit: SegmentFit, input_before: float, input_after: float,
+                      formulation: str) -> tuple[float, float]:
+    """Gain-based damping ``D = 1 / gain`` of a first-order step in the DOF's generalised force.
+
+    Parameters
+    ----------
+    fit : SegmentFit
+        A ``first_order_step`` fit.
+    input_before, input_after : float
+        Force or moment before and after the step [N or N m].
+    formulation : str
+        ``change`` or ``level`` (see :func:`step_gain`).
+
+    Returns
+    -------
+    tuple[float, float]
+        ``D`` and standard error [kg/s or kg m^2/s]; ``se_D = se_gain / gain^2``.
+    """
+    gain, se = step_gain(fit, input_before, input_after, formulation)
+    return 1.0 / gain, se / gain**2

@@ -131,3 +131,79 @@ def input_levels(trial: Trial, segment: Segment) -> tuple[float, float, str]:
     new_after = float(np.median(post))
     return new_before, new_after, (f"input levels read from the trial's {ch} channel "
                                    f"({new_before:.4g} -> {new_after:.4g}) because the segment gives none")
+
+
+#: Unsettled fraction of the step response above which the vessel is not steady before a step.
+SETTLED_TOLERANCE = 0.02
+#: Longest stretch before a step that the steadiness check reads [s].
+MAX_STEADY_LOOKBACK = 30.0
+
+
+def steady_before(trial: Trial, segment: Segment, channel: str, T: float, response: float) -> tuple[bool | None, str]:
+    """Was ``channel`` steady before the step at ``segment.t_start``?
+
+    For a first-order system a residual transient ``e`` decays as ``e exp(-t/T)``, so its slope is
+    ``-e/T``: a line fitted to the samples in the ``min(T, MAX_STEADY_LOOKBACK)`` seconds before the
+    step estimates the unsettled part as ``|slope| T``. The vessel counts as steady when that is
+    below ``SETTLED_TOLERANCE`` of the step response (or within 3 standard errors of zero).
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    segment : Segment
+        The step; ``t_start`` is the input change.
+    channel : str
+        Response channel.
+    T : float
+        Time constant [s].
+    response : float
+        Size of the step response [unit of channel].
+
+    Returns
+    -------
+    steady : bool or None
+        None when there are too few samples before the step to tell.
+    note : str
+        The evidence, for messages.
+    """
+    if not (math.isfinite(T) and T > 0 and math.isfinite(response)):
+        return None, "steadiness before the step not checked (no time constant)"
+    lookback = min(T, MAX_STEADY_LOOKBACK)
+    rows = trial.window(segment.t_start - lookback, segment.t_start)
+    t = rows["t"].to_numpy(dtype=float)
+    y = rows[channel].to_numpy(dtype=float)
+    ok = np.isfinite(t) & np.isfinite(y) & (t < segment.t_start)
+    t, y = t[ok], y[ok]
+    if t.size < 10:
+        return None, f"steadiness before the step not checked ({t.size} samples in the {lookback:.3g} s before it)"
+    (slope, _), cov = np.polyfit(t - t.mean(), y, 1, cov=True)
+    unsettled = abs(slope) * T
+    limit = max(SETTLED_TOLERANCE * abs(response), 3.0 * math.sqrt(max(cov[0, 0], 0.0)) * T)
+    steady = bool(unsettled <= limit)
+    return steady, (f"{channel} {'steady' if steady else 'not steady'} before the step "
+                    f"(unsettled part |slope| T = {unsettled:.3g}, limit {limit:.3g})")
+
+
+def gain_formulation(steady: bool | None, input_after: float) -> str:
+    """How a step's gain is read: ``"change"``, ``"level"`` or ``"none"``.
+
+    ``change``: gain = (y_ss - y0) / (input_after - input_before). Needs the response steady at
+    ``y0`` before the step; a constant offset (rudder bias, sensor offset) cancels.
+    ``level``: gain = y_ss / input_after. Needs no offset, but not a settled start.
+    A confirmed steady start uses ``change``; an unsteady one ``level``; when steadiness cannot be
+    checked, ``level`` unless the input returns to zero (where only ``change`` is defined).
+    ``none`` when the start is unsteady and the input returns to zero: the gain is not identified.
+
+    Parameters
+    ----------
+    steady : bool or None
+        Result of :func:`steady_before`.
+    input_after : float
+        Input level after the step [SI unit of the input].
+    """
+    if steady is True:
+        return "change"
+    if input_after != 0.0:
+        return "level"
+    return "change" if steady is None else "none"

@@ -11,12 +11,13 @@ settled before the step.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from ..errors import FitError
 from ..records import DOF_CHANNELS, Segment, SegmentFit, Trial
-from .data import input_levels, noise_sigma, pick_channel, segment_label, segment_samples
+from .data import input_levels, noise_sigma, pick_channel, segment_label, segment_samples, steady_before
 from .least_squares import fit_least_squares
 from .segment_fit import build_segment_fit
 
@@ -279,4 +280,25 @@ def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
     res = fit_least_squares(lambda tt, p: step_response(tt, *p), lambda tt, p: step_jacobian(tt, *p), t, y,
                             [p0["y0"], p0["y_ss"], p0["T"]], STEP_PARAMS,
                             [-np.inf, -np.inf, lo_T], [np.inf, np.inf, hi_T])
-    return build_segment_fit(segment, "first_order_step", channel, t, y, res, ("T",), notes)
+    sf = build_segment_fit(segment, "first_order_step", channel, t, y, res, ("T",), notes)
+    _, steady_note = step_steadiness(trial, sf)
+    return replace(sf, message="; ".join(m for m in (sf.message, steady_note) if m))
+
+
+def step_steadiness(trial: Trial, fit: SegmentFit) -> tuple[bool | None, str]:
+    """Whether the response was steady before a fitted step (see :func:`pipeline.fit.data.steady_before`).
+
+    Evaluated with the fitted ``T`` and step size, so that :func:`fit_step` (which notes it) and
+    the gain derivation (which acts on it) agree.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    fit : SegmentFit
+        A ``first_order_step`` fit.
+    """
+    p = fit.params
+    if not all(k in p for k in STEP_PARAMS):
+        return None, ""
+    return steady_before(trial, fit.segment, fit.channel, p["T"], p["y_ss"] - p["y0"])

@@ -72,11 +72,13 @@ def damped_oscillation_jacobian(t: np.ndarray, A: float, zeta: float, wn: float,
     return np.column_stack([e * c, d_zeta, d_wn, -A * e * s, np.ones_like(t)])
 
 
-def _extrema(t: np.ndarray, z: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+def _extrema(t: np.ndarray, z: np.ndarray, h: float, keep_start: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Times and values of the alternating extrema of ``z`` beyond the hysteresis band ``+-h``.
 
     The band keeps noise near a zero crossing from splitting one half-cycle in two. Extrema on the
-    first or last sample are dropped: they are where the segment was cut, not turning points.
+    last sample are dropped: that is where the segment was cut, not a turning point. So is one on the
+    first sample unless ``keep_start``: a segment that starts at the release starts at a turning
+    point, but one that starts late does not.
     """
     sign = np.where(z > h, 1, np.where(z < -h, -1, 0))
     nz = np.flatnonzero(sign)
@@ -91,7 +93,7 @@ def _extrema(t: np.ndarray, z: np.ndarray, h: float) -> tuple[np.ndarray, np.nda
         if filled[a] == 0:
             continue
         k = a + int(np.argmax(filled[a] * z[a:b]))
-        if k == 0 or k == z.size - 1:
+        if (k == 0 and not keep_start) or k == z.size - 1:
             continue
         # A least-squares parabola over +-30 degrees of phase around the largest sample averages the
         # noise; the largest sample alone is biased away from zero by the noise near small peaks.
@@ -107,6 +109,24 @@ def _extrema(t: np.ndarray, z: np.ndarray, h: float) -> tuple[np.ndarray, np.nda
         times.append(tk)
         values.append(zk)
     return np.asarray(times), np.asarray(values)
+
+
+def _usable_extrema(t: np.ndarray, z: np.ndarray, h: float, sigma: float,
+                    keep_start: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Extrema of :func:`_extrema` up to where the decay sinks into the noise.
+
+    Past that point "extrema" are noise peaks at random times: stop at the first one below
+    ``MIN_PEAK_SNR`` noise deviations, or the first one far off the half-period rhythm.
+    """
+    tk, ak = _extrema(t, z, h, keep_start)
+    small = np.flatnonzero(np.abs(ak) < MIN_PEAK_SNR * sigma) if math.isfinite(sigma) else np.empty(0, int)
+    keep = int(small[0]) if small.size else tk.size
+    gaps = np.diff(tk[:keep])
+    if gaps.size >= 2:
+        off_rhythm = np.flatnonzero(gaps > 1.5 * np.median(gaps))
+        if off_rhythm.size:
+            keep = int(off_rhythm[0]) + 1
+    return tk[:keep], ak[:keep]
 
 
 def guess_damped_oscillation(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
@@ -139,17 +159,11 @@ def guess_damped_oscillation(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
     sigma = noise_sigma(y)
     z = y - np.median(y)
     h = max(3.0 * sigma if math.isfinite(sigma) else 0.0, 1e-3 * float(np.abs(z).max(initial=0.0)))
-    tk, ak = _extrema(t, z, h)
-    # Once the decay has sunk into the noise, "extrema" are noise peaks at random times: stop at the
-    # first one below MIN_PEAK_SNR noise deviations, or the first one far off the half-period rhythm.
-    small = np.flatnonzero(np.abs(ak) < MIN_PEAK_SNR * sigma) if math.isfinite(sigma) else np.empty(0, int)
-    keep = int(small[0]) if small.size else tk.size
-    gaps = np.diff(tk[:keep])
-    if gaps.size >= 2:
-        off_rhythm = np.flatnonzero(gaps > 1.5 * np.median(gaps))
-        if off_rhythm.size:
-            keep = int(off_rhythm[0]) + 1
-    tk, ak = tk[:keep], ak[:keep]
+    tk, ak = _usable_extrema(t, z, h, sigma, keep_start=False)
+    if tk.size < MIN_EXTREMA:
+        # A heavily damped decay (pitch, zeta ~ 0.3) may show only two turning points above the
+        # noise after the release; the release itself is then needed as the first one.
+        tk, ak = _usable_extrema(t, z, h, sigma, keep_start=True)
     if tk.size < MIN_EXTREMA:
         raise FitError(f"expected at least {MIN_EXTREMA} alternating extrema above the noise "
                        f"(one full oscillation period), found {tk.size}")

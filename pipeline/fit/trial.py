@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping
 
 import numpy as np
@@ -15,8 +15,8 @@ from ..vessel import Vessel
 from .combine import Contribution, combine
 from .damping import (damping_from_decay, damping_from_gain, damping_from_time_constant,
                       natural_frequency_ratio, step_gain)
-from .data import input_levels, segment_label
-from .first_order import fit_coast_down, fit_step
+from .data import gain_formulation, input_levels, segment_label
+from .first_order import fit_coast_down, fit_step, step_steadiness
 from .nomoto import fit_rudder_step
 from .second_order import fit_free_decay
 from .segment_fit import failed_segment_fit
@@ -119,8 +119,12 @@ class _Collector:
         elif kind == "free_decay" and dof in ("roll", "pitch"):
             self._free_decay(sf)
         elif kind == "rudder_step" and dof == "yaw":
-            method = "first-order Nomoto step response r = K delta + (r0 - K delta) exp(-t/T) on {kinds}"
-            self.add("K_nomoto", "1/s", method, kind, self._param(sf, "K"))
+            method = ("first-order Nomoto step response on {kinds}: K from the rudder change where the yaw "
+                      "rate was steady before the step, else K = r_ss/delta_after")
+            k = self._param(sf, "K")
+            if sf.success and "K" not in sf.params:
+                k = replace(k, ok=False, reason=sf.message)
+            self.add("K_nomoto", "1/s", method, kind, k)
             self.add("T_nomoto", "s", method, kind, self._param(sf, "T"))
 
     def _first_order(self, sf: SegmentFit) -> None:
@@ -137,20 +141,33 @@ class _Collector:
         if kind != "step":
             return
         before, after, _ = input_levels(self.trial, seg)
-        du = after - before
-        no_input = "" if du != 0 else (f"no input change given (input_before = input_after = {after}): "
-                                       f"the gain needs delta_input")
+        steady, steady_note = step_steadiness(self.trial, sf)
+        form = gain_formulation(steady, after)
+        missing = ""
+        if after == before:
+            missing = (f"no input change given (input_before = input_after = {after}): "
+                       f"the gain needs delta_input")
+        elif form == "none":
+            missing = f"gain not identified: {steady_note} and the input returns to zero"
         y_unit = CHANNEL_UNITS.get(sf.channel or DOF_CHANNELS[dof][0], "")
         in_unit = CHANNEL_UNITS.get(seg.input_channel or "", "input unit")
         force = seg.input_channel == DOF_CHANNELS[dof][1]
         gain_unit = {"surge": "s/kg", "sway": "s/kg", "yaw": "s/(kg m^2)"}[dof] if force else f"({y_unit})/({in_unit})"
-        self.add(f"gain_{dof}", gain_unit, "first-order step gain (y_ss - y0)/delta_input on {kinds}", kind,
-                 self._derived(sf, lambda: step_gain(sf, du), 1.0, no_input))
+        rule = ("(y_ss - y0)/(input_after - input_before) where the response was steady before the step, "
+                "else y_ss/input_after")
+        names = [f"gain_{dof}"]
+        self.add(names[0], gain_unit, f"first-order step gain {rule}, on {{kinds}}", kind,
+                 self._derived(sf, lambda: step_gain(sf, before, after, form), 1.0, missing))
         if force:
-            self.add(f"D_gain_{dof}", DAMPING_UNITS[dof],
-                     "gain-based D = delta_tau/(y_ss - y0) (vessel settled before the step) on {kinds}; "
-                     f"a consistency check only: the damping matrix uses the T-based {DERIVATIVES[dof]}",
-                     kind, self._derived(sf, lambda: damping_from_gain(sf, du), 1.0, no_input))
+            names.append(f"D_gain_{dof}")
+            self.add(names[1], DAMPING_UNITS[dof],
+                     f"gain-based D = 1/gain, gain {rule}, on {{kinds}}; a consistency check only: the "
+                     f"damping matrix uses the T-based {DERIVATIVES[dof]}",
+                     kind, self._derived(sf, lambda: damping_from_gain(sf, before, after, form), 1.0, missing))
+        if form == "level" and sf.success and not missing:
+            for name in names:
+                self.pools[name].notes.append(f"{segment_label(seg)}: {steady_note}: gain read as "
+                                              f"y_ss/input_after (assumes no offset)")
 
     def _free_decay(self, sf: SegmentFit) -> None:
         seg = sf.segment
