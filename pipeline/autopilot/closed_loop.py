@@ -1,0 +1,440 @@
+"""Closed-loop check of the heading autopilot: PD alone, PD on the Kalman estimate, and with bias feed-forward.
+
+The ship is the first-order Nomoto model :func:`pipeline.model.nomoto_rhs` (RK4 between samples, rudder
+held), the current a constant rudder bias ``b`` (Fossen 2021 sec. 7.2; the seed's model), the waves
+the second-order model of :func:`pipeline.model.waves.simulate_waves` added to the compass, and the
+compass noise a sampled white noise of variance R. The rudder saturates at ``max_angle`` and moves at
+most ``max_rate``. The controller runs at the filter's sample time. Three cases:
+
+``pd``
+    PD on the compass heading ``y = psi + psi_w + v``: the seed's part III.
+``pd_kalman``
+    PD on the filter's ``psi_hat`` (wave filtering), no bias feed-forward.
+``pd_kalman_ff``
+    PD on ``psi_hat`` plus the estimated bias ``b_hat`` fed forward to the rudder.
+
+Everything inside is SI and radians; :meth:`LoopMetrics.to_dict` gives degrees for the report.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import AutopilotError
+from ..model.nomoto import NomotoParams, nomoto_rhs
+from ..model.waves import WaveParams, simulate_waves
+from .config import AutopilotConfig
+from .kalman import kalman_predict, kalman_update, ssa
+from .pd import discretise_pd
+
+#: Closed-loop cases, in report order.
+CASES = ("pd", "pd_kalman", "pd_kalman_ff")
+CASE_LABELS = {
+    "pd": "PD on the compass",
+    "pd_kalman": "PD on the Kalman heading (wave filtering)",
+    "pd_kalman_ff": "PD on the Kalman heading + bias feed-forward",
+}
+#: Window over which a rudder swing is measured [s] (the seed's "40 degrees within 5 s").
+SWING_WINDOW = 5.0
+#: Default current, as a rudder bias [rad]: the seed's rudder settled near 3 deg against it.
+DEFAULT_CURRENT_BIAS = math.radians(3.0)
+#: Default heading step [rad] (the seed's psi_r = 30 deg).
+DEFAULT_STEP = math.radians(30.0)
+#: Peak-to-peak heading in the steady window above which a run is reported as a limit cycle [rad].
+#: A rate-limited rudder and the filter's lag can sustain one after a large step when the ship is
+#: faster than the identified model.
+LIMIT_CYCLE = math.radians(5.0)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One closed-loop experiment.
+
+    Attributes
+    ----------
+    name : str
+        Short name (``model``, ``sea``).
+    K, T : float
+        Nomoto gain [1/s] and time constant [s] of the simulated ship (may differ from the design).
+    duration : float
+        Simulated time [s].
+    psi_ref : float
+        Heading reference, stepped at t = 0 from psi = 0 [rad].
+    current_bias : float
+        Rudder bias standing for the current [rad].
+    waves : WaveParams or None
+        Wave model added to the compass; None for calm water.
+    noise_var : float
+        Compass noise variance per sample [rad^2]; 0 for none.
+    seed : int
+        Seed of the wave and noise generator.
+    description : str
+        One line for the report.
+    """
+
+    name: str
+    K: float
+    T: float
+    duration: float = 600.0
+    psi_ref: float = DEFAULT_STEP
+    current_bias: float = 0.0
+    waves: WaveParams | None = None
+    noise_var: float = 0.0
+    seed: int = 0
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class LoopMetrics:
+    """What one closed-loop run measured (SI units).
+
+    Attributes
+    ----------
+    steady_error : float
+        Mean of ``psi_ref - psi`` over the steady window [rad] (``psi`` the ship's heading without
+        the wave-induced oscillation, which averages out).
+    settling_time : float
+        Time after which ``|psi - psi_ref|`` stays within ``settle_band`` [s]; NaN if it never does.
+    settle_band : float
+        Settling band [rad]: 5 % of the step (at least 0.5 deg).
+    rms_rudder_rate : float
+        RMS rudder rate over the steady window [rad/s].
+    max_swing : float
+        Largest peak-to-peak rudder travel within any 5 s in the steady window [rad].
+    max_swing_cmd : float
+        The same for the controller's command before saturation and rate limit [rad] (the seed's
+        simulator had no rate limit, so its "40 deg in 5 s" compares with this).
+    rate_limited : float
+        Fraction of steady-window samples at the rudder-rate limit [-].
+    mean_rudder : float
+        Mean rudder over the steady window [rad].
+    heading_estimate_rms : float
+        RMS of ``psi_hat - psi`` over the steady window [rad] (the filter's wave removal).
+    compass_error_rms : float
+        RMS of ``y - psi`` over the steady window [rad] (what PD alone feeds back).
+    bias_estimate : float
+        Mean ``b_hat`` over the steady window [rad].
+    heading_swing : float
+        Peak-to-peak of ``psi`` over the steady window [rad]: a settled loop keeps it near the
+        waves' small effect on the ship; degrees to tens of degrees mean a limit cycle (see
+        ``LIMIT_CYCLE``).
+    steady_window : tuple of float
+        ``(t0, t1)`` [s].
+    """
+
+    steady_error: float
+    settling_time: float
+    settle_band: float
+    rms_rudder_rate: float
+    max_swing: float
+    max_swing_cmd: float
+    rate_limited: float
+    mean_rudder: float
+    heading_estimate_rms: float
+    compass_error_rms: float
+    bias_estimate: float
+    heading_swing: float
+    steady_window: tuple[float, float]
+
+    @property
+    def limit_cycle(self) -> bool:
+        """True when the heading still swings more than ``LIMIT_CYCLE`` in the steady window."""
+        return self.heading_swing > LIMIT_CYCLE
+
+    def to_dict(self) -> dict:
+        """Report-ready values in degrees, keys naming their unit; NaN becomes None."""
+        d = math.degrees
+
+        def num(x):
+            return float(x) if math.isfinite(x) else None
+
+        return {
+            "steady_error_deg": num(d(self.steady_error)),
+            "settling_time_s": num(self.settling_time),
+            "settle_band_deg": num(d(self.settle_band)),
+            "rms_rudder_rate_deg_s": num(d(self.rms_rudder_rate)),
+            "max_rudder_swing_5s_deg": num(d(self.max_swing)),
+            "max_command_swing_5s_deg": num(d(self.max_swing_cmd)),
+            "rate_limited_fraction": num(self.rate_limited),
+            "mean_rudder_deg": num(d(self.mean_rudder)),
+            "heading_estimate_rms_deg": num(d(self.heading_estimate_rms)),
+            "compass_error_rms_deg": num(d(self.compass_error_rms)),
+            "bias_estimate_deg": num(d(self.bias_estimate)),
+            "heading_swing_deg": num(d(self.heading_swing)),
+            "limit_cycle": bool(self.limit_cycle),
+            "steady_window_s": [float(self.steady_window[0]), float(self.steady_window[1])],
+        }
+
+
+@dataclass(frozen=True)
+class ClosedLoopRun:
+    """Time series and metrics of one case in one scenario.
+
+    Attributes
+    ----------
+    scenario : Scenario
+    case : str
+        One of ``CASES``.
+    t : numpy.ndarray
+        Time [s].
+    psi, r : numpy.ndarray
+        Ship heading without waves [rad] and yaw rate [rad/s].
+    psi_w : numpy.ndarray
+        Wave-induced heading [rad].
+    y : numpy.ndarray
+        Compass [rad].
+    psi_hat, psi_w_hat, b_hat : numpy.ndarray
+        Filter estimates [rad].
+    delta, delta_cmd : numpy.ndarray
+        Rudder applied and commanded [rad].
+    metrics : LoopMetrics
+    """
+
+    scenario: Scenario
+    case: str
+    t: np.ndarray
+    psi: np.ndarray
+    r: np.ndarray
+    psi_w: np.ndarray
+    y: np.ndarray
+    psi_hat: np.ndarray
+    psi_w_hat: np.ndarray
+    b_hat: np.ndarray
+    delta: np.ndarray
+    delta_cmd: np.ndarray
+    metrics: LoopMetrics
+
+
+def _rk4(x: np.ndarray, u: np.ndarray, h: float, params: NomotoParams) -> np.ndarray:
+    k1 = nomoto_rhs(0.0, x, u, params)
+    k2 = nomoto_rhs(0.0, x + h / 2 * k1, u, params)
+    k3 = nomoto_rhs(0.0, x + h / 2 * k2, u, params)
+    k4 = nomoto_rhs(0.0, x + h * k3, u, params)
+    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def simulate_heading_loop(config: AutopilotConfig, scenario: Scenario, case: str) -> ClosedLoopRun:
+    """Simulate one case of the heading autopilot in one scenario.
+
+    Parameters
+    ----------
+    config : AutopilotConfig
+        Controller, filter and rudder limits.
+    scenario : Scenario
+        Ship and disturbances.
+    case : str
+        ``pd``, ``pd_kalman`` or ``pd_kalman_ff``.
+
+    Returns
+    -------
+    ClosedLoopRun
+        Time series and metrics. The filter runs in every case (its estimates are shown), but only
+        the Kalman cases feed it back.
+
+    Raises
+    ------
+    AutopilotError
+        Unknown case, non-positive duration or plant parameters.
+    """
+    if case not in CASES:
+        raise AutopilotError(f"closed-loop case: expected one of {list(CASES)}, found {case!r}")
+    if not (scenario.duration > 20 * config.ts):
+        raise AutopilotError(f"scenario {scenario.name!r}: expected a duration above {20 * config.ts:g} s, "
+                             f"found {scenario.duration!r}")
+    if not (scenario.K > 0 and scenario.T > 0):
+        raise AutopilotError(f"scenario {scenario.name!r}: expected K > 0 and T > 0, found K={scenario.K!r}, "
+                             f"T={scenario.T!r}")
+    ts = config.ts
+    n = int(round(scenario.duration / ts)) + 1
+    t = ts * np.arange(n)
+    rng = np.random.default_rng(scenario.seed)
+    # Waves and noise are drawn up front from one seeded generator, so the three cases of a
+    # scenario see the same sea and the same compass noise and differ only in the controller.
+    psi_w = simulate_waves(t, scenario.waves, rng) if scenario.waves is not None else np.zeros(n)
+    noise = rng.standard_normal(n) * math.sqrt(scenario.noise_var) if scenario.noise_var > 0 else np.zeros(n)
+    plant = NomotoParams(K=scenario.K, T=scenario.T, b=scenario.current_bias)
+    pdd = discretise_pd(config.pd, ts)
+    km = config.kalman
+    max_angle, max_step = config.rudder_max_angle, config.rudder_max_rate * ts
+    use_filter = case != "pd"
+    feed_forward = case == "pd_kalman_ff"
+
+    x = np.zeros(2)
+    xk, pk = km.x0.copy(), km.p0.copy()
+    z = 0.0
+    delta_prev = 0.0
+    out = np.empty((n, 8))  # psi, r, y, psi_hat, psi_w_hat, b_hat, delta, delta_cmd
+    for k in range(n):
+        y = x[0] + psi_w[k] + noise[k]
+        x_post, p_post, _ = kalman_update(km, xk, pk, y)
+        fb = x_post[2] if use_filter else y
+        e = float(ssa(scenario.psi_ref - fb))
+        cmd = pdd.output(z, e) + (x_post[4] if feed_forward else 0.0)
+        z = pdd.next_state(z, e)
+        delta = float(np.clip(delta_prev + np.clip(cmd - delta_prev, -max_step, max_step), -max_angle, max_angle))
+        out[k] = (x[0], x[1], y, x_post[2], x_post[1], x_post[4], delta, cmd)
+        xk, pk = kalman_predict(km, x_post, p_post, delta)
+        x = _rk4(x, np.array([delta]), ts, plant)
+        delta_prev = delta
+
+    run = dict(t=t, psi=out[:, 0], r=out[:, 1], psi_w=psi_w, y=out[:, 2], psi_hat=out[:, 3],
+               psi_w_hat=out[:, 4], b_hat=out[:, 5], delta=out[:, 6], delta_cmd=out[:, 7])
+    metrics = loop_metrics(run, scenario, ts, config.rudder_max_rate)
+    return ClosedLoopRun(scenario=scenario, case=case, metrics=metrics, **run)
+
+
+def _max_swing(x: np.ndarray, width: int) -> float:
+    if len(x) < width:
+        return float(np.ptp(x)) if len(x) else math.nan
+    win = np.lib.stride_tricks.sliding_window_view(x, width)
+    return float(np.max(win.max(axis=1) - win.min(axis=1)))
+
+
+def loop_metrics(run: dict, scenario: Scenario, ts: float, max_rate: float) -> LoopMetrics:
+    """Measure steady error, settling time, rudder rate and swings of one run.
+
+    Parameters
+    ----------
+    run : dict
+        Series ``t, psi, psi_w, y, psi_hat, b_hat, delta, delta_cmd`` as in :class:`ClosedLoopRun`.
+    scenario : Scenario
+        For the reference.
+    ts : float
+        Sample time [s].
+    max_rate : float
+        Rudder-rate limit [rad/s].
+
+    Returns
+    -------
+    LoopMetrics
+        The steady window is the last quarter of the run.
+    """
+    t = run["t"]
+    t0 = t[-1] - 0.25 * (t[-1] - t[0])
+    w = t >= t0
+    err = scenario.psi_ref - run["psi"]
+    band = max(0.05 * abs(scenario.psi_ref), math.radians(0.5))
+    outside = np.flatnonzero(np.abs(err) > band)
+    if len(outside) == 0:
+        settling = 0.0
+    elif outside[-1] == len(t) - 1:
+        settling = math.nan
+    else:
+        settling = float(t[outside[-1] + 1])
+    d = run["delta"]
+    rate = np.diff(d[w]) / ts
+    width = int(round(SWING_WINDOW / ts)) + 1
+    return LoopMetrics(
+        steady_error=float(np.mean(err[w])),
+        settling_time=settling,
+        settle_band=band,
+        rms_rudder_rate=float(np.sqrt(np.mean(rate**2))) if len(rate) else math.nan,
+        max_swing=_max_swing(d[w], width),
+        max_swing_cmd=_max_swing(run["delta_cmd"][w], width),
+        rate_limited=float(np.mean(np.abs(rate) >= 0.999 * max_rate)) if len(rate) else math.nan,
+        mean_rudder=float(np.mean(d[w])),
+        heading_estimate_rms=float(np.sqrt(np.mean((run["psi_hat"][w] - run["psi"][w]) ** 2))),
+        compass_error_rms=float(np.sqrt(np.mean((run["y"][w] - run["psi"][w]) ** 2))),
+        bias_estimate=float(np.mean(run["b_hat"][w])),
+        heading_swing=float(np.ptp(run["psi"][w])),
+        steady_window=(float(t0), float(t[-1])),
+    )
+
+
+@dataclass(frozen=True)
+class ClosedLoopCheck:
+    """All cases in all scenarios.
+
+    Attributes
+    ----------
+    scenarios : tuple[Scenario, ...]
+    runs : tuple[ClosedLoopRun, ...]
+        One per (scenario, case), scenario-major in ``CASES`` order.
+    """
+
+    scenarios: tuple[Scenario, ...]
+    runs: tuple[ClosedLoopRun, ...]
+
+    def run(self, scenario: str, case: str) -> ClosedLoopRun:
+        """The run of one scenario and case; ``KeyError`` naming what exists."""
+        for r in self.runs:
+            if r.scenario.name == scenario and r.case == case:
+                return r
+        raise KeyError(f"no run ({scenario!r}, {case!r}); have "
+                       f"{[(r.scenario.name, r.case) for r in self.runs]}")
+
+    def to_dict(self) -> dict:
+        """Metrics per scenario and case, degrees, JSON-ready."""
+        out = {}
+        for s in self.scenarios:
+            out[s.name] = {
+                "description": s.description, "K": s.K, "T": s.T, "duration_s": s.duration,
+                "psi_ref_deg": math.degrees(s.psi_ref), "current_bias_deg": math.degrees(s.current_bias),
+                "waves": None if s.waves is None else {"omega0": s.waves.omega0, "lambda": s.waves.lam,
+                                                        "kw": s.waves.kw},
+                "noise_std_deg": math.degrees(math.sqrt(s.noise_var)), "seed": s.seed,
+                "cases": {r.case: r.metrics.to_dict() for r in self.runs if r.scenario.name == s.name},
+            }
+        return out
+
+
+def default_scenarios(config: AutopilotConfig, plant_K: float | None = None, plant_T: float | None = None,
+                      duration: float = 600.0, current_bias: float = DEFAULT_CURRENT_BIAS,
+                      psi_ref: float = DEFAULT_STEP, seed: int = 1) -> tuple[Scenario, ...]:
+    """The two standard scenarios: the identified model in calm water, and the sea.
+
+    Parameters
+    ----------
+    config : AutopilotConfig
+        Gives the identified K, T, the wave model and R.
+    plant_K, plant_T : float, optional
+        Ship for the ``sea`` scenario (the vessel config's truth when known); default the identified.
+    duration : float
+        Simulated time [s].
+    current_bias : float
+        Current as rudder bias in the ``sea`` scenario [rad].
+    psi_ref : float
+        Heading step [rad].
+    seed : int
+        Generator seed.
+
+    Returns
+    -------
+    tuple of Scenario
+        ``model`` (identified model, no current, waves or noise) and ``sea`` (current, waves, noise).
+    """
+    k = config.K if plant_K is None else plant_K
+    t = config.T if plant_T is None else plant_T
+    return (
+        Scenario(name="model", K=config.K, T=config.T, duration=duration, psi_ref=psi_ref,
+                 description="identified Nomoto model, calm water, no noise"),
+        Scenario(name="sea", K=k, T=t, duration=duration, psi_ref=psi_ref, current_bias=current_bias,
+                 waves=config.waves, noise_var=config.kalman.r, seed=seed,
+                 description=(f"{'vessel-config' if plant_K is not None else 'identified'} Nomoto model with "
+                              f"current ({math.degrees(current_bias):.1f} deg rudder bias), waves "
+                              f"(omega0 {config.waves.omega0:.3g} rad/s, lambda {config.waves.lam:.3g}) "
+                              f"and compass noise ({math.degrees(math.sqrt(config.kalman.r)):.3g} deg RMS)")),
+    )
+
+
+def closed_loop_check(config: AutopilotConfig, scenarios: tuple[Scenario, ...] | None = None) -> ClosedLoopCheck:
+    """Run every case of :data:`CASES` in every scenario (default :func:`default_scenarios`).
+
+    Parameters
+    ----------
+    config : AutopilotConfig
+        Controller, filter, rudder limits.
+    scenarios : tuple of Scenario, optional
+        Experiments.
+
+    Returns
+    -------
+    ClosedLoopCheck
+        Runs and metrics.
+    """
+    scen = tuple(scenarios) if scenarios is not None else default_scenarios(config)
+    runs = tuple(simulate_heading_loop(config, s, c) for s in scen for c in CASES)
+    return ClosedLoopCheck(scenarios=scen, runs=runs)

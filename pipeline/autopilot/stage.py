@@ -1,0 +1,236 @@
+"""The autopilot stage end to end: identified Nomoto model (+ wave fit) -> config, checks and files.
+
+``vesselid autopilot`` and ``vesselid run`` both call :func:`build_autopilot`; :func:`write_autopilot_outputs`
+puts ``autopilot.toml`` (and on request the closed-loop metrics, figures and an ArduPilot parameter
+file) into a folder.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping
+
+from ..errors import AutopilotError
+from ..model.waves import WaveParams
+from .closed_loop import ClosedLoopCheck, closed_loop_check, default_scenarios
+from .config import (ArduPilotExport, AutopilotConfig, NomotoCoefficients, SourceFile, _atomic_write,
+                     ardupilot_params, build_autopilot_config, write_ardupilot_params, write_autopilot_toml)
+from .kalman import DEFAULT_P0, DEFAULT_Q, observability
+from .pd import DEFAULT_CROSSOVER, DEFAULT_PHASE_MARGIN, margin_table
+from .waves_fit import WaveFit
+
+
+@dataclass(frozen=True)
+class AutopilotResult:
+    """The autopilot stage's output.
+
+    Attributes
+    ----------
+    config : AutopilotConfig
+        What a controller needs.
+    observability : dict
+        Rank of each of the seed's four model variants (:func:`pipeline.autopilot.kalman.observability`).
+    margins : list of dict
+        Crossover and phase margin on the identified model and at the corners of its 95 % box.
+    ardupilot : ArduPilotExport
+        ArduPilot Rover steering parameters.
+    check : ClosedLoopCheck or None
+        Closed-loop simulation, if run.
+    wave_fit : WaveFit or None
+        The wave-spectrum fit, if the wave model was fitted in this run.
+    """
+
+    config: AutopilotConfig
+    observability: dict
+    margins: list
+    ardupilot: ArduPilotExport
+    check: ClosedLoopCheck | None = None
+    wave_fit: WaveFit | None = None
+
+
+def nomoto_from_fits(fits) -> NomotoCoefficients:
+    """K and T from a :class:`pipeline.records.Fits` (estimates ``K_nomoto`` and ``T_nomoto``).
+
+    Parameters
+    ----------
+    fits : pipeline.records.Fits
+        The fit stage's record.
+
+    Returns
+    -------
+    NomotoCoefficients
+        Values and standard errors (no source file: the record is in memory).
+
+    Raises
+    ------
+    AutopilotError
+        Either estimate missing, failed or not finite.
+    """
+    est = getattr(fits, "estimates", None)
+    if not isinstance(est, Mapping):
+        raise AutopilotError(f"fits: expected a Fits record with estimates, found {type(fits).__name__}")
+    vals = []
+    for name in ("K_nomoto", "T_nomoto"):
+        e = est.get(name)
+        if e is None:
+            raise AutopilotError(f"fits: expected estimate {name}, found only {sorted(est)}")
+        if not (getattr(e, "success", True) and math.isfinite(e.value)):
+            raise AutopilotError(f"fits: expected an identified {name}, found value {e.value!r} "
+                                 f"({getattr(e, 'message', '') or 'fit failed'})")
+        vals.append((float(e.value), float(e.stderr)))
+    return NomotoCoefficients(K=vals[0][0], K_stderr=vals[0][1], T=vals[1][0], T_stderr=vals[1][1],
+                              vessel=str(getattr(fits, "vessel", "")))
+
+
+def build_autopilot(coefficients: NomotoCoefficients, *, waves: WaveFit | WaveParams | None = None,
+                    waves_stderr: Mapping[str, float] | None = None, wave_source: str = "",
+                    vessel=None, ts: float = 0.1, crossover: float = DEFAULT_CROSSOVER,
+                    phase_margin: float = DEFAULT_PHASE_MARGIN, r: float | None = None, r_source: str = "",
+                    q: tuple[float, float] = DEFAULT_Q, p0: tuple[float, ...] = DEFAULT_P0,
+                    sources: tuple[SourceFile, ...] = (), check: bool = True,
+                    duration: float = 600.0, seed: int = 1) -> AutopilotResult:
+    """Design the autopilot and, optionally, run the closed-loop check.
+
+    Parameters
+    ----------
+    coefficients : NomotoCoefficients
+        Identified K [1/s] and T [s] with standard errors (:func:`read_coefficients_json` or
+        :func:`nomoto_from_fits`).
+    waves : WaveFit or WaveParams, optional
+        Wave model; a :class:`WaveFit` also gives standard errors and the report's spectrum figure.
+    waves_stderr : Mapping, optional
+        Standard errors when ``waves`` is a :class:`WaveParams`.
+    wave_source : str
+        Where the wave model came from.
+    vessel : pipeline.vessel.Vessel, optional
+        Gives ``[rudder]`` limits and, if it has ``[nomoto]`` K and T, the ship simulated in the
+        ``sea`` scenario (so the check also tests the identified model against the truth).
+    ts : float
+        Sample time [s].
+    crossover : float
+        PD crossover [rad/s].
+    phase_margin : float
+        PD phase margin [rad].
+    r : float, optional
+        Sampled compass-noise variance [rad^2].
+    r_source : str
+        Where ``r`` came from.
+    q, p0 : tuple
+        Kalman tuning (continuous intensities; initial covariance diagonal).
+    sources : tuple of SourceFile
+        Input files for the provenance (the coefficients file is added from ``coefficients``).
+    check : bool
+        Run the closed-loop check (about 2 s).
+    duration : float
+        Closed-loop simulation length [s].
+    seed : int
+        Seed of the closed-loop waves and noise.
+
+    Returns
+    -------
+    AutopilotResult
+    """
+    fit = waves if isinstance(waves, WaveFit) else None
+    if fit is not None:
+        wp = fit.params
+        wse = {"omega0": fit.omega0_se, "lambda": fit.lam_se, "kw": fit.kw_se}
+    else:
+        wp, wse = waves, dict(waves_stderr or {})
+    srcs = tuple(sources)
+    if coefficients.source is not None:
+        srcs = (coefficients.source,) + srcs
+    rudder, rudder_source, plant_k, plant_t = None, "", None, None
+    if vessel is not None:
+        rudder = {k: v for k, v in dict(vessel.rudder).items() if k in ("max_angle", "max_rate")}
+        rudder_source = f"vessel config {getattr(vessel, 'path', '') or vessel.name}" if rudder else ""
+        nom = dict(getattr(vessel, "nomoto", {}) or {})
+        if "K" in nom and "T" in nom:
+            plant_k, plant_t = float(nom["K"]), float(nom["T"])
+    cfg = build_autopilot_config(
+        coefficients.K, coefficients.T, K_stderr=coefficients.K_stderr, T_stderr=coefficients.T_stderr,
+        waves=wp, waves_stderr=wse, wave_source=wave_source, ts=ts, crossover=crossover,
+        phase_margin=phase_margin, r=r, r_source=r_source, q=q, p0=p0, rudder=rudder,
+        rudder_source=rudder_source, sources=srcs)
+    obs = observability(cfg.K, cfg.T, cfg.waves)
+    margins = margin_table(cfg.K, cfg.T, cfg.K_stderr, cfg.T_stderr, cfg.pd)
+    chk = None
+    if check:
+        chk = closed_loop_check(cfg, default_scenarios(cfg, plant_K=plant_k, plant_T=plant_t,
+                                                       duration=duration, seed=seed))
+    return AutopilotResult(config=cfg, observability=obs, margins=margins, ardupilot=ardupilot_params(cfg),
+                           check=chk, wave_fit=fit)
+
+
+def write_autopilot_outputs(result: AutopilotResult, out_dir: str | Path, toml_name: str = "autopilot.toml",
+                            figures: bool = True) -> dict[str, Path]:
+    """Write the stage's files into ``out_dir``.
+
+    Files: ``autopilot.toml``; ``ardupilot_steering.param``; with a closed-loop check
+    ``closed_loop.json`` and, if ``figures``, ``closed_loop_<scenario>.png``; with a wave fit
+    ``wave_fit.png``; and ``autopilot.html``, the report section as a standalone fragment.
+
+    Parameters
+    ----------
+    result : AutopilotResult
+    out_dir : str or Path
+        Folder (created).
+    toml_name : str
+        File name of the config.
+    figures : bool
+        Write PNG figures.
+
+    Returns
+    -------
+    dict
+        File role -> path written.
+    """
+    from .figures import closed_loop_figure, wave_fit_figure
+    from .section import autopilot_html_section
+
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise AutopilotError(f"{out}: expected a writable output folder, found: {exc}") from None
+    images: dict[str, bytes] = {}
+    written = {"config": write_autopilot_toml(result.config, out / toml_name),
+               "ardupilot": write_ardupilot_params(result.config, out / "ardupilot_steering.param")}
+    if result.check is not None:
+        doc = {"metrics": result.check.to_dict(),
+               "observability": {k: {**v, "states": list(v["states"])} for k, v in result.observability.items()},
+               "margins": [{**m, "phase_margin_deg": math.degrees(m["phase_margin"])} for m in result.margins]}
+        p = out / "closed_loop.json"
+        _atomic_write(p, (json.dumps(_clean(doc), indent=2, allow_nan=False) + "\n").encode())
+        written["closed_loop"] = p
+        if figures:
+            for s in result.check.scenarios:
+                p = out / f"closed_loop_{s.name}.png"
+                images[p.stem] = closed_loop_figure(result.check, s.name)
+                _atomic_write(p, images[p.stem])
+                written[f"figure_{s.name}"] = p
+    if result.wave_fit is not None and figures:
+        p = out / "wave_fit.png"
+        images[p.stem] = wave_fit_figure(result.wave_fit)
+        _atomic_write(p, images[p.stem])
+        written["figure_waves"] = p
+    title, frag = autopilot_html_section(result, figures=figures, images=images)
+    p = out / "autopilot.html"
+    _atomic_write(p, f"<section>\n<h2>{title}</h2>\n{frag}\n</section>\n".encode())
+    written["html"] = p
+    return written
+
+
+def _clean(obj):
+    """JSON has no NaN or infinity: they become null."""
+    if isinstance(obj, Mapping):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, bool) or obj is None or isinstance(obj, (int, str)):
+        return obj
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    return _clean(float(obj))
