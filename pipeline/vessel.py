@@ -269,9 +269,13 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
     if "matrix" in dmp and "diagonal" in dmp:
         raise ConfigError(f"{path} [damping]: give either matrix or diagonal, found both")
     if "matrix" in dmp:
-        mat = np.asarray(dmp["matrix"], dtype=float)
-        if mat.shape != (5, 5):
-            raise ConfigError(f"{path} damping.matrix: expected 5x5 (u v p q r), found shape {mat.shape}")
+        try:
+            mat = np.asarray(dmp["matrix"], dtype=float)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{path} damping.matrix: expected a 5x5 array of numbers (u v p q r), "
+                              f"found {dmp['matrix']!r}") from None
+        if mat.shape != (5, 5) or not np.all(np.isfinite(mat)):
+            raise ConfigError(f"{path} damping.matrix: expected 5x5 finite numbers (u v p q r), found shape {mat.shape}")
         kw["damping"] = mat
     elif "diagonal" in dmp:
         kw["damping"] = np.diag(_vector(f"{path} damping.diagonal", dmp["diagonal"], 5))
@@ -294,6 +298,8 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
             raise ConfigError(f"{where}.source: expected 'servo' or 'rc', found {a['source']!r}")
         if a["target"] not in INPUT_UNITS:
             raise ConfigError(f"{where}.target: expected one of {sorted(INPUT_UNITS)}, found {a['target']!r}")
+        if isinstance(a["channel"], bool) or not isinstance(a["channel"], int) or a["channel"] < 1:
+            raise ConfigError(f"{where}.channel: expected a channel number >= 1, found {a['channel']!r}")
         fs = _number(f"{where}.full_scale", a.get("full_scale", 1.0))
         acts.append(ActuatorMap(source=a["source"], channel=int(a["channel"]), target=a["target"],
                                 pwm_trim=_number(f"{where}.pwm_trim", a.get("pwm_trim", 1500.0)),

@@ -134,7 +134,9 @@ def input_levels(trial: Trial, segment: Segment) -> tuple[float, float, str]:
 
 
 #: Unsettled fraction of the step response above which the vessel is not steady before a step.
-SETTLED_TOLERANCE = 0.02
+#: It biases a gain read from the change one-for-one, so it is kept well below the 2% accuracy the
+#: regression suite demands (0.2% is reached after 6.2 time constants).
+SETTLED_TOLERANCE = 0.002
 #: Longest stretch before a step that the steadiness check reads [s].
 MAX_STEADY_LOOKBACK = 30.0
 
