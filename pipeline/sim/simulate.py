@@ -136,17 +136,24 @@ def simulate(vessel: Vessel, schedule: Schedule, effects: Effects = Effects(),
     check_effects(effects)
     if not dt > 0:
         raise SimError(f"dt: expected a positive step [s], found {dt}")
-    sensors = default_sensors() if sensors is None else sensors
+    default = sensors is None
+    sensors = default_sensors() if default else sensors
     rng = np.random.default_rng(seed)
     rhs, params, states, kind = _plant(vessel, effects, speed)
     channels = schedule.inputs
     if kind == "nomoto" and any(c != "delta" for c in channels):
         raise SimError(f"{vessel.name} is a Nomoto ship: expected only rudder (delta) commands, found {channels}")
 
+    tick = int(round(1.0 / (actuator_rate * dt)))
+    if tick < 1 or abs(tick * dt * actuator_rate - 1.0) > 1e-9:
+        raise SimError(f"actuator_rate: expected a rate whose period is a multiple of dt = {dt} s, "
+                       f"found {actuator_rate} Hz")
     n = int(round(schedule.duration / dt)) + 1
     t = np.arange(n) * dt
-    starts = schedule.starts
-    which = np.searchsorted(starts, t, side="right") - 1
+    # Manoeuvres start on an autopilot tick (see the command loop below).
+    period = 1.0 / actuator_rate
+    starts = np.round(schedule.starts / period) * period
+    which = np.searchsorted(starts, t + 1e-9, side="right") - 1
     x = np.zeros((n, len(states)))
     xdot = np.zeros((n, len(states)))
     cmd = np.zeros((n, len(channels)))
@@ -154,8 +161,9 @@ def simulate(vessel: Vessel, schedule: Schedule, effects: Effects = Effects(),
     delay_steps = int(round(effects.actuator_delay / dt))
     max_step = np.array([effects.actuator_rate_limit.get(c, np.inf) * dt for c in channels])
     tau_x_index = channels.index("tau_x") if "tau_x" in channels else None
+    quantize = _pwm_quantizer(vessel, channels)
     xk = np.zeros(len(states))
-    applied = np.zeros(len(channels))
+    limited = np.zeros(len(channels))
     current_m = -1
     for k in range(n):
         m_idx = int(which[k])
@@ -165,13 +173,21 @@ def simulate(vessel: Vessel, schedule: Schedule, effects: Effects = Effects(),
             for name, value in man.initial.items():
                 if name in states:
                     xk[states.index(name)] = value
-        state = dict(zip(states, xk))
-        c = man.command(float(t[k] - starts[m_idx]), state)
-        cmd[k] = [c.get(ch, 0.0) for ch in channels]
+        if k % tick == 0:
+            # A digital autopilot issues commands on its own tick and logs them there; between
+            # ticks the command is held, so the logged steps are exactly the applied ones.
+            state = dict(zip(states, xk))
+            c = man.command(float(t[k] - starts[m_idx]), state)
+            cmd[k] = quantize([c.get(ch, 0.0) for ch in channels])
+        else:
+            cmd[k] = cmd[k - 1]
         target = apply_delay(cmd, k, delay_steps)
-        applied = apply_rate_limit(applied, target, max_step) if k else np.where(np.isinf(max_step), target, 0.0)
+        # The rate limiter tracks the actuator's own position; the reverse-thrust loss acts on
+        # what the propeller makes of it and must not feed back into the limiter's state.
+        limited = apply_rate_limit(limited, target, max_step) if k else np.where(np.isinf(max_step), target, 0.0)
+        applied = limited
         if tau_x_index is not None:
-            applied = apply_thrust_asymmetry(applied, tau_x_index, effects.thrust_reverse_gain)
+            applied = apply_thrust_asymmetry(limited, tau_x_index, effects.thrust_reverse_gain)
         u_model = _to_model_input(kind, vessel, channels, applied)
         x[k] = xk
         xdot[k] = rhs(t[k], xk, u_model, params)
@@ -199,6 +215,8 @@ def simulate(vessel: Vessel, schedule: Schedule, effects: Effects = Effects(),
     truth["vn"], truth["ve"] = vn, ve
     truth["psi_w"] = (simulate_waves(t, effects.waves, rng) if effects.waves is not None else np.zeros(n))
 
+    if default:
+        sensors = _simulated_only(sensors, set(truth.columns))
     log = _sample_sensors(truth, sensors, channels, rng, origin, actuator_rate, vessel, effects, seed)
     segs = tuple(Segment(kind=s.kind, dof=s.dof, t_start=float(starts[i] + s.t_start),
                          t_end=float(starts[i] + s.t_end), input_channel=s.input_channel,
@@ -207,6 +225,41 @@ def simulate(vessel: Vessel, schedule: Schedule, effects: Effects = Effects(),
                  for i, m in enumerate(schedule.manoeuvres) for s in m.segments)
     return SimResult(log=log, truth=truth, segments=Segments(f"sim-{vessel.name}-{seed}", segs),
                      vessel=vessel, effects=effects, seed=seed)
+
+
+def _simulated_only(sensors: tuple[SensorSpec, ...], columns: set[str]) -> tuple[SensorSpec, ...]:
+    """The default sensor set cut to what the plant simulates (a Nomoto ship has no roll, pitch or
+    accelerations); sensors a caller names explicitly are left alone and fail loudly instead."""
+    source = {"lat": "x_n", "lon": "y_e", "sog": "vn", "cog": "vn"}
+    out = []
+    for s in sensors:
+        keep = tuple(c for c in s.channels if source.get(c, c) in columns)
+        if keep:
+            out.append(replace(s, channels=keep, noise={c: v for c, v in s.noise.items() if c in keep},
+                               bias={c: v for c, v in s.bias.items() if c in keep}))
+    return tuple(out)
+
+
+def _pwm_quantizer(vessel: Vessel, channels: tuple[str, ...]):
+    """Round commands to whole PWM microseconds for inputs the vessel drives through one PWM map.
+
+    A servo or ESC receives an integer pulse width, so that is what the actuator applies and the
+    autopilot logs; without this a PWM log would disagree with the simulated truth by up to half
+    a microsecond of the map (0.08 deg of a 35 deg rudder).
+    """
+    maps = {}
+    for ch in channels:
+        hits = [a for a in vessel.actuators if a.target == ch]
+        if len(hits) == 1:
+            maps[channels.index(ch)] = hits[0]
+
+    def quantize(values):
+        out = np.asarray(values, float)
+        for j, amap in maps.items():
+            out[j] = float(amap.to_input(np.round(amap.to_pwm(out[j]))))
+        return out
+
+    return quantize
 
 
 def _sample_sensors(truth: pd.DataFrame, sensors: tuple[SensorSpec, ...], inputs: tuple[str, ...],
