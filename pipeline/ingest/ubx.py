@@ -1,0 +1,495 @@
+"""u-blox UBX binary logs (``.ubx``), as u-center, a logging script or a ROS driver records them.
+
+A UBX frame is ``B5 62 <class> <id> <length u16> <payload> <CK_A> <CK_B>`` with an 8-bit Fletcher
+checksum over class..payload. Frames are found vectorised: every ``B5 62`` in the byte stream is
+a candidate, lengths and checksums are checked for all candidates at once (the Fletcher sums of
+any byte range come from two running uint8 cumulative sums), and overlapping candidates (a
+``B5 62`` inside a payload) resolve to the earlier valid frame. NAV-PVT, the bulk of a log, is
+decoded with a numpy structured dtype over its fixed payload; NAV-RELPOSNED and ESF-RAW go
+through pyubx2 (``UBXReader.parse``); every other message is counted by its pyubx2 name.
+NMEA sentences interleaved with UBX (receivers often output both) are counted, not parsed.
+
+Mapping (``VARIABLE_MAP``; SI units, radians; ``<s>`` is ``@<sensor>`` or empty)
+--------------------------------------------------------------------------------
+NAV-PVT        lat, lon [1e-7 deg]   -> lat<s>, lon<s> [deg]
+               gSpeed [mm/s]         -> sog<s> [m/s]
+               headMot [1e-5 deg]    -> cog<s> [rad, wrapped to (-pi, pi]]
+               only samples with gnssFixOK, fixType 2D/3D/GNSS+DR and a valid position
+NAV-RELPOSNED  relPosHeading [deg]   -> psi@<sensor or 'dual'> [rad], only with relPosHeadingValid
+ESF-RAW        gyro x/y/z [2^-12 deg/s]   -> p@esf, q@esf, r@esf [rad/s]
+               accel x/y/z [2^-10 m/s^2]  -> ax@esf, ay@esf, az@esf [m/s^2]
+               (``@esf_<sensor>`` when a sensor name is given)
+
+Time
+----
+``time_reference='gps'``: ``t`` [s] is GPS time of week from iTOW, unwrapped across week
+rollovers (iTOW restarts at 0 every 604800 s; a backward jump of more than half a week is a new
+week), so ``t = 0`` is the start of the GPS week of the first message. That week comes from the
+UTC date in NAV-PVT (GPS = UTC + leap seconds; rounding makes the leap-second count immaterial)
+and is stated in the summary (``t = 0 is the start of GPS week W (YYYY-MM-DD)``) and in every
+``Channel.source``, so logs of several receivers can be put on one clock.
+
+ESF-RAW carries a sensor time tag (``sTag``) instead of iTOW. It is read as milliseconds of the
+receiver's local clock and placed on GPS time by one offset: the median, over ESF-RAW messages,
+of (midpoint of the iTOWs of the NAV-PVT before and after it in the stream) - (its sTag). This is
+accurate to about one IMU sample when ESF-RAW is output promptly; the offset is in the summary.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import struct
+import sys
+from collections import Counter
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+from pyubx2 import GET, UBXReader
+from pyubx2.exceptions import UBXMessageError, UBXParseError, UBXTypeError
+from pyubx2.ubxtypes_core import UBX_MSGIDS
+
+from ..errors import IngestError
+from ..records import Channel, IngestSummary, RawLog
+from ._common import check_file
+
+_DEG = math.pi / 180.0
+SYNC = b"\xb5\x62"
+NAV_PVT = (0x01, 0x07)
+NAV_RELPOSNED = (0x01, 0x3C)
+ESF_RAW = (0x10, 0x03)
+WEEK_MS = 604_800_000
+#: Leap seconds GPS - UTC [s] (since 2017-01-01); only used to find the GPS week from the UTC date.
+GPS_LEAP_S = 18
+GPS_EPOCH = datetime(1980, 1, 6, tzinfo=timezone.utc)
+
+#: (message, raw field or ESF data type) -> (canonical base name, scale to SI). NAV-PVT fields are
+#: raw payload integers; NAV-RELPOSNED's are pyubx2's scaled attributes; ESF-RAW keys are data types.
+VARIABLE_MAP: dict[tuple[str, str | int], tuple[str, float]] = {
+    ("NAV-PVT", "lat"): ("lat", 1e-7),
+    ("NAV-PVT", "lon"): ("lon", 1e-7),
+    ("NAV-PVT", "gSpeed"): ("sog", 1e-3),
+    ("NAV-PVT", "headMot"): ("cog", 1e-5 * _DEG),
+    ("NAV-RELPOSNED", "relPosHeading"): ("psi", _DEG),
+    ("ESF-RAW", 14): ("p", 2.0**-12 * _DEG),
+    ("ESF-RAW", 13): ("q", 2.0**-12 * _DEG),
+    ("ESF-RAW", 5): ("r", 2.0**-12 * _DEG),
+    ("ESF-RAW", 16): ("ax", 2.0**-10),
+    ("ESF-RAW", 17): ("ay", 2.0**-10),
+    ("ESF-RAW", 18): ("az", 2.0**-10),
+}
+
+#: NAV-PVT payload up to headVeh: the 84 bytes every protocol version (>= 14) has; version 15+
+#: adds headVeh, magDec and magAcc (92 bytes), which are not needed.
+NAV_PVT_DTYPE = np.dtype([
+    ("iTOW", "<u4"), ("year", "<u2"), ("month", "u1"), ("day", "u1"), ("hour", "u1"), ("min", "u1"),
+    ("sec", "u1"), ("valid", "u1"), ("tAcc", "<u4"), ("nano", "<i4"), ("fixType", "u1"), ("flags", "u1"),
+    ("flags2", "u1"), ("numSV", "u1"), ("lon", "<i4"), ("lat", "<i4"), ("height", "<i4"), ("hMSL", "<i4"),
+    ("hAcc", "<u4"), ("vAcc", "<u4"), ("velN", "<i4"), ("velE", "<i4"), ("velD", "<i4"), ("gSpeed", "<i4"),
+    ("headMot", "<i4"), ("sAcc", "<u4"), ("headAcc", "<u4"), ("pDOP", "<u2"), ("flags3", "<u2"),
+    ("reserved", "u1", (4,)),
+])
+FIX_TYPES = {0: "no fix", 1: "dead reckoning", 2: "2D", 3: "3D", 4: "GNSS+DR", 5: "time only"}
+CARRIER = {0: "none", 1: "float", 2: "fixed", 3: "invalid"}
+_NMEA = re.compile(rb"\$[A-Z][A-Z0-9]{2,}[^\r\n$]*\*[0-9A-Fa-f]{2}\r?\n")
+_PYUBX2_ERRORS = (UBXParseError, UBXMessageError, UBXTypeError, struct.error, ValueError, KeyError, IndexError,
+                  TypeError)
+_PROGRESS_DELAY_S = 1.0
+
+
+# ----------------------------------------------------------------------------- framing
+def _frames(buf: np.ndarray) -> dict[str, Any]:
+    """Valid UBX frames (start, end, class, id) and what lies between them, vectorised."""
+    n = len(buf)
+    empty = np.zeros(0, np.int64)
+    cand = np.flatnonzero((buf[:-1] == 0xB5) & (buf[1:] == 0x62)) if n >= 2 else empty
+    head_ok = cand + 6 <= n
+    c = cand[head_ok]
+    plen = buf[c + 4].astype(np.int64) | (buf[c + 5].astype(np.int64) << 8)
+    end = c + 8 + plen
+    complete = end <= n
+    # Fletcher-8 over bytes [s, e): CK_A = sum b, CK_B = sum of the running CK_A; both from
+    # prefix sums taken modulo 256 (uint8 cumulative sums wrap exactly that way).
+    p1 = np.zeros(n + 1, np.uint8)
+    np.cumsum(buf, dtype=np.uint8, out=p1[1:])
+    q = np.zeros(n + 1, np.uint8)
+    np.cumsum(p1[1:], dtype=np.uint8, out=q[1:])
+    cc, pc = c[complete], plen[complete]
+    s, e = cc + 2, cc + 6 + pc
+    ck_a = (p1[e] - p1[s]).astype(np.uint8)
+    ck_b = ((q[e].astype(np.int64) - q[s] - (e - s) * p1[s].astype(np.int64)) & 0xFF).astype(np.uint8)
+    good = (ck_a == buf[e]) & (ck_b == buf[e + 1])
+    starts, ends = cc[good], (cc + 8 + pc)[good]
+    if len(starts) > 1 and np.any(starts[1:] < ends[:-1]):
+        # A valid-looking frame inside another one: keep frames in stream order, skip overlaps.
+        keep = np.zeros(len(starts), bool)
+        last = -1
+        for i, (a, b) in enumerate(zip(starts.tolist(), ends.tolist())):
+            if a >= last:
+                keep[i] = True
+                last = b
+        starts, ends = starts[keep], ends[keep]
+
+    def inside(pos: np.ndarray) -> np.ndarray:
+        j = np.searchsorted(starts, pos, side="right") - 1
+        return (j >= 0) & (pos < ends[np.maximum(j, 0)]) if len(starts) else np.zeros(len(pos), bool)
+
+    bad = cc[~good]
+    bad_crc = int((~inside(bad)).sum())
+    tail_from = int(ends[-1]) if len(ends) else 0
+    truncated = 0
+    # A cut frame at the end: the first candidate after the last frame runs past the end of
+    # the file (or its header does), or the file ends in the first sync byte.
+    after = cand[cand >= tail_from]
+    cut = [a for a in after.tolist() if a + 6 > n or a + 8 + (int(buf[a + 4]) | int(buf[a + 5]) << 8) > n][:1]
+    if cut:
+        truncated = n - cut[0]
+    elif n > tail_from and buf[n - 1] == 0xB5:
+        truncated = 1
+    gaps = []
+    prev = 0
+    for a, b in zip(starts.tolist(), ends.tolist()):
+        if a > prev:
+            gaps.append((prev, a))
+        prev = b
+    if n - truncated > prev:
+        gaps.append((prev, n - truncated))
+    return {"starts": starts, "ends": ends, "cls": buf[starts + 2].astype(np.int64),
+            "id": buf[starts + 3].astype(np.int64), "bad_crc": bad_crc, "truncated": truncated, "gaps": gaps,
+            "size": n}
+
+
+def _nav_pvt(buf: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """NAV-PVT payloads at ``starts`` as a structured array (one gather, one view)."""
+    width = NAV_PVT_DTYPE.itemsize
+    rows = buf[(starts + 6)[:, None] + np.arange(width)]
+    return np.ascontiguousarray(rows).view(NAV_PVT_DTYPE).reshape(len(starts))
+
+
+def _week_of(pvt: np.ndarray) -> tuple[int | None, int]:
+    """GPS week of the first NAV-PVT with a valid UTC date and time, and its index."""
+    ok = ((pvt["valid"] & 0x03) == 0x03) & (pvt["year"] >= 1980) & (pvt["month"] >= 1) & (pvt["month"] <= 12) \
+        & (pvt["day"] >= 1) & (pvt["day"] <= 31) & (pvt["hour"] < 24) & (pvt["min"] < 60) & (pvt["sec"] <= 60)
+    for i in np.flatnonzero(ok)[:5].tolist():
+        r = pvt[i]
+        try:
+            utc = datetime(int(r["year"]), int(r["month"]), int(r["day"]), int(r["hour"]), int(r["min"]),
+                           min(int(r["sec"]), 59), tzinfo=timezone.utc)
+        except ValueError:
+            continue
+        gps_s = (utc - GPS_EPOCH).total_seconds() + int(r["nano"]) * 1e-9 + GPS_LEAP_S
+        return int(round((gps_s - int(r["iTOW"]) / 1000.0) / 604800.0)), i
+    return None, -1
+
+
+def _unwrap_itow(itow_ms: np.ndarray) -> np.ndarray:
+    """Milliseconds since the start of the first message's GPS week, across week rollovers."""
+    ms = itow_ms.astype(np.int64)
+    step = np.diff(ms)
+    weeks = np.concatenate(([0], np.cumsum(step < -WEEK_MS // 2) - np.cumsum(step > WEEK_MS // 2)))
+    return ms + weeks * WEEK_MS
+
+
+def _increasing(t: np.ndarray) -> np.ndarray:
+    ok = np.ones(len(t), bool)
+    if len(t) > 1:
+        ok[1:] = t[1:] > np.maximum.accumulate(t)[:-1]
+    return ok
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return math.pi - np.mod(math.pi - np.asarray(angle, float), 2 * math.pi)
+
+
+def _want_progress(progress: bool | None) -> bool:
+    if progress is not None:
+        return bool(progress)
+    if os.environ.get("CI"):
+        return False
+    return sys.stderr.isatty()
+
+
+# ----------------------------------------------------------------------------- reader
+def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -> RawLog:
+    """Read a u-blox UBX log into canonical channels on GPS time of week.
+
+    Parameters
+    ----------
+    path : str or Path
+        The log (UBX frames, possibly mixed with NMEA). Opened read-only and never modified.
+    sensor : str
+        Receiver name for the channel suffix: ``""`` gives ``lat lon sog cog``, ``"gps2"`` gives
+        ``lat@gps2`` ...; also names the dual-antenna heading ``psi@<sensor>`` (``psi@dual``
+        without a name) and the IMU channels ``p@esf_<sensor>`` (``p@esf`` without).
+    progress : bool, optional
+        tqdm bar over the messages decoded by pyubx2. ``None``: on a terminal when the read takes
+        longer than 1 s, never when the ``CI`` environment variable is set or stderr is not a TTY.
+
+    Returns
+    -------
+    RawLog
+        ``format='ubx'``, ``time_reference='gps'``; ``t`` [s] is GPS time of week (see module
+        docstring), channels as in ``VARIABLE_MAP``. Fix types and carrier solutions of NAV-PVT
+        and NAV-RELPOSNED are counted in ``summary.warnings``.
+
+    Raises
+    ------
+    IngestError
+        Missing or empty file, no valid UBX frame, or no usable NAV-PVT, NAV-RELPOSNED or
+        ESF-RAW sample.
+
+    Notes
+    -----
+    Counted in ``summary`` rather than raised: frames with a bad checksum, garbage bytes and NMEA
+    sentences between frames, a truncated tail (``truncated: N trailing bytes``), samples without
+    a fix, headings without relPosHeadingValid, duplicate or out-of-order iTOW (first kept),
+    messages pyubx2 cannot decode, and message types not used (counted by name in
+    ``summary.skipped``).
+    """
+    p = check_file(path, "UBX log")
+    data = p.read_bytes()
+    buf = np.frombuffer(data, np.uint8)
+    fr = _frames(buf)
+    starts = fr["starts"]
+    if not len(starts):
+        cut = " (truncated: the file ends inside its first frame)" if fr["truncated"] else ""
+        raise IngestError(f"{p}: expected a u-blox UBX log (frames B5 62 <class> <id> <length> <payload> with a "
+                          f"valid checksum), found no valid UBX frame in {len(data)} bytes{cut}; starts with "
+                          f"{data[:16]!r}")
+    cls, mid = fr["cls"], fr["id"]
+    plen = fr["ends"] - starts - 8
+    warnings: list[str] = []
+    read: Counter = Counter()
+    skipped: Counter = Counter()
+    suffix = f"@{sensor}" if sensor else ""
+
+    is_pvt = (cls == NAV_PVT[0]) & (mid == NAV_PVT[1])
+    pvt_ok_len = is_pvt & (plen >= NAV_PVT_DTYPE.itemsize)
+    if (is_pvt & ~pvt_ok_len).any():
+        warnings.append(f"NAV-PVT: {int((is_pvt & ~pvt_ok_len).sum())} message(s) shorter than "
+                        f"{NAV_PVT_DTYPE.itemsize} bytes not used")
+        skipped["NAV-PVT"] += int((is_pvt & ~pvt_ok_len).sum())
+    is_rel = (cls == NAV_RELPOSNED[0]) & (mid == NAV_RELPOSNED[1])
+    is_esf = (cls == ESF_RAW[0]) & (mid == ESF_RAW[1])
+    for (c_, i_), count in Counter(zip(cls[~(is_pvt | is_rel | is_esf)].tolist(),
+                                       mid[~(is_pvt | is_rel | is_esf)].tolist())).items():
+        skipped[UBX_MSGIDS.get(bytes((c_, i_)), f"UBX-0x{c_:02X}-0x{i_:02X}")] += count
+
+    # Frames whose time is iTOW, in stream order, unwrapped together.
+    pvt_idx = np.flatnonzero(pvt_ok_len)
+    pvt = _nav_pvt(buf, starts[pvt_idx]) if len(pvt_idx) else np.zeros(0, NAV_PVT_DTYPE)
+    rel_idx = np.flatnonzero(is_rel)
+    esf_idx = np.flatnonzero(is_esf)
+    bar = None
+    if _want_progress(progress) and len(rel_idx) + len(esf_idx):
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(rel_idx) + len(esf_idx), unit="msg", unit_scale=True, desc=p.name, file=sys.stderr,
+                   leave=False, delay=0.0 if progress else _PROGRESS_DELAY_S)
+    try:
+        rel = _parse_many(data, starts, fr["ends"], rel_idx, bar)
+        esf = _parse_many(data, starts, fr["ends"], esf_idx, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    undecodable = sum(1 for m in rel + esf if m is None)
+    if undecodable:
+        warnings.append(f"{undecodable} NAV-RELPOSNED/ESF-RAW message(s) pyubx2 could not decode skipped")
+        skipped["UNDECODABLE"] += undecodable
+
+    rel_itow = np.array([m.iTOW if m is not None else -1 for m in rel], np.int64)
+    timed_idx = np.concatenate([pvt_idx, rel_idx[rel_itow >= 0]])
+    timed_ms = np.concatenate([pvt["iTOW"].astype(np.int64), rel_itow[rel_itow >= 0]])
+    order = np.argsort(timed_idx, kind="stable")
+    t_ms = np.empty(len(order), np.int64)
+    t_ms[order] = _unwrap_itow(timed_ms[order])
+    t_pvt_ms = t_ms[:len(pvt_idx)]
+    t_rel_ms = t_ms[len(pvt_idx):]
+
+    week, _ = _week_of(pvt) if len(pvt) else (None, -1)
+    if week is not None:
+        day = (GPS_EPOCH + timedelta(weeks=week)).date().isoformat()
+        week_note = f"t = 0 is the start of GPS week {week} ({day} 00:00:00 GPS time)"
+    else:
+        week_note = "GPS week unknown (no NAV-PVT with a valid UTC date): t is time of week only"
+    warnings.append(week_note)
+    src_note = f"GPS week {week}" if week is not None else "GPS week unknown"
+
+    chans: dict[str, Channel] = {}
+    if len(pvt):
+        _pvt_channels(pvt, t_pvt_ms, suffix, src_note, chans, read, skipped, warnings)
+    if len(rel_idx):
+        _relposned_channels(rel, t_rel_ms, rel_itow, f"@{sensor or 'dual'}", src_note, chans, read, skipped,
+                            warnings)
+    if len(esf_idx):
+        _esf_channels(esf, esf_idx, pvt_idx, t_pvt_ms, f"@esf_{sensor}" if sensor else "@esf", src_note, chans, read,
+                      skipped, warnings)
+
+    if fr["bad_crc"]:
+        skipped["BAD_CHECKSUM"] += fr["bad_crc"]
+        warnings.append(f"bad checksum: {fr['bad_crc']} frame(s) skipped")
+    nmea_count = nmea_bytes = garbage = 0
+    for a, b in fr["gaps"]:
+        chunk = data[a:b]
+        hits = _NMEA.findall(chunk)
+        nmea_count += len(hits)
+        nb = sum(len(h) for h in hits)
+        nmea_bytes += nb
+        garbage += len(chunk) - nb
+    if nmea_count:
+        skipped["NMEA"] += nmea_count
+        warnings.append(f"{nmea_count} NMEA sentence(s) between UBX frames skipped ({nmea_bytes} bytes)")
+    if garbage:
+        skipped["GARBAGE_BYTES"] += garbage
+        warnings.append(f"garbage: {garbage} byte(s) between frames skipped")
+    if fr["truncated"]:
+        warnings.append(f"truncated: {fr['truncated']} trailing bytes (an incomplete last frame) ignored")
+
+    if not chans:
+        found = ", ".join(f"{k} {v}" for k, v in sorted((read + skipped).items())) or "none"
+        raise IngestError(f"{p}: expected NAV-PVT, NAV-RELPOSNED or ESF-RAW messages with usable samples, found "
+                          f"none (messages: {found})")
+    summary = IngestSummary(path=str(p), format="ubx", read=dict(read), skipped={k: v for k, v in skipped.items() if v},
+                            warnings=tuple(warnings))
+    return RawLog(source=str(p), format="ubx", channels=chans, summary=summary, time_reference="gps")
+
+
+def _parse_many(data: bytes, starts: np.ndarray, ends: np.ndarray, which: np.ndarray, bar: Any) -> list:
+    out = []
+    for i in which.tolist():
+        try:
+            out.append(UBXReader.parse(data[int(starts[i]):int(ends[i])], msgmode=GET))
+        except _PYUBX2_ERRORS:
+            out.append(None)
+        if bar is not None:
+            bar.update(1)
+    return out
+
+
+def _counts(values: np.ndarray, names: Mapping[int, str]) -> str:
+    u, c = np.unique(values, return_counts=True)
+    return ", ".join(f"{names.get(int(k), f'type {int(k)}')} {int(v)}" for k, v in zip(u, c))
+
+
+def _pvt_channels(pvt: np.ndarray, t_ms: np.ndarray, suffix: str, src_note: str, chans: dict, read: Counter,
+                  skipped: Counter, warnings: list[str]) -> None:
+    fix = pvt["fixType"]
+    gnss_ok = (pvt["flags"] & 0x01).astype(bool)
+    carr = (pvt["flags"] >> 6) & 0x03
+    warnings.append(f"NAV-PVT fix types: {_counts(fix, FIX_TYPES)}; carrier solution: {_counts(carr, CARRIER)}")
+    if not np.isin(fix, (3, 4)).any():
+        warnings.append(f"no 3D fix in any of the {len(pvt)} NAV-PVT message(s)")
+    usable = gnss_ok & np.isin(fix, (2, 3, 4)) & ((pvt["flags3"] & 0x01) == 0)
+    if (~usable).any():
+        warnings.append(f"NAV-PVT: {int((~usable).sum())} message(s) without a usable fix (gnssFixOK, fixType "
+                        "2D/3D/GNSS+DR, valid position) not used")
+    t = t_ms * 1e-3
+    inc = _increasing(np.where(usable, t, -np.inf)) & usable
+    dup = int((usable & ~inc).sum())
+    if dup:
+        warnings.append(f"NAV-PVT: {dup} message(s) with a duplicate or out-of-order iTOW skipped (first kept)")
+    values = {base: pvt[f].astype(np.float64) * scale
+              for (m, f), (base, scale) in VARIABLE_MAP.items() if m == "NAV-PVT"}
+    values["cog"] = _wrap(values["cog"])
+    for base, v in values.items():
+        if not inc.any():
+            break
+        chans[base + suffix] = Channel(base + suffix, t[inc], v[inc], source=f"NAV-PVT ({src_note})")
+    read["NAV-PVT"] += int(inc.sum())
+    skipped["NAV-PVT"] += int(len(pvt) - inc.sum())
+
+
+def _relposned_channels(rel: list, t_ms: np.ndarray, itow: np.ndarray, suffix: str, src_note: str, chans: dict,
+                        read: Counter, skipped: Counter, warnings: list[str]) -> None:
+    decoded = [m for m in rel if m is not None]
+    if not decoded:
+        return
+    head = np.array([float(m.relPosHeading) for m in decoded])
+    valid = np.array([bool(m.relPosHeadingValid) for m in decoded])
+    carr = np.array([int(m.carrSoln) for m in decoded])
+    warnings.append(f"NAV-RELPOSNED carrier solution: {_counts(carr, CARRIER)}")
+    rejected = int((~valid).sum())
+    if rejected:
+        warnings.append(f"NAV-RELPOSNED: {rejected} heading(s) without relPosHeadingValid not used")
+    t = t_ms * 1e-3
+    inc = _increasing(np.where(valid, t, -np.inf)) & valid
+    dup = int((valid & ~inc).sum())
+    if dup:
+        warnings.append(f"NAV-RELPOSNED: {dup} message(s) with a duplicate or out-of-order iTOW skipped (first kept)")
+    base, scale = VARIABLE_MAP[("NAV-RELPOSNED", "relPosHeading")]
+    if inc.any():
+        chans[base + suffix] = Channel(base + suffix, t[inc], _wrap(head[inc] * scale),
+                                       source=f"NAV-RELPOSNED ({src_note})")
+    read["NAV-RELPOSNED"] += int(inc.sum())
+    skipped["NAV-RELPOSNED"] += int(len(decoded) - inc.sum())
+
+
+def _esf_blocks(msg: Any) -> list[tuple[int, int, int]]:
+    """(data type, signed 24-bit value, sensor time tag) of every block of one ESF-RAW message."""
+    out = []
+    k = 1
+    while hasattr(msg, f"data_{k:02d}"):
+        word = int.from_bytes(getattr(msg, f"data_{k:02d}"), "little")
+        tag = int.from_bytes(getattr(msg, f"sTag_{k:02d}"), "little")
+        value = word & 0xFFFFFF
+        out.append(((word >> 24) & 0xFF, value - (1 << 24) if value & 0x800000 else value, tag))
+        k += 1
+    return out
+
+
+def _esf_channels(esf: list, esf_idx: np.ndarray, pvt_idx: np.ndarray, t_pvt_ms: np.ndarray, suffix: str,
+                  src_note: str, chans: dict, read: Counter, skipped: Counter, warnings: list[str]) -> None:
+    rows = []  # (message number, data type, value, tag)
+    for j, m in enumerate(esf):
+        if m is not None:
+            rows += [(j, *b) for b in _esf_blocks(m)]
+    n_msgs = sum(1 for m in esf if m is not None)
+    if not rows:
+        skipped["ESF-RAW"] += n_msgs
+        return
+    arr = np.array(rows, np.int64)
+    msg_no, dtype_, value, tag = arr.T
+    # sTag [ms] wraps at 2**32; unwrap in stream order.
+    step = np.diff(tag)
+    tag_ms = tag + np.concatenate(([0], np.cumsum(step < -(2**31)))) * 2**32
+    if len(pvt_idx) < 2:
+        warnings.append(f"ESF-RAW: {n_msgs} message(s) not used: no NAV-PVT to put the sensor time tags on GPS time")
+        skipped["ESF-RAW"] += n_msgs
+        return
+    # Each ESF-RAW lies in the stream between two NAV-PVT epochs; the midpoint of those is its
+    # output time to within half an epoch, and the median over all messages is much better.
+    msgs, first = np.unique(msg_no, return_index=True)
+    k = np.searchsorted(pvt_idx, esf_idx[msgs])
+    inner = (k > 0) & (k < len(pvt_idx))
+    if not inner.any():
+        warnings.append(f"ESF-RAW: {n_msgs} message(s) not used: none lies between two NAV-PVT messages, so the "
+                        "sensor time tags cannot be put on GPS time")
+        skipped["ESF-RAW"] += n_msgs
+        return
+    mid = 0.5 * (t_pvt_ms[k[inner] - 1] + t_pvt_ms[k[inner]])
+    offset_ms = float(np.median(mid - tag_ms[first][inner]))
+    warnings.append(f"ESF-RAW: sensor time tags put on GPS time with an offset of {offset_ms / 1000:.3f} s, "
+                    "estimated from message order")
+    used_msgs = np.zeros(len(esf), bool)
+    for (m, dt), (base, scale) in VARIABLE_MAP.items():
+        if m != "ESF-RAW":
+            continue
+        sel = np.flatnonzero(dtype_ == dt)
+        if not len(sel):
+            continue
+        t = (tag_ms[sel] + offset_ms) * 1e-3
+        ok = _increasing(t)
+        bad = int((~ok).sum())
+        if bad:
+            warnings.append(f"ESF-RAW {base}: {bad} sample(s) with a duplicate or out-of-order sensor time tag "
+                            "skipped (first kept)")
+        chans[base + suffix] = Channel(base + suffix, t[ok], value[sel][ok] * scale, source=f"ESF-RAW ({src_note})")
+        used_msgs[msg_no[sel][ok]] = True
+    read["ESF-RAW"] += int(used_msgs.sum())
+    skipped["ESF-RAW"] += int(n_msgs - used_msgs.sum())
+
+
+__all__ = ["read_ubx", "VARIABLE_MAP", "NAV_PVT_DTYPE"]
