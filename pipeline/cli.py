@@ -124,7 +124,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _add_logs(p: argparse.ArgumentParser, vessel_required: bool = False) -> None:
-    p.add_argument("logs", nargs="+", metavar="LOG", help="log files (.csv, .tlog, ...)")
+    p.add_argument("logs", nargs="+", metavar="LOG",
+                   help="log files (.csv .tlog .bin .ubx .nmea/.txt/.log .bag .db3 .mcap, or a ROS 2 bag folder)")
     p.add_argument("--vessel", required=vessel_required, metavar="VESSEL.toml", help="vessel config")
 
 
@@ -183,7 +184,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="simulate a sea trial of a vessel and write it as a log file")
     p.add_argument("--vessel", required=True, metavar="VESSEL.toml", help="vessel config with [damping] or [nomoto]")
-    p.add_argument("--out", required=True, metavar="LOG", help="output log; the extension picks the format")
+    p.add_argument("--out", required=True, metavar="LOG",
+                   help="output log; the extension picks the format (.csv .tlog .bin .ubx .nmea .bag .db3 .mcap, "
+                        "none: ROS 2 bag folder)")
     p.add_argument("--seed", type=int, default=0, help="noise seed")
     p.add_argument("--noise", default="nominal", choices=["low", "nominal", "high"], help="sensor noise level")
     p.set_defaults(func=cmd_simulate)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -68,7 +69,9 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
             key = ch.name
             if key in chans:
                 # Same channel from two files: keep both, the second under a file-specific name.
-                key = f"{ch.name}@{len(chans)}"
+                key = f"{ch.name}@{Path(log.source).stem}"
+                while key in chans:
+                    key += "_"
                 notes.append(f"{log.source}: channel {ch.name} also in another log; kept as {key}")
             chans[key] = Channel(key, ch.t + off, ch.values, ch.source)
     chans = {k: c for k, c in chans.items() if len(c.t)}
@@ -94,7 +97,7 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
         notes.append(f"{len(gaps)} dropout(s): " + ", ".join(f"{g.channel} {g.t_start - t0:.2f}-{g.t_end - t0:.2f} s"
                                                               for g in gaps[:10]))
     frame = pd.DataFrame(data)
-    frame, derived = _derive(frame)
+    frame, derived = _derive(frame, {k: _native_rate(c) for k, c in chans.items()})
     notes += derived
     shifted = tuple(type(g)(g.channel, g.t_start - t0, g.t_end - t0) for g in gaps)
     return Trial(name=name, data=frame, fs=float(fs), gaps=shifted, sources=tuple(l.source for l in logs),
@@ -110,8 +113,32 @@ def _first_present(frame: pd.DataFrame, base: str) -> str | None:
     return None
 
 
-def _derive(frame: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
-    """Add x_n, y_e from lat/lon and body u, v from sog/cog/psi when not logged."""
+def _fastest_velocity(frame: pd.DataFrame, rates: Mapping[str, float]) -> tuple[str | None, str | None]:
+    """The sog/cog pair from one sensor (same suffix) with the highest native rate.
+
+    A fast navigation-filter velocity resolves a sway time constant of 0.4 s where a 10 Hz GPS
+    cannot, so the fastest complete pair feeds the body velocities.
+    """
+    best, best_rate = (None, None), -1.0
+    for c in frame.columns:
+        if c.split("@")[0] != "sog" or not np.isfinite(frame[c]).any():
+            continue
+        cog = "cog" + c[3:]
+        if cog in frame and np.isfinite(frame[cog]).any() and rates.get(c, 0.0) > best_rate:
+            best, best_rate = (c, cog), rates.get(c, 0.0)
+    return best
+
+
+def _derive(frame: pd.DataFrame, rates: Mapping[str, float] | None = None) -> tuple[pd.DataFrame, list[str]]:
+    """Add x_n, y_e from lat/lon and body u, v from sog/cog/psi when not logged.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Resampled channels.
+    rates : Mapping[str, float], optional
+        Native sample rate of each channel [Hz], to pick the fastest velocity source.
+    """
     notes = []
     out = frame.copy()
     lat, lon = _first_present(out, "lat"), _first_present(out, "lon")
@@ -120,7 +147,8 @@ def _derive(frame: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
         first = np.flatnonzero(np.isfinite(la) & np.isfinite(lo))[0]
         out["x_n"], out["y_e"] = latlon_to_ned(la, lo, la[first], lo[first])
         notes.append(f"x_n, y_e from {lat}/{lon} (flat earth about the first fix {la[first]:.6f}, {lo[first]:.6f} deg)")
-    sog, cog, psi = _first_present(out, "sog"), _first_present(out, "cog"), _first_present(out, "psi")
+    sog, cog = _fastest_velocity(out, rates or {})
+    psi = _first_present(out, "psi")
     if sog and cog and psi and not ("u" in out and "v" in out):
         # Velocity over ground in the body frame: [u, v] = R(psi)^T [v_n, v_e]. With a water
         # current this is not the velocity through the water; the diagnosis tests for that.
@@ -130,6 +158,7 @@ def _derive(frame: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
             out["u"] = speed * np.cos(beta)
         if "v" not in out:
             out["v"] = speed * np.sin(beta)
-        notes.append(f"u, v over ground from {sog}, {cog} and heading {psi}")
+        notes.append(f"u, v over ground from {sog}, {cog} ({(rates or {}).get(sog, float('nan')):.3g} Hz) "
+                     f"and heading {psi}")
     ordered = ["t"] + [c for c in CHANNEL_UNITS if c in out] + sorted(c for c in out if c != "t" and c not in CHANNEL_UNITS)
     return out[ordered], notes

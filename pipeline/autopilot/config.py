@@ -20,8 +20,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
-import tempfile
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +29,7 @@ import numpy as np
 import tomli_w
 
 from .. import __version__
+from ..atomic import atomic_write_bytes
 from ..errors import AutopilotError
 from ..model.waves import WaveParams
 from .kalman import DEFAULT_P0, DEFAULT_Q, DEFAULT_R, KALMAN_STATES, KalmanModel, kalman_model
@@ -268,22 +267,16 @@ def config_to_dict(cfg: AutopilotConfig) -> dict[str, Any]:
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
-    """Write via a temporary file in the same folder and ``os.replace``, so a reader never sees half a file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=str(path.parent))
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    """Write ``data`` atomically (:func:`pipeline.atomic.atomic_write_bytes`).
+
+    Parameters
+    ----------
+    path : Path
+        Destination file.
+    data : bytes
+        Full file content.
+    """
+    atomic_write_bytes(path, data)
 
 
 def write_autopilot_toml(cfg: AutopilotConfig, path: str | Path) -> Path:
