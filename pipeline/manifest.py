@@ -21,6 +21,7 @@ input_channel = "tau_x"
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -99,8 +100,14 @@ def load_manifest(path: str | Path) -> Manifest:
     if missing:
         raise ConfigError(f"{p}: expected log files, found none at {missing}")
     fs = doc.get("fs")
-    if fs is not None and (not isinstance(fs, (int, float)) or fs <= 0):
+    # bool is an int to Python (fs = true would be 1 Hz), and nan passes "not <= 0".
+    if fs is not None and (isinstance(fs, bool) or not isinstance(fs, (int, float)) or not math.isfinite(fs)
+                           or fs <= 0):
         raise ConfigError(f"{p}: 'fs' expected a positive rate [Hz], found {fs!r}")
+    for key in ("columns", "units"):
+        table = doc.get(key, {})
+        if not isinstance(table, dict) or not all(isinstance(v, str) for v in table.values()):
+            raise ConfigError(f"{p}: '{key}' expected a table of raw column name = \"name\", found {table!r}")
     return Manifest(name=str(doc.get("name", p.stem)), vessel=(base / doc["vessel"]).resolve(), logs=log_paths,
                     fs=float(fs) if fs is not None else None, segments=tuple(doc.get("segments", [])),
                     segments_mode=str(doc.get("segments_mode", "replace")), columns=dict(doc.get("columns", {})),

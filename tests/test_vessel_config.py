@@ -242,10 +242,8 @@ def test_actuator_map_parsed_from_config():
     assert a.to_pwm(-3.0) == pytest.approx(1090.0)
 
 
-# --------------------------------------------------------------------------- known gaps in vessel.py
-# vessel.py is outside this test author's remit; these document wrong-type inputs that escape as a
-# bare ValueError (a traceback at the CLI) instead of a ConfigError naming expected and found.
-# strict=True: they turn into failures the moment vessel.py is fixed, so the marker gets removed.
+# --------------------------------------------------------------------------- wrong types inside arrays
+# These used to escape as a bare ValueError (a traceback at the CLI) instead of a ConfigError.
 @pytest.mark.parametrize("matrix", [[["a"] * 5] * 5, [[1.0, 2.0], [3.0]]])
 def test_damping_matrix_wrong_type_is_config_error(matrix):
     with pytest.raises(ConfigError, match="damping.matrix"):

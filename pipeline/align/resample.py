@@ -44,6 +44,8 @@ def resample_channel(channel: Channel, grid: np.ndarray, gaps: tuple[Gap, ...]) 
         if base in ANGLE_CHANNELS:
             out = np.interp(grid, t, np.unwrap(v))
             out = np.pi - np.mod(np.pi - out, 2 * np.pi)
+            # Just above pi, (pi - x) mod 2 pi rounds to 2 pi and gives -pi: keep (-pi, pi].
+            out[out <= -np.pi] = np.pi
         else:
             out = np.interp(grid, t, v)
         out[(grid < t[0] - 1e-9) | (grid > t[-1] + 1e-9)] = np.nan

@@ -89,8 +89,8 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         i = int(back[0])
-        raise IngestError(f"{p}: expected strictly increasing time in {time_column!r}, found {t[i + 1]!r} "
-                          f"after {t[i]!r} on data row {i + 2} ({len(back)} such rows)")
+        raise IngestError(f"{p}: expected strictly increasing time in {time_column!r}, found {float(t[i + 1])!r} "
+                          f"after {float(t[i])!r} on data row {i + 2} ({len(back)} such rows)")
     chans: dict[str, Channel] = {}
     read: dict[str, int] = {}
     skipped: dict[str, int] = {}
@@ -111,12 +111,17 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
             raise IngestError(f"{p}: expected numbers in column {raw!r}, found {first!r} ({nonnum} non-numeric cells)")
         values = col.to_numpy(float) * UNIT_FACTORS[units.get(raw, "")]
         ok = np.isfinite(values)
+        n_inf = int(np.isinf(values).sum())
+        if n_inf:
+            # 'inf' cells are numbers to pandas; they are dropped, but counted, not silently.
+            skipped[raw] = n_inf
+            warnings.append(f"column {raw!r}: {n_inf} infinite values not used")
         if not ok.any():
             warnings.append(f"column {raw!r} has no values")
-            skipped[raw] = 0
+            skipped[raw] = n_inf
             continue
         limit = _PLAUSIBLE.get(_base(name))
-        peak = float(np.nanmax(np.abs(values)))
+        peak = float(np.max(np.abs(values[ok])))
         if limit is not None and peak > limit:
             raise IngestError(f"{p}: column {raw!r} ({_base(name)}) expected in {CHANNEL_UNITS[_base(name)]} "
                               f"(|value| <= {limit}), found {peak:.4g}; degrees or another unit? Declare it "

@@ -9,6 +9,8 @@ from the response's signal-to-noise ratio and its length in time constants.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..records import DOF_CHANNELS, INPUT_UNITS, Segment, Segments, Trial
@@ -66,6 +68,11 @@ def _gap_cut(trial: Trial, t_start: float, t_end: float, channel: str) -> float:
     return t_end
 
 
+def _in_gap(trial: Trial, t: float) -> bool:
+    """True when ``t`` [s] falls inside a dropout: a segment starting there would span it."""
+    return any(g.t_start < t < g.t_end for g in trial.gaps)
+
+
 def _input_segments(trial: Trial) -> list[Segment]:
     t = trial.t
     fs = trial.fs
@@ -90,13 +97,20 @@ def _input_segments(trial: Trial) -> list[Segment]:
         in_zig = {i for run in zig_idx for i in run}
         for run in zig_idx:
             a, b = levels[run[0]], levels[run[-1]]
-            segs.append(Segment("zigzag", dof, float(t[a.i_start]), float(t[b.i_end - 1]), ch,
+            t0 = float(t[a.i_start])
+            t1 = _gap_cut(trial, t0, float(t[b.i_end - 1]), resp)
+            if _in_gap(trial, t0) or t1 - t0 < 5 / fs:
+                continue
+            segs.append(Segment("zigzag", dof, t0, t1, ch,
                                 levels[run[0] - 1].value if run[0] > 0 else 0.0, a.value,
                                 quality=1.0, label=f"{len(run)} rudder reversals"))
         for v in varying:
             seg = _sinusoid(trial, ch, dof, v.i_start, v.i_end)
-            if seg is not None:
-                segs.append(seg)
+            if seg is None or _in_gap(trial, seg.t_start):
+                continue
+            t1 = _gap_cut(trial, seg.t_start, seg.t_end, resp)
+            if t1 - seg.t_start >= 5 / fs:
+                segs.append(replace(seg, t_end=t1))
         for k, lv in enumerate(levels):
             if k == 0 or k in in_zig:
                 continue
@@ -104,6 +118,8 @@ def _input_segments(trial: Trial) -> list[Segment]:
             if prev.i_end != lv.i_start:
                 continue  # a varying stretch or missing data came between: not a clean step
             t0 = float(t[lv.i_start])
+            if _in_gap(trial, t0):
+                continue  # the response at the input change was not logged
             later = [c for c in changes if c > t0 + 0.5 / fs]
             t_end = min(later[0] if later else float(t[-1]), float(t[lv.i_end - 1]))
             t_end = _gap_cut(trial, t0, t_end, resp)
@@ -183,7 +199,9 @@ def _decay_segments(trial: Trial, busy: list[tuple[float, float]]) -> list[Segme
         noise = noise_std(y)
         base = float(np.nanmedian(y))
         dev = np.abs(np.nan_to_num(y - base))
-        thresh = max(20 * noise, np.radians(1.0))
+        # 10 sigma never happens by chance, and at the high regression noise (attitude 0.006 rad)
+        # still finds a 6 deg pitch release, which 20 sigma (6.9 deg) missed.
+        thresh = max(10 * noise, np.radians(1.0))
         i = 0
         n = len(y)
         while i < n:
@@ -201,6 +219,9 @@ def _decay_segments(trial: Trial, busy: list[tuple[float, float]]) -> list[Segme
             k1 = k0 + (int(done[0]) if len(done) else len(below) - 1)
             t0, t1 = float(t[k0]), float(t[min(k1, n - 1)])
             t1 = _gap_cut(trial, t0, t1, ang)
+            if _in_gap(trial, t0):
+                i = max(k1, k0 + 1) + 1
+                continue
             seg_y = y[k0:min(k1, n - 1) + 1] - base
             crossings = int(np.sum(np.diff(np.sign(seg_y)) != 0))
             overlaps_input = any(a < t1 and t0 < b for a, b in busy)

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import SimError
 from ..model.waves import WaveParams
+from ..records import INPUT_UNITS
 
 #: Effect names, as the diagnosis uses them.
 EFFECT_NAMES = ("nonlinear_damping", "current", "actuator_delay", "actuator_rate_limit",
@@ -118,6 +119,9 @@ def check_effects(effects: Effects) -> None:
     if effects.thrust_reverse_gain <= 0:
         raise SimError(f"thrust_reverse_gain: expected > 0, found {effects.thrust_reverse_gain}")
     for ch, rate in effects.actuator_rate_limit.items():
+        if ch not in INPUT_UNITS:
+            # A misspelt channel would otherwise switch the limit off without a word.
+            raise SimError(f"actuator_rate_limit: expected input channels {sorted(INPUT_UNITS)}, found {ch!r}")
         if not rate > 0:
             raise SimError(f"actuator_rate_limit[{ch!r}]: expected a positive rate, found {rate}")
     if effects.quadratic_damping is not None and np.shape(effects.quadratic_damping) != (5,):

@@ -218,10 +218,19 @@ def simulate(vessel: Vessel, schedule: Schedule, effects: Effects = Effects(),
     if default:
         sensors = _simulated_only(sensors, set(truth.columns))
     log = _sample_sensors(truth, sensors, channels, rng, origin, actuator_rate, vessel, effects, seed)
+
+    def level(ch: str | None, value: float) -> float:
+        # The truth level is what the actuator applied: the command after PWM rounding.
+        if ch not in channels:
+            return value
+        vec = np.zeros(len(channels))
+        vec[channels.index(ch)] = value
+        return float(quantize(vec)[channels.index(ch)])
+
     segs = tuple(Segment(kind=s.kind, dof=s.dof, t_start=float(starts[i] + s.t_start),
                          t_end=float(starts[i] + s.t_end), input_channel=s.input_channel,
-                         input_before=s.input_before, input_after=s.input_after, origin="truth",
-                         label=m.name)
+                         input_before=level(s.input_channel, s.input_before),
+                         input_after=level(s.input_channel, s.input_after), origin="truth", label=m.name)
                  for i, m in enumerate(schedule.manoeuvres) for s in m.segments)
     return SimResult(log=log, truth=truth, segments=Segments(f"sim-{vessel.name}-{seed}", segs),
                      vessel=vessel, effects=effects, seed=seed)

@@ -1,0 +1,128 @@
+"""Trial manifests: paths resolved against the manifest, options kept, and every error named."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from pipeline.errors import ConfigError
+from pipeline.manifest import Manifest, load_manifest
+
+
+@pytest.fixture
+def folder(tmp_path):
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "logs" / "a.csv").write_text("t,u\n0,1\n")
+    (tmp_path / "logs" / "b.csv").write_text("t,r\n0,0\n")
+    return tmp_path
+
+
+def _manifest(folder, body, name="trial.toml"):
+    p = folder / name
+    p.write_text(body)
+    return p
+
+
+GOOD = '''
+name = "harbour"
+vessel = "../vessel_configs/aauship.toml"
+logs = ["logs/a.csv", "logs/b.csv"]
+fs = 50
+segments_mode = "add"
+[columns]
+heading_deg = "psi"
+[units]
+heading_deg = "deg"
+[autopilot]
+bandwidth = 0.3
+[[segments]]
+kind = "coast_down"
+dof = "surge"
+t_start = 40.9
+t_end = 70.0
+'''
+
+
+def test_load_good_manifest(folder):
+    p = _manifest(folder, GOOD)
+    m = load_manifest(p)
+    assert isinstance(m, Manifest)
+    assert m.name == "harbour" and m.path == p.resolve()
+    assert m.vessel == (folder.parent / "vessel_configs" / "aauship.toml").resolve()
+    assert m.logs == ((folder / "logs" / "a.csv").resolve(), (folder / "logs" / "b.csv").resolve())
+    assert all(x.is_absolute() for x in m.logs)
+    assert m.fs == 50.0 and isinstance(m.fs, float)
+    assert m.segments_mode == "add"
+    assert m.columns == {"heading_deg": "psi"} and m.units == {"heading_deg": "deg"}
+    assert m.options == {"autopilot": {"bandwidth": 0.3}}
+    assert m.segments == ({"kind": "coast_down", "dof": "surge", "t_start": 40.9, "t_end": 70.0},)
+
+
+def test_defaults(folder):
+    m = load_manifest(_manifest(folder, 'vessel = "v.toml"\nlogs = ["logs/a.csv"]\n', "quiet_day.toml"))
+    assert m.name == "quiet_day"  # the file's stem
+    assert m.fs is None and m.segments == () and m.segments_mode == "replace"
+    assert m.columns == {} and m.units == {} and m.options == {}
+
+
+def test_relative_to_the_manifest_not_the_cwd(folder, monkeypatch):
+    sub = folder / "trials"
+    sub.mkdir()
+    p = _manifest(sub, 'vessel = "../v.toml"\nlogs = ["../logs/a.csv"]\n')
+    monkeypatch.chdir(folder / "logs")
+    assert load_manifest(p).logs == ((folder / "logs" / "a.csv").resolve(),)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ConfigError, match=r"trial manifest: expected a TOML file, found nothing at .*nope.toml"):
+        load_manifest(tmp_path / "nope.toml")
+    with pytest.raises(ConfigError, match=r"trial manifest: expected a TOML file, found nothing at"):
+        load_manifest(tmp_path)  # a folder is not a manifest
+
+
+def test_invalid_toml(folder):
+    with pytest.raises(ConfigError, match=r"expected valid TOML, found a parse error"):
+        load_manifest(_manifest(folder, 'vessel = "v.toml"\nlogs = ["a.csv"\n'))
+
+
+def test_unknown_key_names_key_and_allowed(folder):
+    p = _manifest(folder, 'vessel = "v.toml"\nlogs = ["logs/a.csv"]\nsample_rate = 50\nweather = "calm"\n')
+    with pytest.raises(ConfigError) as exc:
+        load_manifest(p)
+    msg = str(exc.value)
+    assert str(p) in msg and "unknown key(s) ['sample_rate', 'weather']" in msg
+    for allowed in ("name", "vessel", "logs", "fs", "segments_mode", "segments", "columns", "units"):
+        assert f"'{allowed}'" in msg
+
+
+@pytest.mark.parametrize("body, missing", [('vessel = "v.toml"\n', "logs"), ('logs = ["logs/a.csv"]\n', "vessel")])
+def test_missing_required_key(folder, body, missing):
+    with pytest.raises(ConfigError, match=rf"expected key '{missing}', found keys \["):
+        load_manifest(_manifest(folder, body))
+
+
+@pytest.mark.parametrize("logs", ['[]', '"logs/a.csv"', '[1, 2]', '["logs/a.csv", 3]'])
+def test_logs_must_be_a_list_of_names(folder, logs):
+    with pytest.raises(ConfigError, match=r"'logs' expected a non-empty list of file names, found"):
+        load_manifest(_manifest(folder, f'vessel = "v.toml"\nlogs = {logs}\n'))
+
+
+def test_missing_log_file_is_named(folder):
+    p = _manifest(folder, 'vessel = "v.toml"\nlogs = ["logs/a.csv", "logs/missing.csv"]\n')
+    with pytest.raises(ConfigError) as exc:
+        load_manifest(p)
+    msg = str(exc.value)
+    assert "expected log files, found none at" in msg and "missing.csv" in msg and "a.csv" not in msg.split("at")[-1]
+
+
+@pytest.mark.parametrize("fs", ["0", "-10", '"fast"', "true", "[100]", "nan"])
+def test_bad_fs(folder, fs):
+    with pytest.raises(ConfigError, match=r"'fs' expected a positive rate \[Hz\], found"):
+        load_manifest(_manifest(folder, f'vessel = "v.toml"\nlogs = ["logs/a.csv"]\nfs = {fs}\n'))
+
+
+@pytest.mark.parametrize("key, value", [("columns", '"psi"'), ("units", "[1, 2]"), ("columns", "{ heading = 3 }")])
+def test_column_map_and_units_must_be_tables_of_names(folder, key, value):
+    with pytest.raises(ConfigError, match=rf"'{key}' expected a table of .*, found"):
+        load_manifest(_manifest(folder, f'vessel = "v.toml"\nlogs = ["logs/a.csv"]\n{key} = {value}\n'))
