@@ -28,6 +28,8 @@ PARAMS = ("A", "zeta", "wn", "phase", "offset")
 MIN_SAMPLES = 30
 #: Fewest alternating extrema above the noise (3 = one full period) a decay must show.
 MIN_EXTREMA = 3
+#: Fewest extrema, counting the release, when the decay sinks into the noise within a period.
+MIN_EXTREMA_WITH_RELEASE = 2
 #: Largest damping ratio the fit allows; at the bound the decay is not oscillatory.
 MAX_ZETA = 0.99
 #: Extrema smaller than this many noise standard deviations are not used by the guess.
@@ -59,7 +61,30 @@ def damped_oscillation(t: np.ndarray, A: float, zeta: float, wn: float, phase: f
 
 def damped_oscillation_jacobian(t: np.ndarray, A: float, zeta: float, wn: float, phase: float,
                                 offset: float) -> np.ndarray:
-    """Jacobian of :func:`damped_oscillation` with respect to ``PARAMS``, shape (n, 5)."""
+    """Jacobian of :func:`damped_oscillation` with respect to ``PARAMS``, shape (n, 5).
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Time since release [s].
+    A : float
+        Amplitude [rad or rad/s].
+    zeta : float
+        Damping ratio [-]; ``1 - zeta^2`` is floored at 1e-12 so the derivative stays finite at
+        ``zeta = 1``.
+    wn : float
+        Undamped natural frequency [rad/s].
+    phase : float
+        Phase [rad].
+    offset : float
+        Static offset [rad or rad/s]; its column is ones.
+
+    Returns
+    -------
+    numpy.ndarray
+        Columns in ``PARAMS`` order: derivatives with respect to ``A``, ``zeta``, ``wn``,
+        ``phase`` and ``offset``.
+    """
     t = np.asarray(t, float)
     root = math.sqrt(max(1.0 - zeta**2, 1e-12))
     wd = wn * root
@@ -160,18 +185,28 @@ def guess_damped_oscillation(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
     z = y - np.median(y)
     h = max(3.0 * sigma if math.isfinite(sigma) else 0.0, 1e-3 * float(np.abs(z).max(initial=0.0)))
     tk, ak = _usable_extrema(t, z, h, sigma, keep_start=False)
+    minimum = MIN_EXTREMA
     if tk.size < MIN_EXTREMA:
-        # A heavily damped decay (pitch, zeta ~ 0.3) may show only two turning points above the
-        # noise after the release; the release itself is then needed as the first one.
+        # A heavily damped decay (pitch, zeta ~ 0.3) in strong noise may show only one turning
+        # point above the noise after the release. The release is a turning point too (the hull
+        # is let go at rest), and the two give the half period and the decay ratio; the
+        # least-squares fit then decides how well the record determines them.
         tk, ak = _usable_extrema(t, z, h, sigma, keep_start=True)
-    if tk.size < MIN_EXTREMA:
-        raise FitError(f"expected at least {MIN_EXTREMA} alternating extrema above the noise "
-                       f"(one full oscillation period), found {tk.size}")
+        minimum = MIN_EXTREMA_WITH_RELEASE
+    if tk.size < minimum:
+        raise FitError(f"expected at least {MIN_EXTREMA} alternating extrema above the noise (one full "
+                       f"oscillation period), or the release and {MIN_EXTREMA_WITH_RELEASE - 1} more, "
+                       f"found {tk.size}")
     half_period = float(np.polyfit(np.arange(tk.size), tk, 1)[0])
     wd = math.pi / half_period
     p2p = np.abs(np.diff(ak))
     tm = 0.5 * (tk[1:] + tk[:-1])
-    slope = float(np.polyfit(tm, np.log(p2p), 1, w=p2p)[0]) if p2p.size >= 2 else 0.0
+    if p2p.size >= 2:
+        slope = float(np.polyfit(tm, np.log(p2p), 1, w=p2p)[0])
+    elif ak.size == 2 and ak[0] != 0 and ak[1] != 0:
+        slope = math.log(abs(ak[1]) / abs(ak[0])) / (tk[1] - tk[0])
+    else:
+        slope = 0.0
     decay_rate = max(-slope, 1e-3 * wd)  # a non-decaying record still starts the fit at small zeta
     wn = math.hypot(wd, decay_rate)
     zeta = decay_rate / wn

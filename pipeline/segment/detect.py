@@ -26,7 +26,18 @@ DECAY_DOF = {"phi": "roll", "theta": "pitch"}
 
 
 def noise_std(y: np.ndarray) -> float:
-    """Robust white-noise level of a signal [unit of y]: MAD of first differences / (0.6745 sqrt 2)."""
+    """Robust white-noise level of a signal [unit of y]: MAD of first differences / (0.6745 sqrt 2).
+
+    Parameters
+    ----------
+    y : numpy.ndarray
+        Uniformly sampled signal; non-finite samples are dropped first.
+
+    Returns
+    -------
+    float
+        Noise standard deviation [unit of y]; NaN with fewer than four finite samples.
+    """
     d = np.diff(y[np.isfinite(y)])
     if len(d) < 3:
         return np.nan
@@ -216,7 +227,9 @@ def _decay_segments(trial: Trial, busy: list[tuple[float, float]]) -> list[Segme
             below = dev[k0:] < max(3 * noise, 0.05 * dev[k0])
             run = np.convolve(below.astype(int), np.ones(int(fs)), mode="valid") if len(below) >= fs else np.array([])
             done = np.flatnonzero(run >= int(fs))
-            k1 = k0 + (int(done[0]) if len(done) else len(below) - 1)
+            # Keep the quiet second too: noise after the decay costs the fit nothing, and the
+            # last small swings it holds still carry information on zeta and wn.
+            k1 = k0 + (int(done[0]) + int(fs) if len(done) else len(below) - 1)
             t0, t1 = float(t[k0]), float(t[min(k1, n - 1)])
             t1 = _gap_cut(trial, t0, t1, ang)
             if _in_gap(trial, t0):
@@ -257,7 +270,13 @@ def detect_segments(trial: Trial) -> Segments:
 
 
 def segment_table(segments: Segments) -> str:
-    """Plain-text table of segments for the terminal."""
+    """Plain-text table of segments for the terminal.
+
+    Parameters
+    ----------
+    segments : Segments
+        Segments to list, one row each (``level`` is ``input_after``).
+    """
     head = f"{'#':>3} {'kind':<12} {'dof':<6} {'start [s]':>10} {'end [s]':>10} {'input':<6} {'level':>10} {'quality':>7} {'origin':<9} label"
     rows = [head, "-" * len(head)]
     for i, s in enumerate(segments.items):
