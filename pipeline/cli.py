@@ -24,6 +24,18 @@ def _vessel(path: str | None):
 
 
 def cmd_ingest(args: argparse.Namespace) -> int:
+    """``vesselid ingest``: read each log and print its summary and channels.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``logs`` (log paths) and ``vessel`` (vessel TOML or None).
+
+    Returns
+    -------
+    int
+        0 (errors are raised and turned into an exit code by :func:`main`).
+    """
     from .flow import read_logs
 
     for log in read_logs(args.logs, _vessel(args.vessel)):
@@ -34,6 +46,19 @@ def cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def cmd_align(args: argparse.Namespace) -> int:
+    """``vesselid align``: align the logs into one trial, print the notes, optionally write it.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``logs`` (log paths), ``vessel`` (vessel TOML or None), ``fs`` (resample rate [Hz] or
+        None) and ``out`` (canonical CSV to write, or None).
+
+    Returns
+    -------
+    int
+        0 (errors are raised and turned into an exit code by :func:`main`).
+    """
     from .flow import load_trial
     from .records import Channel, IngestSummary, RawLog
     from .sim.writers.csv_writer import write_csv_log
@@ -60,6 +85,19 @@ def _trial_and_segments(args: argparse.Namespace):
 
 
 def cmd_segment(args: argparse.Namespace) -> int:
+    """``vesselid segment``: detect segments and print the table; optionally write JSON and a plot.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``logs`` (log paths), ``vessel`` (vessel TOML or None), ``fs`` (resample rate [Hz] or
+        None), ``json`` (segments JSON to write, or None) and ``plot`` (PNG to write, or None).
+
+    Returns
+    -------
+    int
+        0 (errors are raised and turned into an exit code by :func:`main`).
+    """
     from .flow import segments_to_json, write_json
     from .segment import segment_table
 
@@ -76,6 +114,20 @@ def cmd_segment(args: argparse.Namespace) -> int:
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
+    """``vesselid fit``: ingest, segment and fit; write the coefficients JSON and print them.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``logs`` (log paths), ``vessel`` (vessel TOML), ``fs`` (resample rate [Hz] or None),
+        ``segments`` (segments JSON to use instead of detecting, or None) and ``json``
+        (coefficients JSON to write).
+
+    Returns
+    -------
+    int
+        0 (errors are raised and turned into an exit code by :func:`main`).
+    """
     from .fit import fit_trial
     from .flow import write_json
     from .report import fits_to_dict
@@ -92,6 +144,20 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    """``vesselid report``: ingest, segment, fit and write the report folder.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``logs`` (log paths), ``vessel`` (vessel TOML), ``fs`` (resample rate [Hz] or None),
+        ``segments`` (segments JSON to use instead of detecting, or None) and ``out`` (report
+        folder).
+
+    Returns
+    -------
+    int
+        0 (errors are raised and turned into an exit code by :func:`main`).
+    """
     from .fit import fit_trial
     from .report import write_report
 
@@ -103,6 +169,19 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    """``vesselid simulate``: simulate the standard sea trial of a vessel and write it as a log.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``vessel`` (vessel TOML), ``out`` (output log; its extension picks the format), ``seed``
+        (noise seed) and ``noise`` (sensor noise level: ``low``, ``nominal`` or ``high``).
+
+    Returns
+    -------
+    int
+        0 (errors are raised and turned into an exit code by :func:`main`).
+    """
     from .sim import sea_trial, simulate
     from .sim.effects import Effects
     from .sim.sensors import default_sensors
@@ -116,6 +195,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    """``vesselid run``: every stage on a trial manifest (:func:`pipeline.run.run_manifest`).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``manifest`` (trial TOML) and ``out`` (report folder, or None for
+        ``reports/<trial name>``).
+
+    Returns
+    -------
+    int
+        0 (errors are raised and turned into an exit code by :func:`main`).
+    """
     from .run import run_manifest
 
     out = run_manifest(args.manifest, args.out)
@@ -199,7 +291,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``vesselid`` console script."""
+    """Entry point of the ``vesselid`` console script.
+
+    Parameters
+    ----------
+    argv : Sequence[str], optional
+        Command-line arguments without the program name; default ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        Exit code: the command's (0 on success), ``EXIT_BAD_INPUT`` (2) on a pipeline, OS or
+        value error (printed as ``error: ...``), 130 when interrupted.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -30,30 +30,91 @@ def show_progress() -> bool:
 
 def read_logs(paths: Sequence[str | Path], vessel: Vessel | None = None,
               columns: Mapping[str, str] | None = None, units: Mapping[str, str] | None = None) -> list[RawLog]:
-    """Read every log file (ingest stage)."""
+    """Read every log file (ingest stage).
+
+    Parameters
+    ----------
+    paths : Sequence[str or Path]
+        Log files (or ROS 2 bag folders), each read by :func:`pipeline.ingest.read_log`.
+    vessel : Vessel, optional
+        Passed to the readers that map actuator channels (MAVLink, DataFlash) or ROS topics.
+    columns : Mapping[str, str], optional
+        CSV only: raw column name -> canonical channel.
+    units : Mapping[str, str], optional
+        CSV only: raw column name -> unit of its values (converted to SI).
+
+    Returns
+    -------
+    list[RawLog]
+        One per path, in the order given.
+    """
     return [read_log(p, vessel=vessel, columns=columns, units=units) for p in paths]
 
 
 def load_trial(paths: Sequence[str | Path], vessel: Vessel | None = None, name: str | None = None,
                fs: float | None = None, columns: Mapping[str, str] | None = None,
                units: Mapping[str, str] | None = None) -> Trial:
-    """Ingest and align log files into one Trial."""
+    """Ingest and align log files into one Trial.
+
+    Parameters
+    ----------
+    paths : Sequence[str or Path]
+        Log files of the same trial (at least one).
+    vessel : Vessel, optional
+        Passed to the log readers (see :func:`read_logs`).
+    name : str, optional
+        Trial name; default the stem of the first path.
+    fs : float, optional
+        Output sample rate [Hz]; default chosen by :func:`pipeline.align.align`.
+    columns : Mapping[str, str], optional
+        CSV only: raw column name -> canonical channel.
+    units : Mapping[str, str], optional
+        CSV only: raw column name -> unit of its values (converted to SI).
+    """
     logs = read_logs(paths, vessel, columns, units)
     return align(logs, name=name or Path(paths[0]).stem, fs=fs)
 
 
 def segment_trial(trial: Trial, manual: Sequence[Mapping[str, Any]] = (), mode: str = "replace") -> Segments:
-    """Detect segments, then apply hand-named ones from a manifest."""
+    """Detect segments, then apply hand-named ones from a manifest.
+
+    Parameters
+    ----------
+    trial : Trial
+        The aligned trial.
+    manual : Sequence[Mapping[str, Any]]
+        The manifest's ``[[segments]]`` tables; empty keeps the detected segments.
+    mode : str
+        ``replace`` (only the manifest's segments) or ``add`` (manifest segments plus detected
+        ones that do not overlap them); see :func:`pipeline.segment.apply_manifest_segments`.
+    """
     return apply_manifest_segments(trial, detect_segments(trial), manual, mode)
 
 
 def segments_to_json(segments: Segments) -> dict:
-    """Segments as a JSON-ready dict (the ``segments.json`` a later ``fit --segments`` reads)."""
+    """Segments as a JSON-ready dict (the ``segments.json`` a later ``fit --segments`` reads).
+
+    Parameters
+    ----------
+    segments : Segments
+        Segments of one trial; each item becomes a dict of its fields.
+    """
     return {"trial": segments.trial, "segments": [asdict(s) for s in segments.items]}
 
 
 def segments_from_json(path: str | Path) -> Segments:
-    """Read ``segments.json`` written by :func:`segments_to_json`."""
+    """Read ``segments.json`` written by :func:`segments_to_json`.
+
+    Parameters
+    ----------
+    path : str or Path
+        The JSON file; a missing ``trial`` key falls back to the file's stem.
+
+    Raises
+    ------
+    SegmentError
+        Unreadable file, invalid JSON, or no valid ``segments`` list.
+    """
     p = Path(path)
     try:
         doc = json.loads(p.read_text())
@@ -64,7 +125,20 @@ def segments_from_json(path: str | Path) -> Segments:
 
 
 def write_json(obj: Any, path: str | Path) -> Path:
-    """Write JSON atomically (strict: NaN is not allowed, callers turn it into null)."""
+    """Write JSON atomically (strict: NaN is not allowed, callers turn it into null).
+
+    Parameters
+    ----------
+    obj : Any
+        JSON-serialisable object, free of NaN and infinity (``json.dumps`` raises ``ValueError``).
+    path : str or Path
+        Destination file; replaced only once the whole text is written.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(obj, indent=2, allow_nan=False) + "\n")
     return Path(path)

@@ -20,7 +20,20 @@ def _radii(lat0_deg: float) -> tuple[float, float]:
 
 
 def latlon_to_ned(lat_deg, lon_deg, lat0_deg: float, lon0_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """North and east offsets [m] of (lat, lon) [deg] from the origin (lat0, lon0) [deg]."""
+    """North and east offsets [m] of (lat, lon) [deg] from the origin (lat0, lon0) [deg].
+
+    Parameters
+    ----------
+    lat_deg, lon_deg : array_like
+        WGS-84 latitude and longitude [deg] of the points.
+    lat0_deg, lon0_deg : float
+        Latitude and longitude [deg] of the NED origin.
+
+    Returns
+    -------
+    x_n, y_e : numpy.ndarray
+        North and east offsets [m] (Fossen 2021, sec. 2.5.2).
+    """
     r_m, r_e = _radii(lat0_deg)
     x_n = np.radians(np.asarray(lat_deg, float) - lat0_deg) * r_m
     y_e = np.radians(np.asarray(lon_deg, float) - lon0_deg) * r_e
@@ -28,7 +41,22 @@ def latlon_to_ned(lat_deg, lon_deg, lat0_deg: float, lon0_deg: float) -> tuple[n
 
 
 def ned_to_latlon(x_n, y_e, lat0_deg: float, lon0_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """Latitude and longitude [deg] of the NED offsets (x_n, y_e) [m] from (lat0, lon0) [deg]."""
+    """Latitude and longitude [deg] of the NED offsets (x_n, y_e) [m] from (lat0, lon0) [deg].
+
+    The inverse of :func:`latlon_to_ned`.
+
+    Parameters
+    ----------
+    x_n, y_e : array_like
+        North and east offsets [m] from the origin.
+    lat0_deg, lon0_deg : float
+        Latitude and longitude [deg] of the NED origin.
+
+    Returns
+    -------
+    lat, lon : numpy.ndarray
+        WGS-84 latitude and longitude [deg].
+    """
     r_m, r_e = _radii(lat0_deg)
     lat = lat0_deg + np.degrees(np.asarray(x_n, float) / r_m)
     lon = lon0_deg + np.degrees(np.asarray(y_e, float) / r_e)
@@ -36,6 +64,17 @@ def ned_to_latlon(x_n, y_e, lat0_deg: float, lon0_deg: float) -> tuple[np.ndarra
 
 
 def wrap_pi(angle):
-    """Wrap angles [rad] to (-pi, pi]."""
+    """Wrap angles [rad] to (-pi, pi].
+
+    Parameters
+    ----------
+    angle : array_like
+        Angles [rad], any range.
+
+    Returns
+    -------
+    numpy.ndarray
+        The same angles [rad] in (-pi, pi].
+    """
     a = np.asarray(angle, float)
     return np.pi - np.mod(np.pi - a, 2 * np.pi)

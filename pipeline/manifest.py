@@ -73,6 +73,11 @@ class Manifest:
 def load_manifest(path: str | Path) -> Manifest:
     """Read and check a trial manifest.
 
+    Parameters
+    ----------
+    path : str or Path
+        The TOML manifest; ``vessel`` and ``logs`` in it are relative to its folder.
+
     Raises
     ------
     ConfigError

@@ -138,7 +138,13 @@ class RawLog:
     time_reference: str = "trial"
 
     def channel(self, name: str) -> Channel:
-        """Return channel ``name`` or raise ``KeyError`` naming the channels present."""
+        """Return channel ``name`` or raise ``KeyError`` naming the channels present.
+
+        Parameters
+        ----------
+        name : str
+            Canonical channel name (``psi``, ``r``, ``delta``, ...).
+        """
         try:
             return self.channels[name]
         except KeyError:
@@ -200,11 +206,23 @@ class Trial:
         return self.data["t"].to_numpy()
 
     def has(self, channel: str) -> bool:
-        """True when ``channel`` is present and holds at least one finite sample."""
+        """True when ``channel`` is present and holds at least one finite sample.
+
+        Parameters
+        ----------
+        channel : str
+            Canonical channel name (a column of ``data``).
+        """
         return channel in self.data.columns and bool(np.isfinite(self.data[channel].to_numpy()).any())
 
     def window(self, t_start: float, t_end: float) -> pd.DataFrame:
-        """Rows with ``t_start <= t <= t_end`` [s]."""
+        """Rows with ``t_start <= t <= t_end`` [s].
+
+        Parameters
+        ----------
+        t_start, t_end : float
+            Window bounds [s, trial clock], both inclusive.
+        """
         t = self.t
         return self.data.loc[(t >= t_start) & (t <= t_end)]
 
@@ -265,7 +283,15 @@ class Segments:
     items: tuple[Segment, ...]
 
     def of(self, kind: str | None = None, dof: str | None = None) -> tuple[Segment, ...]:
-        """Segments of one kind and/or DOF."""
+        """Segments of one kind and/or DOF.
+
+        Parameters
+        ----------
+        kind : str, optional
+            One of ``SEGMENT_KINDS``; None matches any kind.
+        dof : str, optional
+            One of ``SEGMENT_DOFS``; None matches any DOF.
+        """
         return tuple(s for s in self.items if (kind is None or s.kind == kind) and (dof is None or s.dof == dof))
 
 

@@ -77,12 +77,24 @@ class ActuatorMap:
             object.__setattr__(self, "reverse_scale", self.full_scale)
 
     def to_input(self, pwm: np.ndarray) -> np.ndarray:
-        """Convert PWM [us] to the target input [SI]."""
+        """Convert PWM [us] to the target input [SI].
+
+        Parameters
+        ----------
+        pwm : array_like
+            Pulse widths [us]; ``full_scale`` applies above ``pwm_trim``, ``reverse_scale`` below.
+        """
         x = (np.asarray(pwm, float) - self.pwm_trim) / self.pwm_span
         return np.where(x >= 0, self.full_scale * x, self.reverse_scale * x)
 
     def to_pwm(self, value: np.ndarray) -> np.ndarray:
-        """Inverse of :meth:`to_input` [us]."""
+        """Inverse of :meth:`to_input` [us].
+
+        Parameters
+        ----------
+        value : array_like
+            Target input [SI unit of ``target``]; negative values use ``reverse_scale``.
+        """
         v = np.asarray(value, float)
         x = np.where(v >= 0, v / self.full_scale, v / self.reverse_scale)
         return self.pwm_trim + self.pwm_span * x
@@ -178,6 +190,17 @@ class Vessel:
         """Diagonal M[i, i] for one DOF name (surge ... yaw) [kg or kg m^2].
 
         This is the single-DOF inertia a first-order fit uses: T = M[i, i] / D[i, i].
+
+        Parameters
+        ----------
+        dof : str
+            DOF name (``surge``, ``sway``, ``roll``, ``pitch``, ``yaw``) or its velocity
+            (``u``, ``v``, ``p``, ``q``, ``r``).
+
+        Raises
+        ------
+        ConfigError
+            Unknown DOF, or mass and inertia not given.
         """
         i = DOFS.index(_velocity_of(dof))
         return float(self.mass_matrix()[i, i])

@@ -16,6 +16,19 @@ def find_gaps(channel: Channel, threshold: float | None = None) -> tuple[Gap, ..
 
     The default threshold is five nominal sample intervals (the median spacing) or 0.5 s,
     whichever is larger, so jitter is not a gap but a lost second of GPS is.
+
+    Parameters
+    ----------
+    channel : Channel
+        Raw channel with increasing sample times ``t`` [s].
+    threshold : float, optional
+        Largest sample spacing [s] that is not a dropout; default as above.
+
+    Returns
+    -------
+    tuple[Gap, ...]
+        One per spacing above the threshold, bounded by the samples either side; empty for a
+        channel of fewer than two samples.
     """
     dt = np.diff(channel.t)
     if len(dt) == 0:
@@ -31,6 +44,21 @@ def resample_channel(channel: Channel, grid: np.ndarray, gaps: tuple[Gap, ...]) 
     States are interpolated linearly (angles after unwrapping, then wrapped back to (-pi, pi]);
     inputs are held from the last command (zero-order hold), because an actuator command is
     piecewise constant and linear interpolation would smear every step into a ramp.
+
+    Parameters
+    ----------
+    channel : Channel
+        Raw channel with increasing sample times ``t`` [s] on the common clock; its base name
+        (before ``@``) decides state, angle or input treatment.
+    grid : numpy.ndarray
+        Uniform output times [s].
+    gaps : tuple[Gap, ...]
+        Dropouts of this channel (:func:`find_gaps`); grid points strictly inside one are NaN.
+
+    Returns
+    -------
+    numpy.ndarray
+        Values on ``grid`` [SI], as long as ``grid``; all NaN for an empty channel.
     """
     t, v = channel.t, channel.values
     base = _base(channel.name)

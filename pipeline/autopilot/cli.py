@@ -23,7 +23,18 @@ from .waves_fit import fit_wave_record, read_heading_record
 
 # --------------------------------------------------------------------------- waves
 def add_waves_parser(subparsers) -> argparse.ArgumentParser:
-    """Add ``waves LOG --json OUT.json [--column C] [--unit rad|deg] [--nperseg N] [--band LO HI] [--plot PNG]``."""
+    """Add ``waves LOG --json OUT.json [--column C] [--unit rad|deg] [--nperseg N] [--band LO HI] [--plot PNG]``.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``vesselid`` subcommand group (``ArgumentParser.add_subparsers()``).
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The ``waves`` subparser.
+    """
     p = subparsers.add_parser(
         "waves", help="fit the second-order wave model to a wave-induced heading record",
         description="Fit omega0, lambda and K_w of psi_w(s) = K_w s/(s^2 + 2 lambda omega0 s + omega0^2) "
@@ -94,7 +105,18 @@ def cmd_waves(args: argparse.Namespace) -> int:
 def add_autopilot_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``autopilot --coefficients C.json [--waves W.json] [--crossover RAD_S] [--phase-margin DEG] --out A.toml``
     plus ``--vessel``, ``--ts``, ``--still``, ``--noise-std-deg``, ``--q-wave``, ``--q-bias``,
-    ``--ardupilot`` and ``--report-dir``."""
+    ``--ardupilot`` and ``--report-dir``.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``vesselid`` subcommand group (``ArgumentParser.add_subparsers()``).
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The ``autopilot`` subparser.
+    """
     p = subparsers.add_parser(
         "autopilot", help="PD heading autopilot and discrete Kalman filter from the identified Nomoto model",
         description="Design the PD autopilot (T_d = T; T_f and K_pd from a crossover frequency and a phase "

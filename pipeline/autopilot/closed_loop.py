@@ -359,7 +359,15 @@ class ClosedLoopCheck:
     runs: tuple[ClosedLoopRun, ...]
 
     def run(self, scenario: str, case: str) -> ClosedLoopRun:
-        """The run of one scenario and case; ``KeyError`` naming what exists."""
+        """The run of one scenario and case; ``KeyError`` naming what exists.
+
+        Parameters
+        ----------
+        scenario : str
+            Scenario name (``Scenario.name``).
+        case : str
+            Controller case, one of ``CASES`` (``pd``, ``pd_kalman``, ``pd_kalman_ff``).
+        """
         for r in self.runs:
             if r.scenario.name == scenario and r.case == case:
                 return r

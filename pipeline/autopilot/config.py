@@ -67,7 +67,15 @@ class SourceFile:
 
 
 def source_file(role: str, path: str | Path) -> SourceFile:
-    """:class:`SourceFile` with the SHA-256 of ``path``."""
+    """:class:`SourceFile` with the SHA-256 of ``path``.
+
+    Parameters
+    ----------
+    role : str
+        What the file is to the configuration (``coefficients``, ``waves``, ``vessel``, ``still``).
+    path : str or Path
+        The file; read in 1 MiB blocks, recorded as given.
+    """
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -236,7 +244,13 @@ def _finite_items(d: Mapping[str, float]) -> dict[str, float]:
 
 
 def config_to_dict(cfg: AutopilotConfig) -> dict[str, Any]:
-    """The TOML document of a configuration (plain floats, lists of rows)."""
+    """The TOML document of a configuration (plain floats, lists of rows).
+
+    Parameters
+    ----------
+    cfg : AutopilotConfig
+        The configuration; standard errors that are NaN or None are left out.
+    """
     km = cfg.kalman
     model = {"K": cfg.K, "T": cfg.T, **_finite_items({"K_stderr": cfg.K_stderr, "T_stderr": cfg.T_stderr})}
     wave = {"omega0": cfg.waves.omega0, "lambda": cfg.waves.lam, "kw": cfg.waves.kw,

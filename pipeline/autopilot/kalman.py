@@ -65,7 +65,13 @@ DEFAULT_R = 0.002 * (math.pi / 180.0) ** 2
 
 
 def ssa(angle):
-    """Smallest signed angle, wrapped to [-pi, pi) [rad]."""
+    """Smallest signed angle, wrapped to [-pi, pi) [rad].
+
+    Parameters
+    ----------
+    angle : array_like
+        Angles [rad], any range.
+    """
     return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
 
 
@@ -119,7 +125,20 @@ MODEL_VARIANTS = {
 
 
 def observability_matrix(a: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """``[C; C A; ...; C A^(n-1)]``."""
+    """``[C; C A; ...; C A^(n-1)]``.
+
+    Parameters
+    ----------
+    a : numpy.ndarray
+        State matrix A (n x n).
+    c : numpy.ndarray
+        Output matrix C (m x n).
+
+    Returns
+    -------
+    numpy.ndarray
+        Observability matrix (n m x n); the pair is observable when its rank is n.
+    """
     n = a.shape[0]
     rows = [c]
     for _ in range(n - 1):
@@ -476,10 +495,28 @@ def sampled_noise_variance(psi_still: np.ndarray) -> float:
 
 
 def continuous_noise_intensity(r: float, ts: float) -> float:
-    """Continuous-time intensity [rad^2 s] equivalent to a sampled variance ``r`` [rad^2] at ``ts`` [s]: ``r ts``."""
+    """Continuous-time intensity [rad^2 s] equivalent to a sampled variance ``r`` [rad^2] at ``ts`` [s]: ``r ts``.
+
+    Parameters
+    ----------
+    r : float
+        Variance of the sampled measurement noise [rad^2].
+    ts : float
+        Sample time [s].
+    """
     return float(r) * float(ts)
 
 
 def sampled_noise_from_intensity(rc: float, ts: float) -> float:
-    """Sampled variance [rad^2] of continuous white noise of intensity ``rc`` [rad^2 s] at ``ts`` [s]: ``rc / ts``."""
+    """Sampled variance [rad^2] of continuous white noise of intensity ``rc`` [rad^2 s] at ``ts`` [s]: ``rc / ts``.
+
+    The inverse of :func:`continuous_noise_intensity`.
+
+    Parameters
+    ----------
+    rc : float
+        Intensity of the continuous white noise [rad^2 s].
+    ts : float
+        Sample time [s].
+    """
     return float(rc) / float(ts)

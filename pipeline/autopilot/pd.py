@@ -235,11 +235,27 @@ class DiscretePD:
     ts: float
 
     def output(self, z: float, e: float) -> float:
-        """Rudder command [rad] for lag state ``z`` [rad] and heading error ``e`` [rad]."""
+        """Rudder command [rad] for lag state ``z`` [rad] and heading error ``e`` [rad].
+
+        Parameters
+        ----------
+        z : float
+            Lag state at this sample [rad].
+        e : float
+            Heading error ``psi_r - psi`` at this sample [rad].
+        """
         return self.kpd * (self.ratio * e + (1.0 - self.ratio) * z)
 
     def next_state(self, z: float, e: float) -> float:
-        """Lag state at the next sample [rad]."""
+        """Lag state at the next sample [rad].
+
+        Parameters
+        ----------
+        z : float
+            Lag state at this sample [rad].
+        e : float
+            Heading error ``psi_r - psi`` at this sample [rad], held over the sample.
+        """
         return self.a * z + (1.0 - self.a) * e
 
 

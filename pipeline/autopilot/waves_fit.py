@@ -727,5 +727,13 @@ def _read_csv(p: Path, column: str | None) -> tuple[np.ndarray, np.ndarray, str,
 
 
 def model_psd(omega: np.ndarray, fit: WaveFit) -> np.ndarray:
-    """The fitted model's PSD at ``omega`` [rad^2 s] (module convention), for plots."""
+    """The fitted model's PSD at ``omega`` [rad^2 s] (module convention), for plots.
+
+    Parameters
+    ----------
+    omega : numpy.ndarray
+        Frequencies [rad/s].
+    fit : WaveFit
+        The fit; its ``params`` go to :func:`pipeline.model.waves.wave_psd`.
+    """
     return wave_psd(omega, fit.params)

@@ -43,7 +43,21 @@ def propagate(gradient: Sequence[float], covariance: np.ndarray) -> float:
 
 
 def sub_covariance(fit: SegmentFit, names: Sequence[str]) -> np.ndarray:
-    """Covariance block of the parameters ``names`` of a segment fit."""
+    """Covariance block of the parameters ``names`` of a segment fit.
+
+    Parameters
+    ----------
+    fit : SegmentFit
+        The segment fit; its ``param_names`` give the covariance order.
+    names : Sequence[str]
+        Parameters wanted, in the order of the returned block (``ValueError`` when one is not
+        a parameter of the fit).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``len(names) x len(names)`` covariance [products of the parameters' units].
+    """
     idx = [fit.param_names.index(n) for n in names]
     return np.asarray(fit.covariance, float)[np.ix_(idx, idx)]
 

@@ -15,7 +15,13 @@ INPUT_LOOKBACK = 2.0
 
 
 def segment_label(segment: Segment) -> str:
-    """Short name of a segment for messages: kind, DOF, bounds [s] and label."""
+    """Short name of a segment for messages: kind, DOF, bounds [s] and label.
+
+    Parameters
+    ----------
+    segment : Segment
+        The segment; its label is quoted only when not empty.
+    """
     name = f"{segment.kind} {segment.dof} [{segment.t_start:.2f}-{segment.t_end:.2f} s]"
     return f"{name} '{segment.label}'" if segment.label else name
 
@@ -87,6 +93,16 @@ def noise_sigma(y: np.ndarray) -> float:
     The second difference removes a smooth signal sampled well above its bandwidth; for white noise
     of standard deviation sigma it has variance 6 sigma^2, and the median absolute deviation makes
     the estimate insensitive to spikes.
+
+    Parameters
+    ----------
+    y : array_like
+        Uniformly sampled, finite signal.
+
+    Returns
+    -------
+    float
+        Noise standard deviation [unit of y]; NaN with fewer than five samples.
     """
     y = np.asarray(y, float)
     if y.size < 5:

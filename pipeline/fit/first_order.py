@@ -51,7 +51,22 @@ def decay(t: np.ndarray, y0: float, T: float) -> np.ndarray:
 
 
 def decay_jacobian(t: np.ndarray, y0: float, T: float) -> np.ndarray:
-    """Jacobian of :func:`decay` with respect to ``(y0, T)``, shape (n, 2)."""
+    """Jacobian of :func:`decay` with respect to ``(y0, T)``, shape (n, 2).
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Time since the input was cut [s].
+    y0 : float
+        Value at ``t = 0`` [unit of y].
+    T : float
+        Time constant [s].
+
+    Returns
+    -------
+    numpy.ndarray
+        Columns ``dy/dy0`` [-] and ``dy/dT`` [unit of y / s].
+    """
     e = np.exp(-np.asarray(t, float) / T)
     return np.column_stack([e, y0 * e * t / T**2])
 
@@ -74,7 +89,24 @@ def step_response(t: np.ndarray, y0: float, y_ss: float, T: float) -> np.ndarray
 
 
 def step_jacobian(t: np.ndarray, y0: float, y_ss: float, T: float) -> np.ndarray:
-    """Jacobian of :func:`step_response` with respect to ``(y0, y_ss, T)``, shape (n, 3)."""
+    """Jacobian of :func:`step_response` with respect to ``(y0, y_ss, T)``, shape (n, 3).
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Time since the input change [s].
+    y0 : float
+        Value at ``t = 0`` [unit of y].
+    y_ss : float
+        Steady state [unit of y].
+    T : float
+        Time constant [s].
+
+    Returns
+    -------
+    numpy.ndarray
+        Columns ``dy/dy0``, ``dy/dy_ss`` [-] and ``dy/dT`` [unit of y / s].
+    """
     e = np.exp(-np.asarray(t, float) / T)
     return np.column_stack([e, 1.0 - e, (y0 - y_ss) * e * t / T**2])
 
@@ -193,7 +225,19 @@ def check_first_order_length(segment: Segment, t: np.ndarray, T_guess: float, re
 
 
 def time_constant_bounds(t: np.ndarray) -> tuple[float, float]:
-    """Bounds on a time constant [s]: a tenth of a sample interval to 100 segment lengths."""
+    """Bounds on a time constant [s]: a tenth of a sample interval to 100 segment lengths.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Sample times of the segment [s], increasing, at least one; the sample interval is their
+        median spacing (1 s for a single sample).
+
+    Returns
+    -------
+    tuple[float, float]
+        Lower and upper bound on T [s].
+    """
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
     return 0.1 * dt, 100.0 * max(float(t[-1] - t[0]), dt)
 

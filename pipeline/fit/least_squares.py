@@ -66,7 +66,13 @@ class LeastSquaresResult:
     message: str
 
     def value(self, name: str) -> float:
-        """Estimate of parameter ``name``."""
+        """Estimate of parameter ``name``.
+
+        Parameters
+        ----------
+        name : str
+            One of ``names`` (``ValueError`` otherwise).
+        """
         return float(self.values[self.names.index(name)])
 
 

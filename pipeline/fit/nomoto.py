@@ -54,7 +54,26 @@ def nomoto_step(t: np.ndarray, r0: float, K: float, T: float, delta_after: float
 
 
 def nomoto_step_jacobian(t: np.ndarray, r0: float, K: float, T: float, delta_after: float) -> np.ndarray:
-    """Jacobian of :func:`nomoto_step` with respect to ``(r0, K, T)``, shape (n, 3)."""
+    """Jacobian of :func:`nomoto_step` with respect to ``(r0, K, T)``, shape (n, 3).
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Time since the rudder step [s].
+    r0 : float
+        Yaw rate at ``t = 0`` [rad/s].
+    K : float
+        Nomoto gain [1/s].
+    T : float
+        Nomoto time constant [s].
+    delta_after : float
+        Rudder angle after the step [rad].
+
+    Returns
+    -------
+    numpy.ndarray
+        Columns ``dr/dr0`` [-], ``dr/dK`` [rad] and ``dr/dT`` [rad/s^2].
+    """
     e = np.exp(-np.asarray(t, float) / T)
     return np.column_stack([e, delta_after * (1.0 - e), (r0 - K * delta_after) * e * t / T**2])
 
@@ -79,7 +98,26 @@ def nomoto_step_change(t: np.ndarray, r0: float, K: float, T: float, delta_chang
 
 
 def nomoto_step_change_jacobian(t: np.ndarray, r0: float, K: float, T: float, delta_change: float) -> np.ndarray:
-    """Jacobian of :func:`nomoto_step_change` with respect to ``(r0, K, T)``, shape (n, 3)."""
+    """Jacobian of :func:`nomoto_step_change` with respect to ``(r0, K, T)``, shape (n, 3).
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Time since the rudder step [s].
+    r0 : float
+        Yaw rate at ``t = 0``, steady before the step [rad/s].
+    K : float
+        Nomoto gain [1/s].
+    T : float
+        Nomoto time constant [s].
+    delta_change : float
+        Rudder change ``delta_after - delta_before`` [rad].
+
+    Returns
+    -------
+    numpy.ndarray
+        Columns ``dr/dr0`` [-], ``dr/dK`` [rad] and ``dr/dT`` [rad/s^2].
+    """
     t = np.asarray(t, float)
     e = np.exp(-t / T)
     return np.column_stack([np.ones_like(t), delta_change * (1.0 - e), -K * delta_change * e * t / T**2])

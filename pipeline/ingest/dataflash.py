@@ -751,8 +751,18 @@ def read_dataflash_slow(path: str | Path, vessel: Vessel | None = None, progress
     """Reference reader for tests and benchmarks: :func:`read_dataflash` through pymavlink's ``recv_match``.
 
     The same index and channel building, but every record is decoded by pymavlink as one
-    ``DFMessage`` (``DFReader_binary._parse_next`` and ``DFMessage.__getattr__``). Parameters,
-    return value and errors as :func:`read_dataflash`; the channels are identical.
+    ``DFMessage`` (``DFReader_binary._parse_next`` and ``DFMessage.__getattr__``). Return value and
+    errors as :func:`read_dataflash`; the channels are identical.
+
+    Parameters
+    ----------
+    path : str or Path
+        The log. Opened read-only and never modified.
+    vessel : Vessel, optional
+        Supplies ``actuators``, the map from RCOU / RCIN PWM [us] to canonical inputs; without it
+        inputs are not read.
+    progress : bool, optional
+        tqdm bar over the records decoded; ``None`` decides as :func:`read_dataflash` does.
     """
     return _read(path, vessel, progress, slow=True)
 

@@ -249,6 +249,10 @@ class Role:
         return f"@{self.sensor}" if self.sensor else ""
 
     def text(self) -> str:
+        """The role as a topic-map spec (``imu``, ``navsatfix@gps``, ``float64:tau_k``).
+
+        The inverse of :func:`parse_role`.
+        """
         head = f"float64:{self.channel}" if self.kind == "float64" else self.kind
         return head + self.suffix
 

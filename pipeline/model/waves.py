@@ -39,7 +39,19 @@ class WaveParams:
 
 
 def wave_matrices(params: WaveParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """State-space ``(A_w, E_w, C_w)`` of the wave model: x_dot = A_w x + E_w w, psi_w = C_w x."""
+    """State-space ``(A_w, E_w, C_w)`` of the wave model: x_dot = A_w x + E_w w, psi_w = C_w x.
+
+    Parameters
+    ----------
+    params : WaveParams
+        Peak frequency ``omega0`` [rad/s], damping ``lam`` [-] and gain ``kw``.
+
+    Returns
+    -------
+    a, e, c : numpy.ndarray
+        ``A_w`` (2x2), ``E_w`` (2x1) and ``C_w`` (1x2), state order ``WAVE_STATES``
+        (Fossen 2021, sec. 10.2.4).
+    """
     w0, lam = params.omega0, params.lam
     a = np.array([[0.0, 1.0], [-w0**2, -2 * lam * w0]])
     e = np.array([[0.0], [params.kw]])
@@ -48,7 +60,24 @@ def wave_matrices(params: WaveParams) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 
 def wave_rhs(t, x, u, params: WaveParams):
-    """Right-hand side ``f(t, x, u, params)`` with ``u = [w_w]`` the driving noise sample."""
+    """Right-hand side ``f(t, x, u, params)`` with ``u = [w_w]`` the driving noise sample.
+
+    Parameters
+    ----------
+    t : float
+        Time [s]; unused (the model is time-invariant), kept for the common signature.
+    x : array_like or casadi.SX
+        State ``[xi_w, psi_w]`` [rad s, rad]; a casadi symbol gives a casadi expression.
+    u : array_like or casadi.SX
+        ``[w_w]``, the unit-intensity white-noise sample [-].
+    params : WaveParams
+        Wave model.
+
+    Returns
+    -------
+    numpy.ndarray or casadi.SX
+        ``[xi_w_dot, psi_w_dot]`` [rad, rad/s].
+    """
     o = ops(x)
     w0, lam = params.omega0, params.lam
     return o.stack([x[1], -w0**2 * x[0] - 2 * lam * w0 * x[1] + params.kw * u[0]])
@@ -58,6 +87,13 @@ def wave_psd(omega: np.ndarray, params: WaveParams) -> np.ndarray:
     """Power spectral density |H(j omega)|^2 of psi_w for unit-intensity white noise [rad^2 s].
 
     ``P(omega) = |H(j omega)|^2 = K_w^2 omega^2 / ((omega_0^2 - omega^2)^2 + (2 lambda omega_0 omega)^2)``.
+
+    Parameters
+    ----------
+    omega : array_like
+        Frequencies [rad/s].
+    params : WaveParams
+        Wave model.
     """
     w = np.asarray(omega, float)
     w0, lam = params.omega0, params.lam

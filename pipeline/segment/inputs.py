@@ -33,7 +33,18 @@ class Varying:
 
 
 def input_tolerance(u: np.ndarray) -> float:
-    """Smallest change [SI] counted as a command change: 1% of the input's range, at least 1e-9."""
+    """Smallest change [SI] counted as a command change: 1% of the input's range, at least 1e-9.
+
+    Parameters
+    ----------
+    u : numpy.ndarray
+        Input record [SI]; non-finite samples are ignored.
+
+    Returns
+    -------
+    float
+        Tolerance [SI unit of u]; ``inf`` when ``u`` has no finite sample.
+    """
     finite = u[np.isfinite(u)]
     if len(finite) == 0:
         return np.inf

@@ -11,7 +11,22 @@ _KEYS = {"kind", "dof", "t_start", "t_end", "input_channel", "input_before", "in
 
 
 def parse_segment(entry: Mapping[str, Any], where: str) -> Segment:
-    """One ``[[segments]]`` table of a manifest -> Segment (``origin='manifest'``)."""
+    """One ``[[segments]]`` table of a manifest -> Segment (``origin='manifest'``).
+
+    Parameters
+    ----------
+    entry : Mapping[str, Any]
+        The table: ``kind``, ``dof``, ``t_start``, ``t_end`` [s] required; ``input_channel``,
+        ``input_before``, ``input_after`` [SI unit of the input] and ``label`` optional.
+    where : str
+        Where the table is (``segments[2]``), for the error message.
+
+    Raises
+    ------
+    SegmentError
+        Unknown or missing keys, unknown kind, DOF or input channel, non-numeric bounds, or
+        ``t_end <= t_start``.
+    """
     unknown = sorted(set(entry) - _KEYS)
     if unknown:
         raise SegmentError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(_KEYS)}")

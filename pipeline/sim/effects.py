@@ -99,12 +99,31 @@ def apply_rate_limit(previous: np.ndarray, target: np.ndarray, max_step: np.ndar
     """Move from ``previous`` toward ``target`` by at most ``max_step`` per channel [SI].
 
     ``max_step`` is rate [SI/s] times dt [s]; ``inf`` leaves a channel unlimited.
+
+    Parameters
+    ----------
+    previous : numpy.ndarray
+        Actuator positions at the previous step, one per input channel [SI].
+    target : numpy.ndarray
+        Commanded positions at this step [SI].
+    max_step : numpy.ndarray
+        Largest change per step and channel [SI]; ``inf`` for unlimited channels.
     """
     return previous + np.clip(target - previous, -max_step, max_step)
 
 
 def apply_thrust_asymmetry(u: np.ndarray, index: int, reverse_gain: float) -> np.ndarray:
-    """Scale a negative (reverse) thrust command by ``reverse_gain`` (propellers push less astern)."""
+    """Scale a negative (reverse) thrust command by ``reverse_gain`` (propellers push less astern).
+
+    Parameters
+    ----------
+    u : numpy.ndarray
+        Input vector [SI]; returned unchanged (not copied) when nothing is scaled.
+    index : int
+        Position of the thrust channel (``tau_x``) in ``u``.
+    reverse_gain : float
+        Ratio of reverse to forward thrust [-]; 1 leaves ``u`` as it is.
+    """
     if reverse_gain == 1.0 or u[index] >= 0:
         return u
     out = np.array(u, float)
@@ -113,7 +132,18 @@ def apply_thrust_asymmetry(u: np.ndarray, index: int, reverse_gain: float) -> np
 
 
 def check_effects(effects: Effects) -> None:
-    """Reject physically meaningless effect settings with a message naming the value found."""
+    """Reject physically meaningless effect settings with a message naming the value found.
+
+    Parameters
+    ----------
+    effects : Effects
+        The settings to check.
+
+    Raises
+    ------
+    SimError
+        A setting outside its physical range or of the wrong shape.
+    """
     if effects.actuator_delay < 0:
         raise SimError(f"actuator_delay: expected >= 0 s, found {effects.actuator_delay}")
     if effects.thrust_reverse_gain <= 0:

@@ -96,7 +96,22 @@ def step_and_coast(dof: str, force: float, t_on: float, t_off: float, channel: s
 
 
 def free_decay(dof: str, angle0: float, duration: float) -> Manoeuvre:
-    """Release the hull from ``angle0`` [rad] in roll or pitch and let it oscillate out."""
+    """Release the hull from ``angle0`` [rad] in roll or pitch and let it oscillate out.
+
+    Parameters
+    ----------
+    dof : str
+        ``roll`` or ``pitch``.
+    angle0 : float
+        Initial roll or pitch angle [rad], released with zero angular rate.
+    duration : float
+        Length [s]; no input is commanded.
+
+    Raises
+    ------
+    SimError
+        ``dof`` is neither roll nor pitch.
+    """
     angle = {"roll": "phi", "pitch": "theta"}.get(dof)
     if angle is None:
         raise SimError(f"free_decay: expected dof roll or pitch, found {dof!r}")
@@ -167,6 +182,24 @@ def sinusoid(amplitude: float, omega: float, periods: float, channel: str = "del
     """Sinusoidal input ``amplitude sin(omega t)`` for a number of periods (the seeds' test).
 
     The ship-autopilot seed uses omega = 0.005 and 0.05 rad/s on the rudder.
+
+    Parameters
+    ----------
+    amplitude : float
+        Input amplitude [SI unit of ``channel``: rad for ``delta``, N for ``tau_x``, ...].
+    omega : float
+        Input frequency [rad/s], positive.
+    periods : float
+        Number of periods, positive; the length is ``periods * 2 pi / omega`` [s].
+    channel : str
+        Input channel commanded.
+    dof : str
+        DOF of the truth segment it produces.
+
+    Raises
+    ------
+    SimError
+        ``omega`` or ``periods`` not positive.
     """
     if omega <= 0 or periods <= 0:
         raise SimError(f"sinusoid: expected positive omega and periods, found {omega}, {periods}")
@@ -177,7 +210,13 @@ def sinusoid(amplitude: float, omega: float, periods: float, channel: str = "del
 
 
 def rest(duration: float) -> Manoeuvre:
-    """All inputs zero for ``duration`` [s] (lets motions die out between manoeuvres)."""
+    """All inputs zero for ``duration`` [s] (lets motions die out between manoeuvres).
+
+    Parameters
+    ----------
+    duration : float
+        Length [s].
+    """
     return Manoeuvre("rest", duration, (), lambda t, x: {})
 
 
@@ -207,7 +246,15 @@ class Schedule:
 
 
 def chain(*manoeuvres: Manoeuvre, rest_s: float = 5.0) -> Schedule:
-    """Chain manoeuvres with ``rest_s`` seconds of rest before each and after the last."""
+    """Chain manoeuvres with ``rest_s`` seconds of rest before each and after the last.
+
+    Parameters
+    ----------
+    *manoeuvres : Manoeuvre
+        The manoeuvres, in trial order.
+    rest_s : float
+        Length of each rest [s].
+    """
     items: list[Manoeuvre] = []
     for m in manoeuvres:
         items += [rest(rest_s), m]

@@ -85,5 +85,13 @@ def default_sensors(level: str = "nominal", fast_attitude: bool = True) -> tuple
 
 
 def scaled(sensors: tuple[SensorSpec, ...], factor: float) -> tuple[SensorSpec, ...]:
-    """The same sensors with every noise standard deviation multiplied by ``factor``."""
+    """The same sensors with every noise standard deviation multiplied by ``factor``.
+
+    Parameters
+    ----------
+    sensors : tuple[SensorSpec, ...]
+        Sensor set, for example :func:`default_sensors`; not modified.
+    factor : float
+        Multiplier of every noise standard deviation [-].
+    """
     return tuple(replace(s, noise={c: v * factor for c, v in s.noise.items()}) for s in sensors)

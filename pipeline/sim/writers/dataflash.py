@@ -111,7 +111,15 @@ _NUMPY_OF_STRUCT = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I
 
 
 def record_dtype(fmt: str, columns: str) -> np.dtype:
-    """Packed numpy dtype of one record (3-byte header + fields) for a DataFlash format string."""
+    """Packed numpy dtype of one record (3-byte header + fields) for a DataFlash format string.
+
+    Parameters
+    ----------
+    fmt : str
+        DataFlash format characters, one per field (pymavlink's ``FORMAT_TO_STRUCT`` keys).
+    columns : str
+        Comma-separated field names, one per character of ``fmt``.
+    """
     names = ["_h1", "_h2", "_id"] + columns.split(",")
     types = ["u1", "u1", "u1"] + [_NUMPY_OF_STRUCT[FORMAT_TO_STRUCT[c][0]] for c in fmt]
     return np.dtype({"names": names, "formats": types})
