@@ -18,6 +18,7 @@ from .damping import (damping_from_decay, damping_from_gain, damping_from_time_c
 from .data import gain_formulation, input_levels, segment_label
 from .first_order import fit_coast_down, fit_step, step_steadiness
 from .nomoto import fit_rudder_step
+from .nomoto_oe import WHOLE_RECORD_KINDS, fit_nomoto_segment
 from .second_order import fit_free_decay
 from .segment_fit import failed_segment_fit
 
@@ -27,6 +28,8 @@ FITTERS: Mapping[str, tuple[Callable[[Trial, Segment], SegmentFit], str]] = {
     "step": (fit_step, "first_order_step"),
     "free_decay": (fit_free_decay, "damped_oscillation"),
     "rudder_step": (fit_rudder_step, "nomoto_step"),
+    "zigzag": (fit_nomoto_segment, "nomoto_oe"),
+    "sinusoid": (fit_nomoto_segment, "nomoto_oe"),
 }
 #: DOF name -> Fossen derivative on the diagonal of -D.
 DERIVATIVES: Mapping[str, str] = {"surge": "X_u", "sway": "Y_v", "roll": "K_p", "pitch": "M_q", "yaw": "N_r"}
@@ -35,9 +38,14 @@ DAMPING_UNITS: Mapping[str, str] = {"surge": "kg/s", "sway": "kg/s", "roll": "kg
 #: Relative mismatch of the fitted and the config's natural frequency that is flagged.
 WN_TOLERANCE = 0.10
 _KIND_WORDS = {"coast_down": ("coast-down", "coast-downs"), "step": ("step", "steps"),
-               "free_decay": ("free decay", "free decays"), "rudder_step": ("rudder step", "rudder steps")}
+               "free_decay": ("free decay", "free decays"), "rudder_step": ("rudder step", "rudder steps"),
+               "zigzag": ("zig-zag", "zig-zags"), "sinusoid": ("sinusoid", "sinusoids")}
 # Estimates first in this order (the report's table order); extras follow in insertion order.
-_ORDER = ("X_u", "Y_v", "K_p", "M_q", "N_r", "K_nomoto", "T_nomoto")
+_ORDER = ("X_u", "Y_v", "K_p", "M_q", "N_r", "K_nomoto", "T_nomoto", "b_nomoto")
+#: How the whole-record Nomoto fits (zig-zags, sinusoids) are described in an estimate's method.
+WHOLE_RECORD_METHOD = ("whole-record first-order Nomoto fit on {kinds}: exact ZOH simulation of heading (and yaw "
+                       "rate) with rudder bias, output error when the compass residuals are white, else "
+                       "prediction error with the wave noise model (steady-state Kalman innovations)")
 
 
 @dataclass
@@ -49,6 +57,15 @@ class _Pool:
     items: list[Contribution] = field(default_factory=list)
     kinds: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    #: Further methods (with the kinds they served) when one coefficient comes from several models.
+    more: dict[str, list[str]] = field(default_factory=dict)
+
+    def method_text(self) -> str:
+        """The method, or each method with the segment kinds it was used on."""
+        first = [k for k in self.kinds if not any(k in ks for ks in self.more.values())]
+        parts = [self.method.format(kinds=_kinds_text(first))]
+        parts += [m.format(kinds=_kinds_text(ks)) for m, ks in self.more.items()]
+        return "; ".join(parts)
 
 
 def _kinds_text(kinds: list[str]) -> str:
@@ -87,6 +104,8 @@ class _Collector:
         pool = self.pools.setdefault(name, _Pool(unit=unit, method=method))
         pool.items.append(c)
         pool.kinds.append(kind)
+        if method != pool.method:
+            pool.more.setdefault(method, []).append(kind)
 
     def _param(self, sf: SegmentFit, name: str) -> Contribution:
         label = segment_label(sf.segment)
@@ -126,6 +145,11 @@ class _Collector:
                 k = replace(k, ok=False, reason=sf.message)
             self.add("K_nomoto", "1/s", method, kind, k)
             self.add("T_nomoto", "s", method, kind, self._param(sf, "T"))
+        elif kind in WHOLE_RECORD_KINDS and dof == "yaw":
+            for name, unit in (("K", "1/s"), ("T", "s"), ("b", "rad")):
+                if name == "b" and "b" not in sf.params and sf.success:
+                    continue
+                self.add(f"{name}_nomoto", unit, WHOLE_RECORD_METHOD, kind, self._param(sf, name))
 
     def _first_order(self, sf: SegmentFit) -> None:
         seg = sf.segment
@@ -206,11 +230,23 @@ class _Collector:
                         f"{WN_TOLERANCE:.0%}): check restoring.{dof}, the inertia and the added mass")
                 ratio_pool.notes.append(flag)
                 self.pools[DERIVATIVES[dof]].notes.append(flag)
-        out = {name: combine(name, pool.unit, pool.method.format(kinds=_kinds_text(pool.kinds)), pool.items,
-                             pool.notes)
+        out = {name: combine(name, pool.unit, pool.method_text(), pool.items, pool.notes)
                for name, pool in self.pools.items()}
+        if "b_nomoto" in out:
+            out["b_nomoto"] = _bias_estimate(out["b_nomoto"])
         first = {k: out[k] for k in _ORDER if k in out}
         return {**first, **{k: v for k, v in out.items() if k not in first}}
+
+
+def _bias_estimate(est: Estimate) -> Estimate:
+    """The rudder bias is often truly zero: a relative-error test would call a clean zero "not
+    identified", so b is judged by its absolute standard error instead."""
+    if est.success or est.n_segments == 0 or not (math.isfinite(est.value) and math.isfinite(est.stderr)):
+        return est
+    kept = [m for m in est.message.split("; ") if not m.startswith("relative standard error")]
+    if abs(est.value) < 2 * est.stderr:
+        kept.insert(0, "b is within 2 standard errors of zero: no rudder bias detected")
+    return replace(est, success=True, message="; ".join(kept))
 
 
 def _damping_matrix(estimates: Mapping[str, Estimate]) -> tuple[np.ndarray, np.ndarray]:
@@ -237,6 +273,9 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel) -> Fits:
     - ``free_decay`` (roll/pitch): damped cosine -> ``wn_<dof>``, ``zeta_<dof>``,
       ``K_p``/``M_q`` ``= -2 zeta wn I_eff``, ``wn_ratio_<dof>`` against the config's restoring.
     - ``rudder_step`` (yaw): first-order Nomoto -> ``K_nomoto``, ``T_nomoto``.
+    - ``zigzag``, ``sinusoid`` (yaw, rudder input): whole-record Nomoto output-error or wave
+      prediction-error fit (:func:`pipeline.fit.nomoto_oe.fit_nomoto_segment`) -> ``K_nomoto``,
+      ``T_nomoto`` (combined with the rudder steps) and the rudder bias ``b_nomoto`` [rad].
 
     Repeated segments are combined by an inverse-variance weighted mean with a chi-square
     consistency test (see :func:`pipeline.fit.combine.combine`). A segment that cannot be fitted is
