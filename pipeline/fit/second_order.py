@@ -198,6 +198,12 @@ def guess_damped_oscillation(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
                        f"oscillation period), or the release and {MIN_EXTREMA_WITH_RELEASE - 1} more, "
                        f"found {tk.size}")
     half_period = float(np.polyfit(np.arange(tk.size), tk, 1)[0])
+    if minimum == MIN_EXTREMA_WITH_RELEASE and t[-1] - t[0] < 2 * half_period:
+        # Two turning points are enough to start from only when the record goes on for a full
+        # period (swings hidden in the noise still inform the fit); half a period is not a decay.
+        raise FitError(f"expected at least {MIN_EXTREMA} alternating extrema above the noise, or the "
+                       f"release and one more with a full period ({2 * half_period:.3g} s) of record, "
+                       f"found {tk.size} over {t[-1] - t[0]:.3g} s")
     wd = math.pi / half_period
     p2p = np.abs(np.diff(ak))
     tm = 0.5 * (tk[1:] + tk[:-1])
