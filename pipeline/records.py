@@ -129,6 +129,11 @@ class RawLog:
         Reader summary.
     time_reference : str
         What ``t = 0`` means: ``boot`` (autopilot boot), ``trial`` (trial start), ``gps``, ``unix``.
+    start_time : float
+        Absolute UTC time of ``t = 0`` [s since the Unix epoch, leap seconds removed as in Unix
+        time]; NaN when the source has no absolute clock. Readers set it where the format gives
+        it (GPS week and time of week, an NMEA date, MAVLink SYSTEM_TIME, wall-clock ROS stamps),
+        so :func:`pipeline.align.clock.estimate_offsets` can put several files on one clock.
     """
 
     source: str
@@ -136,6 +141,7 @@ class RawLog:
     channels: Mapping[str, Channel]
     summary: IngestSummary
     time_reference: str = "trial"
+    start_time: float = math.nan
 
     def channel(self, name: str) -> Channel:
         """Return channel ``name`` or raise ``KeyError`` naming the channels present.

@@ -111,9 +111,12 @@ def test_round_trip_within_field_quantisation(tmp_path, mavlink2):
     assert raw.time_reference == "boot" and raw.format == "tlog"
     assert set(raw.channels) == set(log.channels) - {"u", "v"} | {"sog", "cog"}
     assert dict(raw.summary.read) == {"ATTITUDE": 1000, "GLOBAL_POSITION_INT": 200, "GPS_RAW_INT": 200,
-                                      "SCALED_IMU": 1000 * 2, "SERVO_OUTPUT_RAW": 1000}
+                                      "SCALED_IMU": 1000 * 2, "SERVO_OUTPUT_RAW": 1000, "SYSTEM_TIME": 20}
     assert dict(raw.summary.skipped) == {"HEARTBEAT": 20}
-    assert raw.summary.warnings == ()
+    # SYSTEM_TIME (UTC against boot time) puts the boot clock on UTC: boot was 5 s before the wall start.
+    assert raw.start_time == pytest.approx(WALL_START - BOOT_OFFSET, abs=1e-6)
+    assert raw.summary.warnings == ("t = 0 (boot) is 2024-05-05T09:59:55.000+00:00 UTC, from 20 SYSTEM_TIME "
+                                    "message(s) (spread 0.0 ms)",)
 
     src = log.channels
     # Stamps are the boot clock (time_boot_ms / time_usec), not the wall-clock receive time.
@@ -221,7 +224,8 @@ def test_servo_time_usec_uint32_wrap_is_unwrapped(tmp_path):
     rudder_only = Vessel(name="rudder", actuators=(DELTA_MAP,))
     raw = read_tlog(write_tlog(log, tmp_path / "wrap.tlog", rudder_only), rudder_only)
     assert np.allclose(raw.channel("delta").t, t + BOOT_OFFSET, rtol=0, atol=1e-6)
-    assert raw.summary.read["SERVO_OUTPUT_RAW"] == 500 and raw.summary.warnings == ()
+    assert raw.summary.read["SERVO_OUTPUT_RAW"] == 500
+    assert [w for w in raw.summary.warnings if not w.startswith("t = 0 (boot) is")] == []
 
 
 def test_variable_map_is_visible():
@@ -295,7 +299,8 @@ def test_truncated_real_log(tmp_path):
         pos += 8 + frame_len
     p = _write(tmp_path, "half.tlog", full[:cut])
     raw = read_tlog(p, VESSEL)
-    assert raw.summary.warnings == (f"truncated: {cut - pos} trailing bytes ignored",)
+    assert raw.summary.warnings[0] == f"truncated: {cut - pos} trailing bytes ignored"
+    assert [w for w in raw.summary.warnings[1:] if not w.startswith("t = 0 (boot) is")] == []
     ref = read_tlog(tmp_path / "full.tlog", VESSEL)
     psi = raw.channel("psi")
     assert np.array_equal(psi.values, ref.channel("psi").values[:len(psi.values)])

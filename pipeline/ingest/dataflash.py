@@ -34,6 +34,9 @@ RCIN   C1..C14 [us]                      -> inputs through the actuator maps wit
        that a servo map also gives is named ``<input>@rc``
 
 Time: ``time_reference='boot'``; ``t`` [s] = TimeUS * 1e-6 of each record (autopilot boot clock).
+``RawLog.start_time`` is the UTC of boot [s, Unix]: the median over GPS records with a fix of
+(GWk, GMS as GPS time) - TimeUS, less the leap seconds; it carries the receiver-to-autopilot
+latency of the GPS record's TimeUS (tens of ms on real autopilots). NaN without such records.
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ from ..errors import IngestError
 from ..records import Channel, IngestSummary, RawLog
 from ..vessel import ActuatorMap, Vessel
 from ._common import check_file
+from ._gpstime import GPS_EPOCH_UNIX, WEEK_S, leap_seconds, unix_text
 
 HEAD1, HEAD2 = 0xA3, 0x95
 FMT_TYPE = 0x80
@@ -115,8 +119,10 @@ INPUT_MESSAGES: dict[str, tuple[str, tuple[str, ...], int]] = {
     "RCIN": ("rc", ("C{}", "Ch{}", "Chan{}"), 14),
 }
 
-#: Fields read only to judge validity.
-_EXTRA_FIELDS: dict[str, tuple[str, ...]] = {"GPS": ("Status",)}
+#: Fields read only to judge validity (Status) or to put the boot clock on UTC (GMS, GWk).
+_EXTRA_FIELDS: dict[str, tuple[str, ...]] = {"GPS": ("Status", "GMS", "GWk")}
+#: A boot-to-UTC offset whose GPS records disagree by more than this is reported [s].
+_CLOCK_SPREAD_WARN_S = 0.5
 
 #: struct code (pymavlink's FORMAT_TO_STRUCT) -> little-endian numpy type.
 _NUMPY_OF_STRUCT = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q": "<i8",
@@ -576,13 +582,51 @@ def _build(p: Path, decoded: Mapping[str, Mapping[str, np.ndarray]],
         wanted = ", ".join(f"{a.target} (channel {a.channel})" for a in maps if a.source == src)
         warnings.append(f"actuator map expects {msg} for {wanted}, found no {msg} records")
 
+    start_time = _start_time(decoded, types, warnings)
     if not produced:
         found = ", ".join(f"{k} {v}" for k, v in sorted(skipped.items()) if k != "GARBAGE_BYTES") or "none"
         raise IngestError(f"{p}: expected usable ATT, IMU, GPS, POS, XKF1, RCOU or RCIN records, found none "
                           f"(records: {found})")
     summary = IngestSummary(path=str(p), format="dataflash", read=dict(read),
                             skipped={k: v for k, v in skipped.items() if v}, warnings=tuple(warnings))
-    return RawLog(source=str(p), format="dataflash", channels=produced, summary=summary, time_reference="boot")
+    return RawLog(source=str(p), format="dataflash", channels=produced, summary=summary, time_reference="boot",
+                  start_time=start_time)
+
+
+def _start_time(decoded: Mapping[str, Mapping[str, np.ndarray]], types: Mapping[str, tuple[str, tuple[str, ...]]],
+                warnings: list[str]) -> float:
+    """UTC of boot (TimeUS = 0) [s, Unix] from the GPS records' week and time of week, NaN without.
+
+    Each GPS record with a fix carries both clocks: TimeUS (boot) and GWk/GMS (GPS). The median
+    of their difference over all such records is robust to a corrupted record or two; the spread
+    is reported because it includes the receiver-to-autopilot latency jitter.
+    """
+    offsets = []
+    for name, (canon, fields) in types.items():
+        cols = decoded.get(name, {})
+        if canon != "GPS" or not {"GMS", "GWk", "Status"} <= set(fields):
+            continue
+        ok = (cols["Status"] >= 2) & (cols["GWk"] > 0) & (cols["GMS"] >= 0) & (cols["GMS"] < WEEK_S * 1000) \
+            & (cols["TimeUS"] > 0)
+        if ok.any():
+            gps = GPS_EPOCH_UNIX + cols["GWk"][ok] * WEEK_S + cols["GMS"][ok] * 1e-3
+            offsets.append(gps - cols["TimeUS"][ok] * 1e-6)
+    if not offsets:
+        warnings.append("no GPS record with a fix and a GPS week: the boot clock has no absolute time (start_time NaN)")
+        return math.nan
+    off = np.concatenate(offsets)
+    gps_boot = float(np.median(off))
+    leap = leap_seconds(gps_boot - leap_seconds(gps_boot))
+    start = gps_boot - leap
+    q1, q3 = np.percentile(off, [25, 75])
+    warnings.append(f"t = 0 (boot) is {unix_text(start)} UTC, from GPS week/time of week (GWk/GMS) against "
+                    f"TimeUS of {len(off)} GPS record(s); interquartile spread {1e3 * (q3 - q1):.1f} ms, "
+                    f"GPS - UTC = {leap} s")
+    spread = float(np.max(off) - np.min(off))
+    if spread > _CLOCK_SPREAD_WARN_S:
+        warnings.append(f"GPS records disagree on the boot-to-GPS offset by up to {spread:.3f} s (a GPS time "
+                        "jump or a reboot); the median is used")
+    return start
 
 
 def _channels(name: str, canon: str, inst: int, t: np.ndarray, cols: Mapping[str, np.ndarray], keep: np.ndarray,

@@ -5,7 +5,8 @@ followed by one MAVLink 1 (``0xFE``) or MAVLink 2 (``0xFD``) frame. The receive 
 station's clock, delayed and jittered by the radio link, so it is not used for dynamics: every
 channel is stamped with the autopilot's boot clock carried inside the message (``time_boot_ms`` or,
 for GPS_RAW_INT, RAW_IMU and SERVO_OUTPUT_RAW, ``time_usec``), and the result has
-``time_reference='boot'``.
+``time_reference='boot'``. When the autopilot sends SYSTEM_TIME (UTC with its boot time), the
+median of their difference is ``RawLog.start_time``, the UTC of boot; otherwise it is NaN.
 
 Frames are split and checked here with the tables of the generated
 ``pymavlink.dialects.v20.ardupilotmega`` module (message ids, CRC extras, x25 CRC, payload struct
@@ -23,6 +24,7 @@ SCALED_IMU, RAW_IMU  x/y/zacc [mG], x/y/zgyro [mrad/s] -> ax, ay, az [m/s^2], p@
 SCALED_IMU2, _IMU3   the same with ``@imu2`` / ``@imu3`` on every name
 SERVO_OUTPUT_RAW     servoN_raw [us] -> inputs through the vessel's ``[[actuators]]`` (source servo)
 RC_CHANNELS          chanN_raw [us]  -> inputs through the vessel's ``[[actuators]]`` (source rc)
+SYSTEM_TIME          time_unix_usec, time_boot_ms -> ``RawLog.start_time`` (UTC of boot), not a channel
 
 RAW_IMU is taken in ArduPilot's convention (mG and mrad/s, like SCALED_IMU); the MAVLink spec calls
 its values "raw", and other autopilots may fill it with ADC counts.
@@ -45,6 +47,7 @@ from ..errors import IngestError
 from ..records import Channel, IngestSummary, RawLog
 from ..vessel import ActuatorMap, Vessel
 from ._common import check_file
+from ._gpstime import unix_text
 
 #: Standard gravity [m/s^2], the one ArduPilot uses to turn m/s^2 into mG.
 G0 = 9.80665
@@ -114,6 +117,12 @@ _UINT16_MAX = 65535
 _PROGRESS_MIN_BYTES = 4 * 1024 * 1024
 #: Boot-clock usec above this are Unix-epoch stamps (some autopilots put GPS time in time_usec).
 _UNIX_USEC = 1e15
+#: SYSTEM_TIME pairs the autopilot's UTC with its boot clock: it gives ``RawLog.start_time``.
+_SYSTEM_TIME = "SYSTEM_TIME"
+_SYSTEM_TIME_FIELDS = ("time_unix_usec", "time_boot_ms")
+#: SYSTEM_TIME messages whose UTC - boot offset differs from the median by more than this are a
+#: clock step (GPS time arriving, a reboot) and are not used [s].
+_SYSTEM_TIME_TOLERANCE_S = 0.5
 
 
 def _dialect():
@@ -258,7 +267,7 @@ def read_tlog(path: str | Path, vessel: Vessel | None = None, progress: bool | N
     -------
     RawLog
         ``format='tlog'``, ``time_reference='boot'``: ``t`` [s] is the autopilot's boot time from
-        each message. Channels (SI, radians, Fossen frames): ``phi theta psi p q r`` (ATTITUDE,
+        each message; ``start_time`` [s, Unix UTC] of boot from SYSTEM_TIME (NaN without). Channels (SI, radians, Fossen frames): ``phi theta psi p q r`` (ATTITUDE,
         ``psi`` in (-pi, pi]); ``lat lon`` [deg], ``sog`` [m/s], ``cog`` [rad]
         (GLOBAL_POSITION_INT); ``lat@gps lon@gps sog@gps cog@gps`` (GPS_RAW_INT); ``ax ay az``
         [m/s^2], ``p@imu q@imu r@imu`` [rad/s] (SCALED_IMU / RAW_IMU); inputs (``delta``
@@ -292,6 +301,7 @@ def _scan(p: Path, buf: Any, mav: Any, show_progress: bool) -> tuple[dict[str, l
     """Pass over the file: decode the used message types, count everything else."""
     framer = _Framer(buf, mav)
     wanted = {t: _fields_of(t) for t in TIME_FIELDS}
+    wanted[_SYSTEM_TIME] = _SYSTEM_TIME_FIELDS
     unpack = _Unpacker(buf, mav, wanted)
     rows: dict[str, list] = defaultdict(list)
     skipped: Counter = Counter()
@@ -424,10 +434,56 @@ def _build(p: Path, rows: Mapping[str, list], counts: Mapping[str, Any], vessel:
             continue
         wanted = ", ".join(f"{a.target} (channel {a.channel})" for a in maps if a.source == src)
         warnings.append(f"actuator map expects {msg_type} for {wanted}, found no {msg_type} messages")
+    start_time = _start_time(rows.get(_SYSTEM_TIME, []), rows, read, skipped, warnings)
 
     summary = IngestSummary(path=str(p), format="tlog", read={k: v for k, v in read.items() if v},
                             skipped={k: v for k, v in skipped.items() if v}, warnings=tuple(warnings))
-    return RawLog(source=str(p), format="tlog", channels=produced, summary=summary, time_reference="boot")
+    return RawLog(source=str(p), format="tlog", channels=produced, summary=summary, time_reference="boot",
+                  start_time=start_time)
+
+
+def _start_time(st_rows: list, rows: Mapping[str, list], read: Counter, skipped: Counter,
+                warnings: list[str]) -> float:
+    """UTC of boot (``time_boot_ms`` = 0) [s, Unix] from SYSTEM_TIME, NaN without it.
+
+    Ground stations send SYSTEM_TIME too, with their own boot clock, so only the autopilot's are
+    used: the sender of the vehicle messages (the most frequent sender of the channel messages).
+    ``time_unix_usec`` is 0 until the autopilot has GPS time. The receive stamps of the tlog are
+    not used: they carry the radio link's latency and jitter.
+    """
+    if not st_rows:
+        return math.nan
+    arr = np.array(st_rows, dtype=float)
+    vehicle = Counter((int(r[0]), int(r[1])) for m in TIME_FIELDS for r in rows.get(m, ()))
+    sender = vehicle.most_common(1)[0][0] if vehicle else Counter(
+        (int(r[0]), int(r[1])) for r in st_rows).most_common(1)[0][0]
+    mine = (arr[:, 0] == sender[0]) & (arr[:, 1] == sender[1])
+    unix_us, boot_ms = arr[:, 2], arr[:, 3]
+    valid = mine & (unix_us > _UNIX_USEC)
+    offsets = unix_us * 1e-6 - boot_ms * 1e-3
+    used = np.zeros(len(arr), bool)
+    start = math.nan
+    if valid.any():
+        start = float(np.median(offsets[valid]))
+        used = valid & (np.abs(offsets - start) <= _SYSTEM_TIME_TOLERANCE_S)
+        start = float(np.median(offsets[used]))
+    read[_SYSTEM_TIME] += int(used.sum())
+    skipped[_SYSTEM_TIME] += int(len(arr) - used.sum())
+    notes = []
+    if (~mine).any():
+        notes.append(f"{int((~mine).sum())} from other senders")
+    if (mine & ~valid).any():
+        notes.append(f"{int((mine & ~valid).sum())} without UTC (time_unix_usec 0)")
+    if (valid & ~used).any():
+        notes.append(f"{int((valid & ~used).sum())} off the median by more than {_SYSTEM_TIME_TOLERANCE_S:g} s")
+    if notes:
+        warnings.append(f"SYSTEM_TIME: {int(len(arr) - used.sum())} message(s) not used for the clock ("
+                        + ", ".join(notes) + ")")
+    if used.any():
+        span = float(np.ptp(offsets[used]))
+        warnings.append(f"t = 0 (boot) is {unix_text(start)} UTC, from {int(used.sum())} SYSTEM_TIME message(s) "
+                        f"(spread {1e3 * span:.1f} ms)")
+    return start
 
 
 def _dominant_sender(msg_type: str, col: Mapping[str, np.ndarray], warnings: list[str]) -> np.ndarray:

@@ -15,7 +15,8 @@ the date); VTG, HDT and THS carry none and take the time of the latest GGA/RMC b
 receiver sends an epoch's sentences together, GGA or RMC first). A time of day that falls back by
 more than 12 h is a midnight rollover; an RMC date overrides the day count, so a log that spans
 days or pauses over midnight stays on one clock. ``t`` is seconds from the first fix and
-``time_reference`` is ``gps`` (UTC from the receiver); the UTC of ``t = 0`` is in the summary.
+``time_reference`` is ``gps`` (UTC from the receiver); the UTC of ``t = 0`` is in the summary and,
+when an RMC date makes it absolute, in ``RawLog.start_time``.
 
 Mapping (``VARIABLE_MAP``; SI units, radians, NED: course and heading clockwise from true north)
 ------------------------------------------------------------------------------------------------
@@ -215,6 +216,13 @@ class _UtcClock:
         self.last = tod
         return self.day * 86400.0 + tod
 
+    def unix(self, seconds: float) -> float:
+        """Unix time [s] of a clock reading; NaN until an RMC date has fixed the day."""
+        if self.ref_ordinal is None:
+            return math.nan
+        midnight = datetime.combine(date.fromordinal(self.ref_ordinal), datetime.min.time(), timezone.utc)
+        return midnight.timestamp() + seconds
+
     def utc(self, seconds: float) -> str:
         if self.ref_ordinal is None:
             tod = seconds % 86400.0
@@ -242,7 +250,8 @@ def read_nmea(path: str | Path, sensor: str = "", progress: bool | None = None) 
     RawLog
         Channels ``lat``, ``lon`` [deg], ``sog`` [m/s], ``cog`` [rad, wrapped to (-pi, pi]],
         ``psi`` [rad, wrapped] (each only when the log has it), on ``t`` [s] from the first fix;
-        ``format='nmea'``, ``time_reference='gps'``. The summary counts sentences used and
+        ``format='nmea'``, ``time_reference='gps'``; ``start_time`` is the UTC of the first fix
+        [s, Unix] when an RMC gives the date, NaN for a log of time of day only (GGA/VTG). The summary counts sentences used and
         skipped (per id, bad checksums, fragments, no-fix, invalid heading, repeats) and gives
         fix-quality, satellite and HDOP statistics.
 
@@ -464,5 +473,6 @@ def read_nmea(path: str | Path, sensor: str = "", progress: bool | None = None) 
         warnings.append("no heading (HDT/THS): yaw only from course over ground, which includes sideslip")
     summary = IngestSummary(path=str(p), format="nmea", read=dict(read),
                             skipped={k: v for k, v in skipped.items() if v}, warnings=tuple(warnings))
-    return RawLog(source=str(p), format="nmea", channels=chans, summary=summary, time_reference="gps")
+    return RawLog(source=str(p), format="nmea", channels=chans, summary=summary, time_reference="gps",
+                  start_time=clock.unix(t0))
 

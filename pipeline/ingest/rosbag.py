@@ -51,7 +51,7 @@ other topics (median stamp - receive time more than ``CLOCK_MISMATCH_S`` away fr
 fallback is counted in a warning. Repeated or out-of-order stamps are dropped and counted per
 topic. ``t`` is seconds from the earliest stamp; ``time_reference`` is ``unix`` for wall-clock
 stamps and ``trial`` for stamps from a clock that starts near zero (simulation time); the UTC of
-``t = 0`` is in the summary.
+``t = 0`` is in the summary and, for wall-clock stamps, in ``RawLog.start_time`` [s, Unix].
 """
 
 from __future__ import annotations
@@ -531,7 +531,8 @@ def read_rosbag(path: str | Path, topics: Mapping[str, str] | None = None,
         [rad] (ENU ground velocity) or ``u v w`` [m/s], ``p q r`` (body velocity); odometry ->
         ``x_n y_e`` [m], ``u v w``, ``p q r``, ``phi theta psi``; rudder -> ``delta`` [rad];
         actuators -> its canonical input fields (``tau_x`` [N], ``tau_n`` [N m], ``delta``, ...);
-        ``float64:<channel>`` -> that channel. ``format='rosbag1'`` or ``'rosbag2'``.
+        ``float64:<channel>`` -> that channel. ``format='rosbag1'`` or ``'rosbag2'``;
+        ``start_time`` [s, Unix UTC] of ``t = 0`` for wall-clock stamps, NaN for simulation time.
 
     Raises
     ------
@@ -771,5 +772,6 @@ def _build(p: Path, fmt: str, topics: Mapping[str, _TopicData], read: Counter, s
     warnings.insert(0, f"time origin: t = 0 is stamp {t0} ns" + (f" ({when})" if wall else " (not wall-clock time)"))
     summary = IngestSummary(path=str(p), format=fmt, read=dict(read),
                             skipped={k: v for k, v in skipped.items() if v}, warnings=tuple(warnings))
+    # Header stamps are Unix time (ROS wall clock, UTC) unless the bag ran on simulation time.
     return RawLog(source=str(p), format=fmt, channels=chans, summary=summary,
-                  time_reference="unix" if wall else "trial")
+                  time_reference="unix" if wall else "trial", start_time=t0 / 1e9 if wall else math.nan)

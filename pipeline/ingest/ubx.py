@@ -27,7 +27,9 @@ rollovers (iTOW restarts at 0 every 604800 s; a backward jump of more than half 
 week), so ``t = 0`` is the start of the GPS week of the first message. That week comes from the
 UTC date in NAV-PVT (GPS = UTC + leap seconds; rounding makes the leap-second count immaterial)
 and is stated in the summary (``t = 0 is the start of GPS week W (YYYY-MM-DD)``) and in every
-``Channel.source``, so logs of several receivers can be put on one clock.
+``Channel.source``; ``RawLog.start_time`` is that instant in Unix UTC (GPS - UTC leap seconds from
+the receiver when it flags UTC fully resolved, else from the table), so logs of several receivers
+can be put on one clock.
 
 ESF-RAW carries a sensor time tag (``sTag``) instead of iTOW. It is read as milliseconds of the
 receiver's local clock and placed on GPS time by one offset: the median, over ESF-RAW messages,
@@ -55,6 +57,7 @@ from pyubx2.ubxtypes_core import UBX_MSGIDS
 from ..errors import IngestError
 from ..records import Channel, IngestSummary, RawLog
 from ._common import check_file
+from ._gpstime import GPS_EPOCH_UNIX, WEEK_S, leap_seconds, unix_text
 
 _DEG = math.pi / 180.0
 SYNC = b"\xb5\x62"
@@ -169,8 +172,14 @@ def _nav_pvt(buf: np.ndarray, starts: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(rows).view(NAV_PVT_DTYPE).reshape(len(starts))
 
 
-def _week_of(pvt: np.ndarray) -> tuple[int | None, int]:
-    """GPS week of the first NAV-PVT with a valid UTC date and time, and its index."""
+def _week_of(pvt: np.ndarray, t_ms: np.ndarray) -> tuple[int | None, int, int | None]:
+    """GPS week at ``t = 0``, the NAV-PVT it came from, and the receiver's leap seconds GPS - UTC.
+
+    ``t_ms`` is the unwrapped time [ms] of each NAV-PVT from the start of the first message's
+    week, so a week rollover between the first message and the first valid date does not shift
+    the week. The leap seconds are the receiver's own (iTOW against its UTC fields) when it
+    flags UTC as fully resolved, else None (the caller falls back to the leap-second table).
+    """
     ok = ((pvt["valid"] & 0x03) == 0x03) & (pvt["year"] >= 1980) & (pvt["month"] >= 1) & (pvt["month"] <= 12) \
         & (pvt["day"] >= 1) & (pvt["day"] <= 31) & (pvt["hour"] < 24) & (pvt["min"] < 60) & (pvt["sec"] <= 60)
     for i in np.flatnonzero(ok)[:5].tolist():
@@ -180,9 +189,16 @@ def _week_of(pvt: np.ndarray) -> tuple[int | None, int]:
                            min(int(r["sec"]), 59), tzinfo=timezone.utc)
         except ValueError:
             continue
-        gps_s = (utc - GPS_EPOCH).total_seconds() + int(r["nano"]) * 1e-9 + GPS_LEAP_S
-        return int(round((gps_s - int(r["iTOW"]) / 1000.0) / 604800.0)), i
-    return None, -1
+        utc_s = (utc - GPS_EPOCH).total_seconds() + int(r["nano"]) * 1e-9
+        week = int(round((utc_s + GPS_LEAP_S - int(t_ms[i]) / 1000.0) / 604800.0))
+        leap = None
+        if r["valid"] & 0x04 and int(r["sec"]) < 60:
+            # fullyResolved: the receiver knows the leap seconds, so iTOW - UTC is exactly their count.
+            leap = int(round(week * 604800.0 + int(t_ms[i]) / 1000.0 - utc_s))
+            if not 0 <= leap < 100:
+                leap = None
+        return week, i, leap
+    return None, -1, None
 
 
 def _unwrap_itow(itow_ms: np.ndarray) -> np.ndarray:
@@ -232,8 +248,9 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
     -------
     RawLog
         ``format='ubx'``, ``time_reference='gps'``; ``t`` [s] is GPS time of week (see module
-        docstring), channels as in ``VARIABLE_MAP``. Fix types and carrier solutions of NAV-PVT
-        and NAV-RELPOSNED are counted in ``summary.warnings``.
+        docstring), channels as in ``VARIABLE_MAP``; ``start_time`` [s, Unix UTC] is the start of
+        that GPS week less the leap seconds (NaN when no NAV-PVT has a valid UTC date). Fix types
+        and carrier solutions of NAV-PVT and NAV-RELPOSNED are counted in ``summary.warnings``.
 
     Raises
     ------
@@ -309,10 +326,18 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
     t_pvt_ms = t_ms[:len(pvt_idx)]
     t_rel_ms = t_ms[len(pvt_idx):]
 
-    week, _ = _week_of(pvt) if len(pvt) else (None, -1)
+    week, _, leap = _week_of(pvt, t_pvt_ms) if len(pvt) else (None, -1, None)
+    start_time = math.nan
     if week is not None:
         day = (GPS_EPOCH + timedelta(weeks=week)).date().isoformat()
-        week_note = f"t = 0 is the start of GPS week {week} ({day} 00:00:00 GPS time)"
+        week_start_unix = GPS_EPOCH_UNIX + week * WEEK_S
+        leap_from = "receiver"
+        if leap is None:
+            leap, leap_from = leap_seconds(week_start_unix), "leap-second table"
+        # t is GPS time from the week start; UTC lags GPS by the leap seconds.
+        start_time = week_start_unix - leap
+        week_note = (f"t = 0 is the start of GPS week {week} ({day} 00:00:00 GPS time) = {unix_text(start_time)} "
+                     f"UTC (GPS - UTC = {leap} s, {leap_from})")
     else:
         week_note = "GPS week unknown (no NAV-PVT with a valid UTC date): t is time of week only"
     warnings.append(week_note)
@@ -354,7 +379,8 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
                           f"none (messages: {found})")
     summary = IngestSummary(path=str(p), format="ubx", read=dict(read), skipped={k: v for k, v in skipped.items() if v},
                             warnings=tuple(warnings))
-    return RawLog(source=str(p), format="ubx", channels=chans, summary=summary, time_reference="gps")
+    return RawLog(source=str(p), format="ubx", channels=chans, summary=summary, time_reference="gps",
+                  start_time=start_time)
 
 
 def _parse_many(data: bytes, starts: np.ndarray, ends: np.ndarray, which: np.ndarray, bar: Any) -> list:

@@ -18,6 +18,7 @@ SCALED_IMU           ax, ay, az and gyro p@imu, q@imu, r@imu (else p, q, r)
 SERVO_OUTPUT_RAW     inputs through the vessel's actuator maps with source ``servo``
 RC_CHANNELS          inputs through the vessel's actuator maps with source ``rc``
 HEARTBEAT            once a second, as the vehicle sends it
+SYSTEM_TIME          once a second: time_unix_usec (UTC from the wall clock at t) and time_boot_ms
 """
 
 from __future__ import annotations
@@ -43,15 +44,15 @@ _UINT16_MAX = 65535
 _DEFAULT_WALL_START = datetime(2024, 5, 5, 10, 0, tzinfo=timezone.utc)
 #: Tie-break for messages at one time, so the file (and its sequence numbers) is deterministic.
 _RANK = {"HEARTBEAT": 0, "ATTITUDE": 1, "GLOBAL_POSITION_INT": 2, "GPS_RAW_INT": 3, "SCALED_IMU": 4,
-         "SERVO_OUTPUT_RAW": 5, "RC_CHANNELS": 6}
+         "SERVO_OUTPUT_RAW": 5, "RC_CHANNELS": 6, "SYSTEM_TIME": 7}
 _SERVO_CHANNELS = {True: 16, False: 8}  # MAVLink 2 adds servo9..16 as extension fields
 _RC_CHANNELS = 18
 
 
 def write_tlog(log: RawLog, path: str | Path, vessel: Vessel | None = None, mavlink2: bool = True, *,
                boot_offset_ms: int = 5000, wall_start: datetime | float = _DEFAULT_WALL_START,
-               latency_s: float = 0.02, heartbeat_hz: float = 1.0, system_id: int = 1,
-               component_id: int = 1) -> Path:
+               latency_s: float = 0.02, heartbeat_hz: float = 1.0, system_time_hz: float = 1.0,
+               system_id: int = 1, component_id: int = 1) -> Path:
     """Write ``log`` as a MAVLink ``.tlog``, atomically (temporary file beside it, then ``os.replace``).
 
     Parameters
@@ -75,6 +76,10 @@ def write_tlog(log: RawLog, path: str | Path, vessel: Vessel | None = None, mavl
         Constant link latency added to the receive stamps [s].
     heartbeat_hz : float
         HEARTBEAT rate [Hz]; 0 writes none.
+    system_time_hz : float
+        SYSTEM_TIME rate [Hz]; 0 writes none. Each carries ``time_unix_usec`` = ``wall_start``
+        + t (the autopilot's GPS-derived UTC) with ``time_boot_ms``, as ArduPilot sends it, so
+        the reader can put the boot clock on UTC (``RawLog.start_time``).
     system_id, component_id : int
         MAVLink sender of every message (1, 1: the autopilot).
 
@@ -121,14 +126,20 @@ def write_tlog(log: RawLog, path: str | Path, vessel: Vessel | None = None, mavl
     _gps_raw(ch, mav, clock, add)
     _imu(ch, mav, clock, add)
     _inputs(ch, vessel, mav, clock, add, mavlink2)
+    t0 = min((m[0] for m in messages), default=0.0)
+    t1 = max((m[0] for m in messages), default=0.0)
     if heartbeat_hz > 0 and messages:
-        t0 = min(m[0] for m in messages)
-        t1 = max(m[0] for m in messages)
         t_hb = t0 + np.arange(0.0, t1 - t0 + 1e-9, 1.0 / heartbeat_hz)
         add(t_hb, "HEARTBEAT", lambda i: mav.heartbeat_encode(
             dialect.MAV_TYPE_SURFACE_BOAT, dialect.MAV_AUTOPILOT_ARDUPILOTMEGA,
             dialect.MAV_MODE_FLAG_SAFETY_ARMED | dialect.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0,
             dialect.MAV_STATE_ACTIVE))
+    if system_time_hz > 0 and messages:
+        t_st = t0 + np.arange(0.0, t1 - t0 + 1e-9, 1.0 / system_time_hz)
+        st_ms = clock.ms(t_st)
+        # The autopilot's UTC is the wall clock without the link latency of the receive stamps.
+        st_unix = wall_us + np.round(t_st * 1e6).astype(np.int64)
+        add(t_st, "SYSTEM_TIME", lambda i: mav.system_time_encode(int(st_unix[i]), int(st_ms[i] % 2**32)))
 
     # A ground station writes in arrival order; packing after sorting keeps MAVLink sequence
     # numbers increasing through the file, as on a real link.
