@@ -1123,6 +1123,10 @@ def fit_nomoto_segment(trial: Trial, segment: Segment) -> SegmentFit:
         if math.isfinite(se) and abs(se) > MAX_RELATIVE_STDERR * abs(v):
             fail.append(f"{name} = {v:.4g} +- {se:.2g} has a relative standard error above "
                         f"{MAX_RELATIVE_STDERR:.0%}: not identified")
+    notes = [fit.message]
+    if segment.kind == "zigzag" and not all(t.independent for t in fit.residual_tests):
+        notes.append("a zig-zag switches the rudder on the heading, so residuals that lead the rudder "
+                     "(negative lags) are the expected feedback, not a model error")
     y = rec.psi if main == "psi" else rec.r
     y = _unwrap(y) if main == "psi" else np.asarray(y, float)
     e = fit.residuals[0][main]
@@ -1131,4 +1135,4 @@ def fit_nomoto_segment(trial: Trial, segment: Segment) -> SegmentFit:
                       params={n: float(v) for n, v in zip(fit.names, fit.values)},
                       stderr={n: float(s) for n, s in zip(fit.names, fit.stderr)},
                       covariance=fit.covariance, t=t - segment.t_start, y=y, y_fit=fit.y_fit[0][main], rmse=rmse,
-                      aic=fit.aic, bic=fit.bic, success=not fail, message="; ".join(fail + [fit.message]))
+                      aic=fit.aic, bic=fit.bic, success=not fail, message="; ".join(fail + notes))
