@@ -61,7 +61,8 @@ def load_trial(paths: Sequence[str | Path], vessel: Vessel | None = None, name: 
     paths : Sequence[str or Path]
         Log files of the same trial (at least one).
     vessel : Vessel, optional
-        Passed to the log readers (see :func:`read_logs`).
+        Passed to the log readers (see :func:`read_logs`) and to :func:`pipeline.align.align`
+        (GPS lever arms and dual-antenna headings from its ``[sensors]``).
     name : str, optional
         Trial name; default the stem of the first path.
     fs : float, optional
@@ -72,7 +73,7 @@ def load_trial(paths: Sequence[str | Path], vessel: Vessel | None = None, name: 
         CSV only: raw column name -> unit of its values (converted to SI).
     """
     logs = read_logs(paths, vessel, columns, units)
-    return align(logs, name=name or Path(paths[0]).stem, fs=fs)
+    return align(logs, name=name or Path(paths[0]).stem, fs=fs, vessel=vessel)
 
 
 def segment_trial(trial: Trial, manual: Sequence[Mapping[str, Any]] = (), mode: str = "replace") -> Segments:

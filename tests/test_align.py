@@ -190,8 +190,9 @@ def test_two_logs_with_a_clock_offset(sim):
     u = trial.data["u"].to_numpy()
     tu = _truth_on(sim, trial, "u")
     assert np.sqrt(np.mean((u - tu) ** 2)) < 0.01
-    # Without the offset the logs sit 100 s apart: a trial 100 s longer, no overlap.
-    apart = align([a, b])
+    # With offsets={} (the logs declared to share a clock) they sit 100 s apart: a trial 100 s
+    # longer, no overlap. (The default, offsets="auto", would find the offset: test_align_multi.)
+    apart = align([a, b], offsets={})
     assert apart.t[-1] == pytest.approx(trial.t[-1] + 100.0, abs=1e-9)
     assert np.isnan(apart.data["psi"].to_numpy()[apart.t < 99.0]).all()
 

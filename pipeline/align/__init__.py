@@ -1,5 +1,10 @@
-"""align stage: RawLog(s) + vessel -> Trial (one clock, resampled, body frame, SI units)."""
+"""align stage: RawLog(s) + vessel -> Trial (one clock, resampled, body frame, SI units).
+
+:func:`align` resamples; :mod:`.clock` estimates the clock offsets between files (absolute time or
+cross-correlated rates); :mod:`.antenna` applies GPS lever arms and dual-antenna headings.
+"""
 
 from .align import align
+from .clock import ClockOffset, estimate_offsets
 
-__all__ = ["align"]
+__all__ = ["align", "estimate_offsets", "ClockOffset"]

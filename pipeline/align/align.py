@@ -11,6 +11,9 @@ import pandas as pd
 from ..errors import AlignError
 from ..geo import latlon_to_ned, wrap_pi
 from ..records import CHANNEL_UNITS, INPUT_UNITS, Channel, RawLog, Trial
+from ..vessel import Vessel
+from .antenna import apply_sensors
+from .clock import estimate_offsets
 from .resample import find_gaps, resample_channel
 
 #: Highest rate the aligner resamples to by default [Hz]; faster sensors are decimated by
@@ -24,7 +27,8 @@ def _native_rate(ch: Channel) -> float:
 
 
 def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
-          offsets: Mapping[str, float] | None = None, gap_threshold: float | None = None) -> Trial:
+          offsets: Mapping[str, float] | str | None = "auto", gap_threshold: float | None = None,
+          vessel: Vessel | None = None) -> Trial:
     """Put the channels of one or more raw logs on one uniform clock.
 
     Parameters
@@ -35,11 +39,19 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
         Trial name.
     fs : float, optional
         Output rate [Hz]; default the fastest state channel, at most ``MAX_DEFAULT_RATE``.
-    offsets : Mapping[str, float], optional
-        Clock offset [s] to add to each log (keyed by ``RawLog.source``) to bring it onto the
-        common clock; logs not named are taken to share the first log's clock.
+    offsets : Mapping[str, float] or "auto" or None
+        ``"auto"`` (the default; None means the same): with more than one log, estimate the
+        offsets with :func:`pipeline.align.clock.estimate_offsets` (absolute time where a log
+        has ``start_time``, else cross-correlated rates) and record each offset, its standard
+        error and method in ``Trial.notes``. A mapping gives the clock offset [s] to add to each
+        log (keyed by ``RawLog.source``); logs it does not name share the first log's clock, so
+        ``{}`` means "the logs already share one clock".
     gap_threshold : float, optional
         Dropout threshold [s] (default: :func:`pipeline.align.resample.find_gaps`).
+    vessel : Vessel, optional
+        Its ``[sensors]`` table (:mod:`pipeline.align.antenna`): dual-antenna headings
+        ``psi@<baseline>`` and GPS lever-arm corrections to the body origin, applied on the
+        uniform grid before body velocities are derived.
 
     Returns
     -------
@@ -51,13 +63,25 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
     Raises
     ------
     AlignError
-        No logs, no channels, a channel with non-increasing time, or logs that share no time.
+        No logs, no channels, a channel with non-increasing time, logs that share no time, or
+        (``offsets="auto"``) a log that can be put on the common clock neither by absolute time
+        nor by a significant cross-correlation.
+    ConfigError
+        A malformed ``[sensors]`` table in the vessel config.
     """
     if not logs:
         raise AlignError("align: expected at least one log, found none")
-    offsets = dict(offsets or {})
-    chans: dict[str, Channel] = {}
     notes: list[str] = []
+    if offsets is None or isinstance(offsets, str):
+        if offsets not in (None, "auto"):
+            raise AlignError(f"align: offsets expected 'auto' or a mapping source -> seconds, found {offsets!r}")
+        offsets = {}
+        if len(logs) > 1:
+            for src, est in estimate_offsets(logs).items():
+                offsets[src] = est.offset_s
+                notes.append(f"clock: {src} offset {est.offset_s:+.6f} s +- {est.stderr_s:.3g} s ({est.method})")
+    offsets = dict(offsets)
+    chans: dict[str, Channel] = {}
     for log in logs:
         off = float(offsets.get(log.source, 0.0))
         if off:
@@ -97,6 +121,9 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
         notes.append(f"{len(gaps)} dropout(s): " + ", ".join(f"{g.channel} {g.t_start - t0:.2f}-{g.t_end - t0:.2f} s"
                                                               for g in gaps[:10]))
     frame = pd.DataFrame(data)
+    if vessel is not None:
+        frame, sensor_notes = apply_sensors(frame, vessel)
+        notes += sensor_notes
     frame, derived = _derive(frame, {k: _native_rate(c) for k, c in chans.items()})
     notes += derived
     shifted = tuple(type(g)(g.channel, g.t_start - t0, g.t_end - t0) for g in gaps)
