@@ -369,7 +369,10 @@ def _message_types(reader: _IndexedDFReader) -> dict[str, tuple[str, tuple[str, 
 def _scale(values: np.ndarray, fmt_char: str) -> np.ndarray:
     """pymavlink's ``DFMessage.__getattr__`` scaling, bit for bit (it divides for multipliers < 1)."""
     mul = FORMAT_TO_STRUCT[fmt_char][1]
-    v = values.astype(np.float64)
+    # A corrupted record can hold a NaN or infinite float: it is dropped later as non-finite,
+    # so the cast need not warn on the terminal.
+    with np.errstate(invalid="ignore", over="ignore"):
+        v = values.astype(np.float64)
     if mul is None:
         return v
     if 0.0 < mul < 1.0:

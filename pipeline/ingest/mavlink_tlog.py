@@ -277,8 +277,8 @@ def read_tlog(path: str | Path, vessel: Vessel | None = None, progress: bool | N
     Raises
     ------
     IngestError
-        Missing file, empty file, no MAVLink message in the file, or a file cut before its
-        first complete message.
+        Missing file, empty file, no MAVLink message in the file, a file cut before its
+        first complete message, or no message that gives a channel.
 
     Notes
     -----
@@ -435,6 +435,13 @@ def _build(p: Path, rows: Mapping[str, list], counts: Mapping[str, Any], vessel:
         wanted = ", ".join(f"{a.target} (channel {a.channel})" for a in maps if a.source == src)
         warnings.append(f"actuator map expects {msg_type} for {wanted}, found no {msg_type} messages")
     start_time = _start_time(rows.get(_SYSTEM_TIME, []), rows, read, skipped, warnings)
+    if not produced:
+        # Like the other readers: a tlog that gives no channel is an error, not an empty log that
+        # would only fail later in align (a truncated file holding one HEARTBEAT, a GCS-only log).
+        found = ", ".join(f"{k} {v}" for k, v in sorted((read + skipped).items())) or "none"
+        cut = f"; {warnings[0]}" if counts["truncated"] else ""
+        raise IngestError(f"{p}: expected MAVLink messages that give channels ({', '.join(TIME_FIELDS)}), found "
+                          f"none usable (messages: {found}){cut}")
 
     summary = IngestSummary(path=str(p), format="tlog", read={k: v for k, v in read.items() if v},
                             skipped={k: v for k, v in skipped.items() if v}, warnings=tuple(warnings))
