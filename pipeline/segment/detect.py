@@ -3,8 +3,9 @@
 Input-driven segments start at a command change and end at the next change of any input, a
 dropout, or once the response has settled (about five time constants later, estimated from the
 data). Free decays in roll and pitch are found in the attitude itself: a sudden large angle,
-released with no input, oscillating down. Each segment carries a quality score in [0, 1] built
-from the response's signal-to-noise ratio and its length in time constants.
+released with no input, oscillating down. Without a logged surge input, coast-downs are found in
+the speed itself (:mod:`pipeline.segment.speed_events`). Each segment carries a quality score in
+[0, 1] built from the response's signal-to-noise ratio and its length in time constants.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 
 from ..records import DOF_CHANNELS, INPUT_UNITS, Segment, Segments, Trial
 from .inputs import Level, split_levels
+from .speed_events import coast_down_segments
 
 #: Input channel -> (DOF, response channel) for input-driven segments.
 INPUT_DOF = {
@@ -247,8 +249,17 @@ def _decay_segments(trial: Trial, busy: list[tuple[float, float]]) -> list[Segme
     return segs
 
 
+def _has_input_for(trial: Trial, dof: str) -> bool:
+    """True when the trial logs an input that drives ``dof`` (any sensor suffix)."""
+    return any(c.split("@")[0] in INPUT_DOF and INPUT_DOF[c.split("@")[0]][0] == dof and trial.has(c)
+               for c in trial.data.columns)
+
+
 def detect_segments(trial: Trial) -> Segments:
     """Detect every segment kind in ``trial``.
+
+    Input-driven segments come from the logged inputs; when no surge input is logged (a GPS-only
+    log), coast-downs are found from the speed alone by :mod:`pipeline.segment.speed_events`.
 
     Parameters
     ----------
@@ -261,6 +272,8 @@ def detect_segments(trial: Trial) -> Segments:
         In time order, ``origin='detected'``.
     """
     segs = _input_segments(trial)
+    if not _has_input_for(trial, "surge"):
+        segs += coast_down_segments(trial)
     # Roll/pitch excursions during input-driven manoeuvres are forced responses, not free decays.
     busy = [(s.t_start, s.t_end) for s in segs if s.kind in ("step", "zigzag", "sinusoid")
             and s.dof in ("roll", "pitch")]
