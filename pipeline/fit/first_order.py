@@ -242,11 +242,19 @@ def time_constant_bounds(t: np.ndarray) -> tuple[float, float]:
     return 0.1 * dt, 100.0 * max(float(t[-1] - t[0]), dt)
 
 
+#: Note added to a surge fit made on speed over ground.
+SOG_NOTE = ("surge speed read from speed over ground (no body velocity u: no heading logged), so a current "
+            "and any sideslip are in it")
+
+
 def _velocity_channel(trial: Trial, segment: Segment) -> str:
     if segment.dof not in ("surge", "sway", "yaw"):
         raise FitError(f"{segment_label(segment)}: expected a {segment.kind} in surge, sway or yaw, "
                        f"found DOF {segment.dof!r}")
-    return pick_channel(trial, segment, [DOF_CHANNELS[segment.dof][0]])
+    # A GPS-only log (no heading) has no u; on a straight run its speed over ground is the surge
+    # speed up to the current, which is what an input-free coast-down was detected on.
+    extra = ["sog"] if segment.dof == "surge" else []
+    return pick_channel(trial, segment, [DOF_CHANNELS[segment.dof][0]] + extra)
 
 
 # --------------------------------------------------------------------------- segment fits
@@ -256,10 +264,14 @@ def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     No offset is fitted: with zero input the linear model decays to zero, and a free offset would
     trade off against ``T`` on segments shorter than a few time constants.
 
+    The segment needs no input levels: a coast-down found from the speed alone
+    (:mod:`pipeline.segment.speed_events`, ``input_channel=None``) is fitted the same way.
+
     Parameters
     ----------
     trial : Trial
-        Trial holding the velocity channel (``u``, ``v`` or ``r``).
+        Trial holding the velocity channel (``u``, ``v`` or ``r``; for surge ``sog`` when the
+        trial has no ``u``, noted in the message).
     segment : Segment
         A ``coast_down`` segment in surge, sway or yaw.
 
@@ -280,6 +292,7 @@ def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     p0 = guess_decay(t, y)
     sigma = noise_sigma(y)
     notes = [f"start (log-linear guess): y0 = {p0['y0']:.4g}, T = {p0['T']:.4g} s"]
+    notes += [SOG_NOTE] if channel == "sog" else []
     notes += check_first_order_length(segment, t, p0["T"], p0["y0"], sigma)
     if dropped:
         notes.append(f"{dropped} non-finite samples dropped")
@@ -318,6 +331,7 @@ def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
     notes = [f"start (integral-regression guess): y0 = {p0['y0']:.4g}, y_ss = {p0['y_ss']:.4g}, "
              f"T = {p0['T']:.4g} s"]
     notes += check_first_order_length(segment, t, p0["T"], p0["y_ss"] - p0["y0"], sigma)
+    notes += [SOG_NOTE] if channel == "sog" else []
     _, _, level_note = input_levels(trial, segment)
     notes += [n for n in (level_note, f"{dropped} non-finite samples dropped" if dropped else "") if n]
     lo_T, hi_T = time_constant_bounds(t)
