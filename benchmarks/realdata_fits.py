@@ -560,10 +560,10 @@ def markdown(rows: Sequence[Row]) -> str:
     for r in rows:
         pub = f"{r.published:.4g}" if math.isfinite(r.published) else "—"
         ds = f"{r.sigmas:+.1f}" if math.isfinite(r.sigmas) else "—"
-        note = r.note.replace("|", "/")
-        if len(note) > 220:
-            note = note[:217] + "..."
-        out.append(f"| {r.dataset} | {r.quantity} | {r.unit} | {_fmt(r.value, r.stderr)} | {r.n} | {pub} | {ds} | "
+        note = r.note if len(r.note) <= 220 else r.note[:217] + "..."
+        # A pipe inside a cell (|command|, u|u|) would end the cell.
+        quantity, note = r.quantity.replace("|", "\\|"), note.replace("|", "\\|")
+        out.append(f"| {r.dataset} | {quantity} | {r.unit} | {_fmt(r.value, r.stderr)} | {r.n} | {pub} | {ds} | "
                    f"{note} |")
     return "\n".join(out)
 
