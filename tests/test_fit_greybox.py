@@ -221,3 +221,19 @@ def test_grey_box_residual_tests_cover_every_record_and_channel(coupled_trial):
     assert gb.converged and gb.max_defect < 0.1 and 0.5 < gb.s2 < 2.0
     # Residuals of the right model are white on the IMU channels.
     assert all(t.white for t in gb.residual_tests if t.name.split()[1] in ("p", "r"))
+
+
+def test_an_unexpected_failure_of_the_joint_fit_does_not_cost_the_single_dof_results(coupled_trial, monkeypatch):
+    import pipeline.fit.extend as extend
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("casadi exploded")
+
+    monkeypatch.setattr(extend, "joint_fit", broken)
+    trial, segs, fits = coupled_trial
+    ext = extend_fits(fits, trial, segs, VESSEL)
+    for name, est in fits.estimates.items():
+        new = ext.estimates[name].value
+        assert new == est.value or (math.isnan(est.value) and math.isnan(new))
+    est = ext.estimates["N_v"]
+    assert not est.success and "RuntimeError: casadi exploded" in est.message

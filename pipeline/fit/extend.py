@@ -304,10 +304,14 @@ def extend_fits(fits: Fits, trial: Trial, segments: Segments, vessel: Vessel) ->
         lat = lateral_segments(segments)
         try:
             gb, ident, dropped = joint_fit(trial, segments, vessel, fits.damping_matrix)
-        except FitError as exc:
+        except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError) as exc:
+            # Whatever stops the joint fit (casadi raises RuntimeError) must not cost the user the
+            # single-DOF results: the coupled terms are reported as not identified, with the reason.
+            reason = (str(exc) if isinstance(exc, FitError)
+                      else f"the grey-box fit failed with {type(exc).__name__}: {exc}")
             method = "grey-box output-error fit of the linear 5-DOF model (pipeline.fit.greybox)"
             missing = [n for n in DIAGONAL if n not in estimates]
-            estimates.update(_failed_coupled(str(exc), list(COUPLED) + missing, method))
+            estimates.update(_failed_coupled(reason, list(COUPLED) + missing, method))
             for n in COUPLED:
                 d[COEFFICIENTS[n]], se[COEFFICIENTS[n]] = np.nan, np.nan
         else:
