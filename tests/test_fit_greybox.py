@@ -237,3 +237,19 @@ def test_an_unexpected_failure_of_the_joint_fit_does_not_cost_the_single_dof_res
         assert new == est.value or (math.isnan(est.value) and math.isnan(new))
     est = ext.estimates["N_v"]
     assert not est.success and "RuntimeError: casadi exploded" in est.message
+
+
+def test_a_free_decay_starts_its_own_record():
+    """A hull released by hand jumps in state: the record before it must not run into it."""
+    import pandas as pd
+
+    from pipeline.records import Segment
+
+    t = np.arange(0.0, 40.0, 0.02)
+    trial = Trial("adjacent", pd.DataFrame({"t": t, "r": np.zeros(t.size), "phi": np.zeros(t.size)}), 50.0)
+    segs = (Segment("coast_down", "yaw", 0.0, 20.0), Segment("free_decay", "roll", 19.99, 30.0),
+            Segment("step", "yaw", 30.5, 35.0))
+    recs = build_records(trial, segs, VESSEL)
+    assert len(recs) == 2
+    assert recs[0].t[-1] < 19.99 and recs[1].t[0] >= 19.99 and recs[1].t[-1] == pytest.approx(35.0)
+    assert len(recs[1].labels) == 2  # the step 0.5 s after the decay continues its record

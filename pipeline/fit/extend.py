@@ -214,8 +214,9 @@ def _greybox_estimates(fits: Fits, gb: GreyBoxFit, ident: Identifiability, dropp
     """Estimates, damping matrix and standard errors from a grey-box fit and its identifiability."""
     test_notes = [m for m in (summarise_residual_tests(gb.residual_tests, "grey-box"),) if m]
     if dropped:
-        test_notes.append(f"conditional on {', '.join(sorted(dropped))} held at their start values: their "
-                          f"uncertainty is not in this error bar")
+        held_at, its = ("its start value", "its") if len(dropped) == 1 else ("their start values", "their")
+        test_notes.append(f"conditional on {', '.join(sorted(dropped))} held at {held_at}: {its} uncertainty is "
+                          f"not in this error bar")
     d = np.array(fits.damping_matrix, float, copy=True)
     se = np.array(fits.damping_stderr, float, copy=True)
     out: dict[str, Estimate] = {}

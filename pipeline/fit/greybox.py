@@ -272,7 +272,8 @@ def build_records(trial: Trial, segments: Sequence[Segment], vessel: Vessel,
     vessel : Vessel
         For the rudder map.
     merge_gap : float
-        Windows closer than this are merged [s].
+        Windows closer than this are merged [s] (a step and the coast-down after it keep one
+        continuous state); a free decay always starts a record of its own.
 
     Returns
     -------
@@ -280,10 +281,14 @@ def build_records(trial: Trial, segments: Sequence[Segment], vessel: Vessel,
         In time order, split at the trial's gaps; pieces shorter than 10 samples are dropped.
         ``y`` has one column per ``STATES`` entry, NaN where the trial lacks the channel.
     """
-    spans = sorted((s.t_start, s.t_end, segment_label(s)) for s in segments)
+    spans = sorted((s.t_start, s.t_end, segment_label(s), s.kind == "free_decay") for s in segments)
     merged: list[list] = []
-    for a, b, label in spans:
-        if merged and a <= merged[-1][1] + merge_gap:
+    for a, b, label, release in spans:
+        if merged and release and a <= merged[-1][1]:
+            # A free decay starts from a hull pushed over by hand: an unknown input, so the state
+            # jumps. The record before it ends there and the decay gets its own initial state.
+            merged[-1][1] = min(merged[-1][1], a - 1e-9)
+        if merged and not release and a <= merged[-1][1] + merge_gap:
             merged[-1][1] = max(merged[-1][1], b)
             merged[-1][2].append(label)
         else:
