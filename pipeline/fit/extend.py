@@ -43,6 +43,8 @@ _CONTRIBUTES = {
     "rudder_step": ("K_nomoto", "T_nomoto"),
 }
 _DERIVATIVE = {"surge": "X_u", "sway": "Y_v", "roll": "K_p", "pitch": "M_q", "yaw": "N_r"}
+#: Grey-box output channels whose residual tests qualify the lateral coefficients.
+LATERAL_CHANNELS = ("v", "p", "r", "phi")
 #: Joint and single-DOF diagonal values further apart than this many combined sigmas are flagged.
 DIAGONAL_DISAGREEMENT = 3.0
 
@@ -212,7 +214,10 @@ def joint_fit(trial: Trial, segments: Segments, vessel: Vessel, d_start: np.ndar
 def _greybox_estimates(fits: Fits, gb: GreyBoxFit, ident: Identifiability, dropped: Mapping[str, CoefficientStatus],
                        n_segments: int) -> tuple[dict[str, Estimate], np.ndarray, np.ndarray]:
     """Estimates, damping matrix and standard errors from a grey-box fit and its identifiability."""
-    test_notes = [m for m in (summarise_residual_tests(gb.residual_tests, "grey-box"),) if m]
+    # Pitch (q, theta) rides along for the kinematics with its damping held: its residuals say
+    # nothing about the lateral coefficients, so only the lateral channels are summarised.
+    lateral = [t for t in gb.residual_tests if t.name.split()[1:2] and t.name.split()[1] in LATERAL_CHANNELS]
+    test_notes = [m for m in (summarise_residual_tests(lateral, "grey-box"),) if m]
     if dropped:
         held_at, its = ("its start value", "its") if len(dropped) == 1 else ("their start values", "their")
         test_notes.append(f"conditional on {', '.join(sorted(dropped))} held at {held_at}: {its} uncertainty is "
