@@ -4,6 +4,7 @@ commands to thrust, and a simulated vessel's [added_mass] is recovered within 3 
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import replace
 
@@ -21,6 +22,13 @@ from pipeline.records import Trial
 from pipeline.sim import chain, simulate, step_and_coast
 from pipeline.sim.sensors import default_sensors
 from pipeline.vessel import parse_vessel
+
+def single_dof_fits(trial, segments, vessel):
+    """fit_trial without the joint extension (whether or not fit_trial already runs extend_fits)."""
+    if "extend" in inspect.signature(fit_trial).parameters:
+        return fit_trial(trial, segments, vessel, extend=False)
+    return fit_trial(trial, segments, vessel)
+
 
 # A bollard-pull style table: command [%] -> thrust [N], convex like a propeller's.
 TABLE = [[0.0, 0.0], [20.0, 1.0], [40.0, 2.5], [60.0, 4.5], [80.0, 7.0], [100.0, 10.0]]
@@ -73,7 +81,7 @@ def test_bad_thruster_sections_name_what_was_expected(section, match):
 def test_vessel_config_passes_thrusters_through_and_fit_rejects_bad_ones():
     vessel = parse_vessel({**DOC, "thrusters": {"surge": {"gain": "x"}}})
     trial = Trial("t", pd.DataFrame({"t": np.arange(10.0), "u": np.zeros(10)}), 1.0)
-    fits = fit_trial(trial, type("S", (), {"items": (), "trial": "t"})(), vessel)
+    fits = single_dof_fits(trial, type("S", (), {"items": (), "trial": "t"})(), vessel)
     with pytest.raises(ConfigError, match=r"\[thrusters.surge\].gain: expected a finite number, found 'x'"):
         fit_added_mass(fits, trial, vessel)
 
@@ -114,7 +122,7 @@ def thrust_trial():
         for s in res.segments.items))
     mapped = parse_vessel({**DOC, "thrusters": {"surge": {"input": "tau_x", "table": TABLE},
                                                 "yaw": {"gain": 1.0}}})
-    return trial, segs, mapped, fit_trial(trial, segs, mapped)
+    return trial, segs, mapped, single_dof_fits(trial, segs, mapped)
 
 
 def test_added_mass_is_recovered_from_thrust_steps(thrust_trial):
@@ -136,11 +144,11 @@ def test_extend_fits_adds_added_mass_only_where_thrust_is_mapped(thrust_trial):
     trial, segs, vessel, fits = thrust_trial
     # Surge segments only: the grey-box part has nothing lateral to fit and stays quick.
     surge = type(segs)(segs.trial, tuple(s for s in segs.items if s.dof == "surge"))
-    ext = extend_fits(fit_trial(trial, surge, vessel), trial, surge, vessel)
+    ext = extend_fits(single_dof_fits(trial, surge, vessel), trial, surge, vessel)
     assert "X_udot" in ext.estimates and "Y_vdot" not in ext.estimates
     assert ext.estimates["X_udot"].success and not ext.estimates["N_r_thrust"].success
     plain = parse_vessel(DOC)
-    assert "X_udot" not in extend_fits(fit_trial(trial, surge, plain), trial, surge, plain).estimates
+    assert "X_udot" not in extend_fits(single_dof_fits(trial, surge, plain), trial, surge, plain).estimates
 
 
 def test_understated_thrust_gives_negative_added_mass_and_says_so(thrust_trial):

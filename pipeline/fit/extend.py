@@ -30,7 +30,8 @@ from ..vessel import Vessel
 from .added_mass import fit_added_mass
 from .combine import failed_estimate
 from .data import segment_label
-from .greybox import COEFFICIENTS, COUPLED, DIAGONAL, UNITS, GreyBoxFit, fit_coupled_damping, lateral_segments
+from .greybox import (COEFFICIENTS, COUPLED, DIAGONAL, UNITS, GreyBoxFit, _start_damping, fit_coupled_damping,
+                      lateral_segments)
 from .identifiability import MANOEUVRES, CoefficientStatus, Identifiability, analyse_identifiability
 from .least_squares import confidence_interval
 from .residual_tests import ResidualTest, segment_fit_residual_test
@@ -142,6 +143,8 @@ def _scales(names, damping: np.ndarray) -> np.ndarray:
 
 #: Refits with the undetermined coefficients held, at most.
 MAX_REFITS = 3
+#: Jacobian evaluations per solve of the first fit (with every coefficient free).
+FIRST_FIT_NFEV = 20
 #: Relative standard error at the start values above which a coefficient is held before the fit
 #: (looser than the final test: the start values may sit where the data are less informative).
 SCREEN_RELATIVE_STD = 2.0
@@ -181,7 +184,15 @@ def joint_fit(trial: Trial, segments: Segments, vessel: Vessel, d_start: np.ndar
     # Screening: what the Fisher information at the start values says the trial cannot possibly
     # determine (no roll motion, no sway motion) is held before the fit, which keeps the solver
     # out of flat valleys it would wander in.
-    screen = fit_coupled_damping(trial, segments, vessel, start, tuple(COEFFICIENTS), solve=False)
+    # The couplings are probed at their natural size rather than at their zero start: at zero, a
+    # coefficient that acts only through a coupling (Y_v on an unmeasured v, through N_v) shows no
+    # information at all, which is an artefact of the start point, not of the trial.
+    probe, _ = _start_damping(start, vessel)
+    for n in COUPLED:
+        i, j = COEFFICIENTS[n]
+        if probe[i, j] == 0.0:
+            probe[i, j] = 0.1 * math.sqrt(abs(probe[i, i] * probe[j, j]))
+    screen = fit_coupled_damping(trial, segments, vessel, probe, tuple(COEFFICIENTS), solve=False)
     sc = analyse_identifiability(screen.names, screen.values, screen.fisher, _scales(screen.names, screen.damping),
                                  max_relative_std=SCREEN_RELATIVE_STD)
     for n in sc.not_identified:
@@ -190,14 +201,29 @@ def joint_fit(trial: Trial, segments: Segments, vessel: Vessel, d_start: np.ndar
     estimate = tuple(n for n in screen.names if n not in dropped)
     if not estimate:
         return screen, sc, dropped
-    gb = fit_coupled_damping(trial, segments, vessel, start, estimate)
+    # The first fit gets fewer iterations: a trial that leaves a direction flat makes the solver
+    # crawl, and the analysis of where it got to is enough to find what to hold.
+    gb = fit_coupled_damping(trial, segments, vessel, start, estimate, max_nfev=FIRST_FIT_NFEV)
     ident = analyse_identifiability(gb.names, gb.values, gb.fisher, _scales(gb.names, gb.damping), gb.s2)
+    if not gb.converged and not ident.not_identified:
+        # Nothing looks flat: the solver only needs more iterations; carry on from where it stopped.
+        gb = fit_coupled_damping(trial, segments, vessel, np.array(gb.damping, float), estimate)
+        ident = analyse_identifiability(gb.names, gb.values, gb.fisher, _scales(gb.names, gb.damping), gb.s2)
     for _ in range(MAX_REFITS):
-        bad = ident.not_identified
+        bad = list(ident.not_identified)
+        if not bad and not gb.converged and len(gb.names) > 1:
+            # Nothing fails the Fisher tests, yet the solver did not settle: hold the least
+            # determined coefficient, whose flat direction is the likeliest cause.
+            worst = max(gb.names, key=lambda n: ident.status[n].relative_std)
+            st = ident.status[worst]
+            dropped[worst] = replace(st, identified=False, reasons=st.reasons + (
+                f"the fit did not converge with it free and it is the least determined coefficient "
+                f"(relative standard error {st.relative_std:.0%})",))
+            bad = [worst]
         if not bad:
             break
         for n in bad:
-            dropped[n] = ident.status[n]
+            dropped.setdefault(n, ident.status[n])
         estimate = tuple(n for n in gb.names if n not in bad)
         # Warm start for the kept coefficients; the held ones go back to their start values.
         warm = np.array(gb.damping, float, copy=True)
@@ -259,7 +285,8 @@ def _greybox_estimates(fits: Fits, gb: GreyBoxFit, ident: Identifiability, dropp
             notes.insert(0, st.message)
         if n in DIAGONAL:
             old = fits.estimates.get(n)
-            if old is not None and old.success and math.isfinite(old.stderr):
+            # Fits extended once already carry a joint value: nothing single-DOF to compare with.
+            if old is not None and old.success and math.isfinite(old.stderr) and "grey-box" not in old.method:
                 z = (value - old.value) / math.hypot(err, old.stderr)
                 notes.append(f"single-DOF value {old.value:.5g} +- {old.stderr:.2g} ({old.method.split(';')[0]}); "
                              f"the joint value accounts for the coupling")
