@@ -642,18 +642,43 @@ def _read_open(p: Path, reader: Any, fallback: Any, roles_given: Mapping[str, Ro
         from tqdm import tqdm
 
         stream = tqdm(stream, total=total, desc=p.name, unit="msg", leave=False)
-    deser_bag = reader.deserialize
-    deser_fallback = fallback.deserialize_ros1 if is_ros1 else fallback.deserialize_cdr
+    # Messages are first collected per topic as raw bytes; each topic is then decoded in one go
+    # (see _decode_topic_fast) or, when its layout is not fixed, message by message through
+    # rosbags. Deserialising every message into objects was 60% of an hour's ingest, as slow as the
+    # plain AnyReader loop.
+    raw_by_topic: dict[str, tuple[bytearray, list, list, list]] = {t: (bytearray(), [], [], []) for t in topics}
     n_seen = 0
     try:
         for con, bag_ns, raw in stream:
             n_seen += 1
-            td = topics[con.topic]
+            buf, lens, bags, types = raw_by_topic[con.topic]
+            buf += raw
+            lens.append(len(raw))
+            bags.append(bag_ns)
+            types.append(con.msgtype)
+    except Exception as exc:  # noqa: BLE001 - storage-level damage (truncated chunk, bad page, ...)
+        if n_seen == 0:
+            raise IngestError(f"{p}: expected readable messages, found damaged storage "
+                              f"({type(exc).__name__}: {exc})") from None
+        warnings.append(f"bag damaged: reading stopped after {n_seen} message(s) ({type(exc).__name__}: {exc})")
+
+    deser_bag = reader.deserialize
+    deser_fallback = fallback.deserialize_ros1 if is_ros1 else fallback.deserialize_cdr
+    for topic, (buf, lens, bags, types) in raw_by_topic.items():
+        td = topics[topic]
+        msgtype = types[0] if types else td.msgtype
+        defs = reader.typestore.fielddefs if msgtype in reader.typestore.fielddefs else fallback.fielddefs
+        if FAST_DECODE and len(set(types)) == 1 and _decode_topic_fast(td, buf, lens, bags, defs, msgtype, is_ros1):
+            continue
+        pos = 0
+        for n, bag_ns, mtype in zip(lens, bags, types):
+            raw = bytes(buf[pos:pos + n])
+            pos += n
             try:
-                if con.msgtype in reader.typestore.fielddefs:
-                    msg = deser_bag(raw, con.msgtype)
+                if mtype in reader.typestore.fielddefs:
+                    msg = deser_bag(raw, mtype)
                 else:
-                    msg = deser_fallback(raw, con.msgtype)
+                    msg = deser_fallback(raw, mtype)
                 values = _extract(td.role, msg)
             except Exception:  # noqa: BLE001 - a damaged message must not end the read
                 td.undecodable += 1
@@ -662,13 +687,191 @@ def _read_open(p: Path, reader: Any, fallback: Any, roles_given: Mapping[str, Ro
                 td.no_fix += 1
                 continue
             td.add(_stamp_ns(msg), bag_ns, values)
-    except Exception as exc:  # noqa: BLE001 - storage-level damage (truncated chunk, bad page, ...)
-        if n_seen == 0:
-            raise IngestError(f"{p}: expected readable messages, found damaged storage "
-                              f"({type(exc).__name__}: {exc})") from None
-        warnings.append(f"bag damaged: reading stopped after {n_seen} message(s) ({type(exc).__name__}: {exc})")
 
     return _build(p, fmt, topics, read, skipped, warnings)
+
+
+# ---------------------------------------------------------------------------------- fast decoding
+#: Decode topics of a fixed layout in one vectorised step (False: always message by message).
+FAST_DECODE = True
+#: ROS primitive type -> little-endian numpy type (CDR little-endian and ROS 1 serialisation).
+_PRIMITIVES: Mapping[str, str] = {
+    "bool": "u1", "byte": "u1", "octet": "u1", "char": "u1", "uint8": "u1", "int8": "i1", "uint16": "<u2",
+    "int16": "<i2", "uint32": "<u4", "int32": "<i4", "uint64": "<u8", "int64": "<i8", "float32": "<f4",
+    "float64": "<f8"}
+
+
+class _NoLayout(Exception):
+    """The message has a part whose size varies (a sequence) or an unknown type."""
+
+
+def message_layout(fielddefs: Mapping[str, Any], msgtype: str, raw: bytes, ros1: bool
+                   ) -> tuple[dict[str, tuple[int, str]], dict[str, tuple[int, int]]] | None:
+    """Byte offsets of every numeric field of one serialised message, or None when not fixed.
+
+    Strings (``header.frame_id``) are sized from this message; a topic whose messages all have
+    the same strings (checked by the caller) then has one layout for all of them.
+
+    Parameters
+    ----------
+    fielddefs : Mapping[str, Any]
+        rosbags typestore field definitions.
+    msgtype : str
+        Message type (``sensor_msgs/msg/Imu``).
+    raw : bytes
+        One serialised message: CDR little-endian with its 4-byte encapsulation header (ROS 2)
+        or ROS 1 serialisation.
+    ros1 : bool
+        ROS 1 serialisation (no alignment, no encapsulation header).
+
+    Returns
+    -------
+    fields, strings : dict, dict
+        Dotted field path (``angular_velocity.x``, ``orientation_covariance[0]``) -> (offset
+        [bytes], numpy type); string path -> (offset of its length prefix, total bytes). None when
+        the message holds a sequence, an unknown type, is big-endian CDR or the sizes do not add up.
+    """
+    base = 0 if ros1 else 4
+    if not ros1 and (len(raw) < 4 or raw[0] != 0 or raw[1] != 1):
+        return None  # only little-endian plain CDR
+    fields: dict[str, tuple[int, str]] = {}
+    strings: dict[str, tuple[int, int]] = {}
+    pos = base
+
+    def align(size: int) -> None:
+        nonlocal pos
+        if not ros1:  # CDR aligns a primitive to its size, counted from the end of the header
+            pos = base + -(-(pos - base) // size) * size
+
+    def walk(mt: str, prefix: str) -> None:
+        nonlocal pos
+        entry = fielddefs.get(mt)
+        if entry is None:
+            raise _NoLayout(mt)
+        for name, (node, spec) in entry[1]:
+            path = prefix + name
+            if node == 1 and spec[0] == "string":
+                align(4)
+                if pos + 4 > len(raw):
+                    raise _NoLayout(path)
+                length = int.from_bytes(raw[pos:pos + 4], "little")
+                strings[path] = (pos, 4 + length)
+                pos += 4 + length
+            elif node == 1 and spec[0] in _PRIMITIVES:
+                size = np.dtype(_PRIMITIVES[spec[0]]).itemsize
+                align(size)
+                fields[path] = (pos, _PRIMITIVES[spec[0]])
+                pos += size
+            elif node == 2:
+                walk(spec, path + ".")
+            elif node == 3 and spec[0][0] == 1 and spec[0][1][0] in _PRIMITIVES:
+                dtype = _PRIMITIVES[spec[0][1][0]]
+                size = np.dtype(dtype).itemsize
+                align(size)
+                for i in range(spec[1]):
+                    fields[f"{path}[{i}]"] = (pos + i * size, dtype)
+                pos += spec[1] * size
+            elif node == 3 and spec[0][0] == 2:
+                for i in range(spec[1]):
+                    walk(spec[0][1], f"{path}[{i}].")
+            else:
+                raise _NoLayout(path)
+
+    try:
+        walk(msgtype, "")
+    except _NoLayout:
+        return None
+    # CDR writers may pad the end to a multiple of 4 (or 8); anything more is not this layout.
+    if pos > len(raw) or len(raw) - pos >= 8:
+        return None
+    return fields, strings
+
+
+def _decode_topic_fast(td: _TopicData, buf: bytearray, lens: list, bags: list, fielddefs: Mapping[str, Any],
+                       msgtype: str, ros1: bool) -> bool:
+    """Decode all messages of one topic at once when they share one layout; False to fall back.
+
+    The values are those :func:`_extract` gives message by message (same roles, frames, NaN for
+    a part flagged absent, fixes with status NO_FIX dropped and counted).
+    """
+    n = len(lens)
+    if not n or len(set(lens)) != 1:
+        return False
+    size = lens[0]
+    layout = message_layout(fielddefs, msgtype, bytes(buf[:size]), ros1)
+    if layout is None:
+        return False
+    fields, strings = layout
+    rows = np.frombuffer(buf, np.uint8).reshape(n, size)
+    for off, length in strings.values():
+        if not (rows[:, off:off + length] == rows[0, off:off + length]).all():
+            return False  # different frame_ids: possibly another layout, and another twist frame
+
+    def get(path: str) -> np.ndarray:
+        off, dtype = fields[path]
+        width = np.dtype(dtype).itemsize
+        return np.ascontiguousarray(rows[:, off:off + width]).view(dtype).ravel().astype(np.float64)
+
+    def text(path: str) -> str:
+        off, length = strings[path]
+        return bytes(rows[0, off + 4:off + length]).decode("utf-8", "replace").rstrip("\x00")
+
+    out: dict[str, np.ndarray] = {}
+    keep = np.ones(n, bool)
+    kind = td.role.kind
+    try:
+        if kind == "imu":
+            for part in ("angular_velocity", "linear_acceleration"):
+                present = get(f"{part}_covariance[0]") != -1.0
+                for axis in "xyz":
+                    ch, scale = VARIABLE_MAP[("imu", f"{part}.{axis}")]
+                    out[ch] = np.where(present, scale * get(f"{part}.{axis}"), np.nan)
+            present = get("orientation_covariance[0]") != -1.0
+            quat = np.column_stack([get(f"orientation.{a}") for a in "wxyz"])
+            out["_quat"] = np.where(present[:, None], quat, np.nan)
+        elif kind == "navsatfix":
+            keep = get("status.status") >= 0  # STATUS_NO_FIX = -1
+            td.no_fix += int((~keep).sum())
+            out["lat"], out["lon"] = get("latitude"), get("longitude")
+        elif kind == "twist":
+            pre = "twist.twist." if "twist.twist.linear.x" in fields else "twist."
+            frame = text("header.frame_id").strip("/").lower() if "header.frame_id" in strings else ""
+            if frame in BODY_FRAMES or frame.endswith("base_link"):
+                for (r, f), (ch, scale) in VARIABLE_MAP.items():
+                    if r == "twist_body":
+                        out[ch] = scale * get(pre + f)
+            else:
+                v_e, v_n = get(pre + "linear.x").tolist(), get(pre + "linear.y").tolist()
+                # math, not numpy: bit for bit what the message-by-message path gives.
+                out["sog"] = np.array([math.hypot(a, b) for a, b in zip(v_n, v_e)], float)
+                out["cog"] = np.array([math.atan2(b, a) for a, b in zip(v_n, v_e)], float)
+        elif kind == "odometry":
+            for (r, f), (ch, scale) in VARIABLE_MAP.items():
+                if r == "odometry":
+                    out[ch] = scale * get(f)
+            out["_quat"] = np.column_stack([get(f"pose.pose.orientation.{a}") for a in "wxyz"])
+        elif kind == "rudder":
+            out["delta"] = get("data")
+        elif kind == "float64":
+            out[td.role.channel] = get("data")
+        elif kind == "actuators":
+            for name in INPUT_UNITS:
+                if name in fields:
+                    out[name] = get(name)
+    except KeyError:
+        return False  # a field the role needs is not where the standard type has it
+    if "header.stamp.sec" in fields and "header.stamp.nanosec" in fields:
+        off_s, _ = fields["header.stamp.sec"]
+        sec = np.ascontiguousarray(rows[:, off_s:off_s + 4]).view("<i4").ravel().astype(np.int64)
+        off_n, _ = fields["header.stamp.nanosec"]
+        nsec = np.ascontiguousarray(rows[:, off_n:off_n + 4]).view("<u4").ravel().astype(np.int64)
+        stamps = sec * 1_000_000_000 + nsec
+    else:
+        stamps = np.full(n, -1, np.int64)
+    td.stamps = stamps[keep]
+    td.bag = np.asarray(bags, np.int64)[keep]
+    td.values = {k: v[keep] for k, v in out.items()}
+    return True
 
 
 def _build(p: Path, fmt: str, topics: Mapping[str, _TopicData], read: Counter, skipped: Counter,
