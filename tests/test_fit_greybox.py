@@ -261,3 +261,11 @@ def test_a_free_decay_starts_its_own_record():
     assert len(recs) == 2
     assert recs[0].t[-1] < 19.99 and recs[1].t[0] >= 19.99 and recs[1].t[-1] == pytest.approx(35.0)
     assert len(recs[1].labels) == 2  # the step 0.5 s after the decay continues its record
+
+
+def test_a_trial_without_segments_gets_nothing_added(coupled_trial):
+    trial, _, fits = coupled_trial
+    empty = Segments("none", ())
+    base = single_dof_fits(trial, empty, VESSEL)
+    ext = extend_fits(base, trial, empty, VESSEL)
+    assert ext.estimates == base.estimates and np.isnan(ext.damping_matrix).all()

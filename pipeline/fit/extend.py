@@ -323,13 +323,16 @@ def extend_fits(fits: Fits, trial: Trial, segments: Segments, vessel: Vessel) ->
         fit determines them; the single-DOF value is kept in the message), ``X_udot`` etc. when thrust
         is mapped, ``damping_matrix``/``damping_stderr`` with the lateral block of the joint fit
         (NaN where not identified), and residual-test messages. A vessel without rigid-body data
-        gets only the residual-test messages.
+        gets only the residual-test messages; a trial without segments gets nothing added.
 
     Raises
     ------
     ConfigError
         A malformed ``[thrusters]`` table.
     """
+    if not segments.items:
+        # Nothing was run, so nothing is claimed either way (fit_trial's empty result stays empty).
+        return replace(fits)
     estimates = dict(fits.estimates)
     d, se = np.array(fits.damping_matrix, float), np.array(fits.damping_stderr, float)
 
