@@ -19,15 +19,22 @@ Estimation (Ljung 1999, ch. 7; Bock & Plitt 1984):
 - multiple shooting: a free state every ``shooting_interval`` seconds, continuity as a penalty
   residual that is tightened in a second solve, so long records and poor start values do not
   blow the simulation up;
-- output error on ``v, p, r, phi`` (those the trial has), each weighted by ``1/sigma``; sigma is
-  first the second-difference noise level, then the residual RMS of a first solve;
-- ``scipy.optimize.least_squares`` (trust-region reflective) with casadi's exact sparse Jacobian;
+- output error on ``v, p, q, r, phi, theta`` (those the trial has), each weighted by ``1/sigma``;
+  sigma is first the second-difference noise level, then the residual RMS of a first solve;
+- ``scipy.optimize.least_squares`` (trust-region reflective, LSMR) with casadi's exact sparse
+  Jacobian, compiled to C by casadi's JIT when a compiler works; a weak prior about the start
+  values (``PRIOR_SCALES`` scales wide) keeps the solver out of the flat valleys of a trial that
+  does not excite some coupling, and is left out of the covariance;
 - covariance and Fisher information from the single-shooting sensitivity at the estimate: the
   continuity Jacobian carries every node's sensitivity back to the record's initial state, and the
-  initial states are eliminated as nuisance parameters (Schur complement).
+  initial states are eliminated as nuisance parameters (Schur complement). Coloured residuals
+  (an interpolated GNSS velocity, say) inflate each channel's variance by its long-run variance
+  ratio (Newey & West 1987).
 
-Inputs: ``tau_y`` [N], ``tau_k``, ``tau_n`` [N m] as logged, plus the rudder ``delta`` [rad] through
-``vessel.rudder['yaw_moment']`` [N m/rad] and ``['sway_force']`` [N/rad].
+Inputs: ``tau_y`` [N], ``tau_k``, ``tau_m``, ``tau_n`` [N m] as logged, plus the rudder ``delta``
+[rad] through ``vessel.rudder['yaw_moment']`` [N m/rad] and ``['sway_force']`` [N/rad].
+Which coefficients the fit determines is decided from its Fisher information by
+:mod:`pipeline.fit.identifiability`; :func:`pipeline.fit.extend.extend_fits` runs both.
 
 References
 ----------
@@ -35,6 +42,8 @@ Fossen, T. I. (2021). *Handbook of Marine Craft Hydrodynamics and Motion Control
 Ljung, L. (1999). *System Identification: Theory for the User*, 2nd ed. Prentice Hall.
 Bock, H. G. & Plitt, K. J. (1984). A multiple shooting algorithm for direct solution of optimal
 control problems. *IFAC Proceedings* 17(2), 1603-1608.
+Newey, W. K. & West, K. D. (1987). A simple, positive semi-definite, heteroskedasticity and
+autocorrelation consistent covariance matrix. *Econometrica* 55(3), 703-708.
 """
 
 from __future__ import annotations
