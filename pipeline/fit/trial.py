@@ -261,7 +261,7 @@ def _damping_matrix(estimates: Mapping[str, Estimate]) -> tuple[np.ndarray, np.n
     return d, se
 
 
-def fit_trial(trial: Trial, segments: Segments, vessel: Vessel) -> Fits:
+def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = True) -> Fits:
     """Fit every segment of a trial and combine the results into coefficients.
 
     Per segment kind (Fossen 2021 for the damping; Nomoto et al. 1957 for the ship model):
@@ -291,6 +291,9 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel) -> Fits:
     vessel : Vessel
         Mass, inertia, added mass and restoring; a vessel with only ``name`` gets time constants and
         Nomoto K and T but no damping matrix.
+    extend : bool
+        Add the joint grey-box results (coupled damping, added mass, identifiability, residual
+        tests) with :func:`pipeline.fit.extend.extend_fits`; False gives the single-DOF fits only.
 
     Returns
     -------
@@ -306,5 +309,12 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel) -> Fits:
         collector.collect(sf)
     estimates = collector.estimates()
     d, se = _damping_matrix(estimates)
-    return Fits(vessel=vessel.name, estimates=estimates, segment_fits=tuple(fits), damping_matrix=d,
-                damping_stderr=se)
+    single_dof = Fits(vessel=vessel.name, estimates=estimates, segment_fits=tuple(fits), damping_matrix=d,
+                      damping_stderr=se)
+    if not extend:
+        return single_dof
+    # The joint grey-box fit starts from the single-DOF diagonal and adds what the single-DOF
+    # models cannot give: coupled terms, added mass, identifiability and residual checks.
+    from .extend import extend_fits
+
+    return extend_fits(single_dof, trial, segments, vessel)
