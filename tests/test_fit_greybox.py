@@ -132,22 +132,32 @@ def test_coupled_terms_recovered_within_three_sigma(coupled_trial):
     # The seed's couplings that these manoeuvres excite, and a tolerance on each.
     for name, tol in (("Y_r", 0.25), ("N_v", 0.02), ("K_v", 0.02), ("K_r", 0.15), ("Y_v", 0.01), ("K_p", 0.01),
                       ("N_r", 0.01)):
-        est = ext.estimates[name]
+        key = f"{name}_joint" if name in ("Y_v", "K_p", "N_r") else name
+        est = ext.estimates[key]
         assert est.success, (name, est.message)
         err = est.value - TRUTH[name]
         assert abs(err) < 3 * est.stderr, f"{name}: {est.value:.5g} +- {est.stderr:.2g}, truth {TRUTH[name]:.5g}"
         assert abs(err) < tol * abs(TRUTH[name]), (name, est.value, TRUTH[name])
         assert est.unit == UNITS[name] and "grey-box" in est.method and "least_squares" in est.method
         i, j = COEFFICIENTS[name]
-        assert ext.damping_matrix[i, j] == pytest.approx(-est.value)
-        assert ext.damping_stderr[i, j] == pytest.approx(est.stderr)
+        if key == name:
+            assert ext.damping_matrix[i, j] == pytest.approx(-est.value)
+            assert ext.damping_stderr[i, j] == pytest.approx(est.stderr)
+        elif name in fits.estimates:
+            # The single-DOF diagonal stays the matrix's and the table's value.
+            assert ext.estimates[name] == fits.estimates[name]
+            assert ext.damping_matrix[i, j] == pytest.approx(fits.damping_matrix[i, j])
+        else:
+            # No single-DOF value (the zig-zag is not a yaw coast-down): the matrix takes the joint one.
+            assert ext.damping_matrix[i, j] == pytest.approx(-est.value)
+            assert "takes the joint value" in est.message
     # Y_p and N_p of the seed are tiny: identified as near zero, or flagged; never far off.
     for name in ("Y_p", "N_p"):
         est = ext.estimates[name]
         if est.success:
             assert abs(est.value - TRUTH[name]) < 3 * est.stderr
-    # The single-DOF diagonal is kept in the message of the joint one.
-    assert "single-DOF value" in ext.estimates["Y_v"].message
+    # The single-DOF diagonal is quoted in the message of the joint one.
+    assert "single-DOF Y_v = " in ext.estimates["Y_v_joint"].message
 
 
 def test_extend_fits_returns_a_new_record_and_leaves_the_input_alone(coupled_trial):
@@ -170,15 +180,15 @@ def test_trial_without_sway_motion_flags_the_sway_yaw_coupling_and_names_the_man
     trial, segs = _trial(schedule, seed=2)
     fits = single_dof_fits(trial, segs, VESSEL)
     ext = extend_fits(fits, trial, segs, VESSEL)
-    for name in ("Y_v", "N_v"):
-        est = ext.estimates[name]
+    for name, key in (("Y_v", "Y_v_joint"), ("N_v", "N_v")):
+        est = ext.estimates[key]
         assert not est.success and math.isnan(est.value) and math.isnan(est.stderr)
         assert f"{name} not identified by this trial" in est.message
         assert "to determine it run" in est.message
     assert "sway step" in ext.estimates["N_v"].message and "zig-zag" in ext.estimates["N_v"].message
     assert math.isnan(ext.damping_matrix[4, 1])
     # What is determined is reported as conditional on what was held.
-    assert "conditional on" in ext.estimates["N_r"].message
+    assert "conditional on" in ext.estimates["N_r_joint"].message
 
 
 def test_trial_without_lateral_segments_flags_every_coupling():
@@ -269,3 +279,14 @@ def test_a_trial_without_segments_gets_nothing_added(coupled_trial):
     base = single_dof_fits(trial, empty, VESSEL)
     ext = extend_fits(base, trial, empty, VESSEL)
     assert ext.estimates == base.estimates and np.isnan(ext.damping_matrix).all()
+
+
+def test_rudder_segments_need_a_rudder_map(coupled_trial):
+    trial, segs, fits = coupled_trial
+    no_map = parse_vessel({k: v for k, v in COUPLED_DOC.items() if k != "rudder"})
+    kept = lateral_segments(segs, no_map)
+    assert "zigzag" in {s.kind for s in lateral_segments(segs, VESSEL)}
+    assert "zigzag" not in {s.kind for s in kept} and kept
+    only_rudder = Segments(segs.trial, tuple(s for s in segs.items if s.kind == "zigzag"))
+    with pytest.raises(FitError, match="need \\[rudder\\] yaw_moment or sway_force"):
+        fit_coupled_damping(trial, only_rudder, no_map)

@@ -1,12 +1,14 @@
 """Extend the single-DOF fits of a trial: coupled damping, added mass, identifiability, residual checks.
 
-:func:`extend_fits` runs after :func:`pipeline.fit.fit_trial` and returns a new
-:class:`~pipeline.records.Fits` (``dataclasses.replace``; nothing is mutated) with
+:func:`extend_fits` runs after the single-DOF fits of :func:`pipeline.fit.fit_trial` and returns a
+new :class:`~pipeline.records.Fits` (``dataclasses.replace``; nothing is mutated) with
 
 - the coupled lateral derivatives ``Y_r, N_v, K_v, K_r, Y_p, N_p`` of a grey-box fit of the 5-DOF
-  model to every sway/roll/yaw record (:mod:`pipeline.fit.greybox`), the lateral diagonal
-  ``Y_v, K_p, N_r`` re-estimated jointly with them, and ``damping_matrix``/``damping_stderr``
-  updated with that lateral block;
+  model to every sway/roll/yaw record (:mod:`pipeline.fit.greybox`) and their entries of
+  ``damping_matrix``/``damping_stderr``; the lateral diagonal re-estimated jointly with them is
+  reported beside the single-DOF values as ``Y_v_joint, K_p_joint, N_r_joint`` (the matrix keeps
+  the single-DOF diagonal, which needs neither the rudder map nor the coupling model, and takes the
+  joint one only where there is no single-DOF value);
 - for every coefficient the Fisher information of this trial does not determine:
   ``success=False``, no number, and a message naming the manoeuvre that would determine it
   (:mod:`pipeline.fit.identifiability`);
@@ -44,6 +46,8 @@ _CONTRIBUTES = {
     "rudder_step": ("K_nomoto", "T_nomoto"),
 }
 _DERIVATIVE = {"surge": "X_u", "sway": "Y_v", "roll": "K_p", "pitch": "M_q", "yaw": "N_r"}
+#: Suffix of the joint grey-box diagonal estimates (``Y_v_joint``), reported beside the single-DOF ones.
+JOINT_SUFFIX = "_joint"
 #: Grey-box output channels whose residual tests qualify the lateral coefficients.
 LATERAL_CHANNELS = ("v", "p", "r", "phi")
 #: Joint and single-DOF diagonal values further apart than this many combined sigmas are flagged.
@@ -260,6 +264,9 @@ def _greybox_estimates(fits: Fits, gb: GreyBoxFit, ident: Identifiability, dropp
     errors = dict(zip(gb.names, gb.stderr))
     for n in COEFFICIENTS:
         ij = COEFFICIENTS[n]
+        # The joint diagonal is reported beside the single-DOF one (``Y_v_joint``), which stays
+        # the table's and the matrix's value: it needs no rudder map and no coupling model.
+        name = f"{n}{JOINT_SUFFIX}" if n in DIAGONAL else n
         st = statuses.get(n)
         notes = [m for m in (gb.message,) if m]
         if st is not None and n in values and not gb.converged:
@@ -271,12 +278,7 @@ def _greybox_estimates(fits: Fits, gb: GreyBoxFit, ident: Identifiability, dropp
                 text = f"{n} not identified by this trial: {why}; to determine it run {MANOEUVRES[n]}"
             else:
                 text = st.message
-            old = fits.estimates.get(n)
-            if n in DIAGONAL and old is not None and old.success:
-                out[n] = _append(old, f"the joint grey-box fit does not determine it ({text}); "
-                                      f"the single-DOF value is kept")
-                continue
-            out[n] = failed_estimate(n, UNITS[n], method, "; ".join([text] + notes))
+            out[name] = failed_estimate(name, UNITS[n], method, "; ".join([text] + notes))
             if n in COUPLED:
                 d[ij], se[ij] = np.nan, np.nan
             continue
@@ -285,18 +287,22 @@ def _greybox_estimates(fits: Fits, gb: GreyBoxFit, ident: Identifiability, dropp
             notes.insert(0, st.message)
         if n in DIAGONAL:
             old = fits.estimates.get(n)
-            # Fits extended once already carry a joint value: nothing single-DOF to compare with.
-            if old is not None and old.success and math.isfinite(old.stderr) and "grey-box" not in old.method:
+            if old is not None and old.success and math.isfinite(old.stderr):
                 z = (value - old.value) / math.hypot(err, old.stderr)
-                notes.append(f"single-DOF value {old.value:.5g} +- {old.stderr:.2g} ({old.method.split(';')[0]}); "
-                             f"the joint value accounts for the coupling")
+                notes.append(f"single-DOF {n} = {old.value:.5g} +- {old.stderr:.2g} ({old.method.split(';')[0]})")
                 if abs(z) > DIAGONAL_DISAGREEMENT:
                     notes.append(f"joint and single-DOF values differ by {z:+.1f} sigma: coupling the single-DOF "
                                  f"fit ignores, or a wrong rudder map (yaw_moment, sway_force) or mass matrix")
+            elif not math.isfinite(d[ij]):
+                # No single-DOF value: the joint one is the best the trial gives for the matrix.
+                d[ij], se[ij] = -value, err
+                notes.append(f"no single-DOF {n}: D[{ij[0]},{ij[1]}] takes the joint value")
         notes += test_notes
-        out[n] = Estimate(name=n, value=value, stderr=err, ci95=confidence_interval(value, err, dof), unit=UNITS[n],
-                          n_segments=n_segments, method=method, success=True, message="; ".join(notes))
-        d[ij], se[ij] = -value, err
+        out[name] = Estimate(name=name, value=value, stderr=err, ci95=confidence_interval(value, err, dof),
+                             unit=UNITS[n], n_segments=n_segments, method=method, success=True,
+                             message="; ".join(notes))
+        if n in COUPLED:
+            d[ij], se[ij] = -value, err
     return out, d, se
 
 
@@ -319,11 +325,11 @@ def extend_fits(fits: Fits, trial: Trial, segments: Segments, vessel: Vessel) ->
     -------
     Fits
         A new record: estimates ``Y_r, N_v, K_v, K_r, Y_p, N_p`` [Fossen signs, ``Y_r = -D[1, 4]``;
-        kg m/s or kg m^2/s], joint ``Y_v, K_p, N_r`` (replacing the single-DOF ones when the joint
-        fit determines them; the single-DOF value is kept in the message), ``X_udot`` etc. when thrust
-        is mapped, ``damping_matrix``/``damping_stderr`` with the lateral block of the joint fit
-        (NaN where not identified), and residual-test messages. A vessel without rigid-body data
-        gets only the residual-test messages; a trial without segments gets nothing added.
+        kg m/s or kg m^2/s] and ``Y_v_joint, K_p_joint, N_r_joint`` (the joint diagonal; the
+        single-DOF ``Y_v, K_p, N_r`` are left as they are), ``X_udot`` etc. when thrust is mapped,
+        ``damping_matrix``/``damping_stderr`` with the coupled entries of the joint fit (NaN where
+        not identified), and residual-test messages. A vessel without rigid-body data gets only the
+        residual-test messages; a trial without segments gets nothing added.
 
     Raises
     ------
@@ -337,7 +343,7 @@ def extend_fits(fits: Fits, trial: Trial, segments: Segments, vessel: Vessel) ->
     d, se = np.array(fits.damping_matrix, float), np.array(fits.damping_stderr, float)
 
     if vessel.has_rigid_body:
-        lat = lateral_segments(segments)
+        lat = lateral_segments(segments, vessel)
         try:
             gb, ident, dropped = joint_fit(trial, segments, vessel, fits.damping_matrix)
         except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError) as exc:
@@ -346,8 +352,7 @@ def extend_fits(fits: Fits, trial: Trial, segments: Segments, vessel: Vessel) ->
             reason = (str(exc) if isinstance(exc, FitError)
                       else f"the grey-box fit failed with {type(exc).__name__}: {exc}")
             method = "grey-box output-error fit of the linear 5-DOF model (pipeline.fit.greybox)"
-            missing = [n for n in DIAGONAL if n not in estimates]
-            estimates.update(_failed_coupled(reason, list(COUPLED) + missing, method))
+            estimates.update(_failed_coupled(reason, COUPLED, method))
             for n in COUPLED:
                 d[COEFFICIENTS[n]], se[COEFFICIENTS[n]] = np.nan, np.nan
         else:

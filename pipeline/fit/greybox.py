@@ -211,15 +211,21 @@ class GreyBoxFit:
 
 
 # --------------------------------------------------------------------------- data
-def lateral_segments(segments: Segments) -> tuple[Segment, ...]:
+def lateral_segments(segments: Segments, vessel: Vessel | None = None) -> tuple[Segment, ...]:
     """Segments with sway, roll or yaw motion under known inputs (``LATERAL_KINDS``).
 
     Parameters
     ----------
     segments : Segments
         All segments of a trial.
+    vessel : Vessel, optional
+        When given, segments driven by the rudder (``input_channel='delta'``) are left out unless
+        the config maps the rudder to a force (``[rudder] yaw_moment`` or ``sway_force``): without
+        the map the input is not known, and a zero force would be a wrong one.
     """
-    return tuple(s for s in segments.items if s.dof in LATERAL_KINDS.get(s.kind, ()) and s.t_end > s.t_start)
+    mapped = vessel is None or bool(vessel.rudder.get("yaw_moment") or vessel.rudder.get("sway_force"))
+    return tuple(s for s in segments.items if s.dof in LATERAL_KINDS.get(s.kind, ()) and s.t_end > s.t_start
+                 and (mapped or s.input_channel != "delta"))
 
 
 def generalised_force(trial: Trial, vessel: Vessel, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
@@ -816,11 +822,14 @@ def fit_coupled_damping(trial: Trial, segments: Segments, vessel: Vessel, d_star
     if not vessel.has_rigid_body:
         raise FitError(f"{vessel.name}: the coupled damping needs rigid_body mass and inertia; found "
                        f"mass={vessel.mass}, inertia={np.asarray(vessel.inertia).tolist()}")
-    segs = lateral_segments(segments)
+    segs = lateral_segments(segments, vessel)
     if not segs:
         kinds = sorted({f"{s.kind}/{s.dof}" for s in segments.items}) or ["none"]
+        unmapped = lateral_segments(segments) and not lateral_segments(segments, vessel)
         raise FitError(f"coupled damping: expected zig-zags, rudder steps, sway or yaw steps/coast-downs or "
-                       f"roll free decays, found only {kinds}")
+                       f"roll free decays, found only {kinds}"
+                       + ("; the rudder-driven ones need [rudder] yaw_moment or sway_force in the vessel config "
+                          "(the rudder's force is not known)" if unmapped else ""))
     outputs = tuple(c for c in STATES if trial.has(c))
     if not outputs:
         raise FitError(f"coupled damping: expected at least one of {list(STATES)} in the trial, found "
