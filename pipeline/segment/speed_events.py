@@ -38,7 +38,7 @@ V_MIN = 0.5
 STEADY_S = 3.0
 #: Largest standard deviation of the speed in the steady stretch, and largest trend across it,
 #: relative to its mean [-]; real boats surge by a few percent in waves.
-STEADY_REL = 0.05
+STEADY_REL = 0.06
 TREND_REL = 0.10
 #: Smoothed deceleration that starts a candidate [m/s^2], held for ``A_MIN_S`` [s].
 A_MIN = 0.05
