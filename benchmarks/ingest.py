@@ -27,7 +27,8 @@ plain library loop a user would write, collecting every field into lists:
 - bag, db3, mcap: ``rosbags.highlevel.AnyReader`` + ``deserialize`` + the fields;
 - csv: ``pandas.read_csv``.
 
-The table gives the file size, both wall times, their ratio (plain / project: above 1 the project
+Each reader is timed once (best of three when both take under ``QUICK_S``). The table gives the
+file size, both wall times, their ratio (plain / project: above 1 the project
 is faster) and the targets of issue 3: every format under 20 s for the hour, DataFlash and UBX at
 least 10x faster than the plain loop, no format slower than its plain loop (ratio >= 1).
 
@@ -69,6 +70,8 @@ FORMATS = ("csv", "tlog", "bin", "ubx", "nmea", "bag", "db3", "mcap")
 #: Every file the benchmark writes (a --dir holding all of them is reused without simulating).
 ALL_FILES = ("trial.csv", "trial.tlog", "trial.bin", "gps.ubx", "gps2.ubx", "gps.nmea", "gps2.nmea", "trial.bag",
              "trial.db3", "trial.mcap")
+#: Below this wall time [s] both readers of a format are timed three times and the best kept.
+QUICK_S = 2.0
 #: Targets of issue 3.
 MAX_SECONDS_PER_HOUR = 20.0
 MIN_SPEEDUP = {"bin": 10.0, "ubx": 10.0}
@@ -323,6 +326,11 @@ def main(argv=None) -> int:
             bar.set_postfix_str(f"time {fmt}")
             t_proj, n_samples = _timed(project, files[fmt], vessel)
             t_plain, n_msgs = _timed(PLAIN[fmt], files[fmt])
+            if max(t_proj, t_plain) < QUICK_S:
+                # Both quick: the best of three of each, so a first call's set-up (thread pools,
+                # imports, a cold page cache) does not decide the ratio.
+                t_proj = min([t_proj] + [_timed(project, files[fmt], vessel)[0] for _ in range(2)])
+                t_plain = min([t_plain] + [_timed(PLAIN[fmt], files[fmt])[0] for _ in range(2)])
             rows.append((fmt, _size(files[fmt]), t_proj, t_plain, n_samples, n_msgs))
             bar.update()
     finally:
@@ -346,7 +354,7 @@ def main(argv=None) -> int:
         checks = [tp * scale < MAX_SECONDS_PER_HOUR, ratio >= MIN_SPEEDUP.get(fmt, 1.0)]
         ok = all(checks)
         failed += not ok
-        need = f">= {MIN_SPEEDUP.get(fmt, 1.0):g}x, < {MAX_SECONDS_PER_HOUR / scale:g} s"
+        need = f">= {MIN_SPEEDUP.get(fmt, 1.0):g}x, < {MAX_SECONDS_PER_HOUR / scale:.3g} s"
         print(f"| {fmt} | {len(files[fmt])} | {size / 1e6:.1f} | {tp:.2f} | {tl:.2f} | {PLAIN_TEXT[fmt]} | "
               f"{ratio:.1f}x | {ns} | {nm} | {'pass' if ok else 'FAIL'} ({need}) |")
     return 1 if failed else 0
