@@ -1,0 +1,590 @@
+"""Withheld-effect benchmark of ``vesselid diagnose``: confusion matrix, clean-null rate, shrink.
+
+The simulator generates sea trials with one unmodelled effect switched on (several vessels from
+the 1 m AAUSHIP model ship to a 100 m Nomoto ship, two magnitudes, three noise levels, several
+seeds) while the diagnosis' baseline model leaves every effect out, plus clean trials. Every
+trial goes through the real path: simulate -> canonical CSV -> ``load_trial`` -> ``diagnose``.
+
+Printed: the confusion matrix (true effect against verdict), the share of affected trials whose
+verdict names the right effect, the share of clean trials with a null verdict, and the median
+held-out shrink of the right effect's candidate. Targets (issue 6): right effect on >= 90% of
+affected trials, null on >= 95% of clean trials, median shrink >= 70%.
+
+Usage::
+
+    .venv/bin/python benchmarks/diagnose.py            # full run (about 150 trials)
+    .venv/bin/python benchmarks/diagnose.py --quick    # a small run
+    .venv/bin/python benchmarks/diagnose.py --calibrate   # clean trials only: threshold calibration
+    .venv/bin/python benchmarks/diagnose.py --timing   # a 30-minute trial through the CLI, timed
+    .venv/bin/python benchmarks/diagnose.py --realdata benchmarks/diagnose_realdata   # measured sets
+
+``--realdata`` converts the measured sets in ``../shared/realdata`` (never copied into the
+project) to canonical CSV in a temporary folder, runs ``vesselid diagnose`` on each, writes the
+figures into the given folder and prints a Markdown summary for ``benchmarks/RESULTS.md``.
+
+Progress bars show on a terminal (tqdm) and stay quiet when the environment variable CI is set.
+"""
+
+from __future__ import annotations
+
+import os
+
+# One BLAS thread per worker: the workers already use the cores, and a threaded BLAS on a busy
+# machine spends more time waking threads than computing the diagnosis' small products.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor  # noqa: E402
+from dataclasses import dataclass, field  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline.flow import load_trial  # noqa: E402
+from pipeline.model.waves import WaveParams  # noqa: E402
+from pipeline.sim import Effects, sea_trial, simulate  # noqa: E402
+from pipeline.sim.manoeuvres import Schedule, rest, step_and_coast  # noqa: E402
+from pipeline.sim.sensors import NOISE_LEVELS, SensorSpec, default_sensors  # noqa: E402
+from pipeline.sim.writers import write_log  # noqa: E402
+from pipeline.vessel import load_vessel, parse_vessel  # noqa: E402
+
+EFFECTS = ("nonlinear_damping", "current", "actuator_delay", "actuator_rate_limit", "thrust_asymmetry", "waves",
+           "coupling")
+NOISES = ("low", "nominal", "high")
+
+
+# ----------------------------------------------------------------------------- vessels and trials
+def vessels() -> dict:
+    """The benchmark's vessels: AAUSHIP (5-DOF), a 100 m Nomoto ship, a small Nomoto ship."""
+    return {
+        "aauship": load_vessel(ROOT / "vessel_configs" / "aauship.toml"),
+        "ship100": parse_vessel({"name": "ship100", "nomoto": {"K": 0.156, "T": 72.4}}),
+        "small": parse_vessel({"name": "small", "nomoto": {"K": 0.5, "T": 5.0}}),
+    }
+
+
+def nomoto_sensors(level: str, rate: float) -> tuple[SensorSpec, ...]:
+    """Sensors a Nomoto ship's simulation can feed: gyro, compass, GNSS (no roll, pitch, accel).
+
+    The simulator's :func:`default_sensors` asks for channels (p, q, ax, ...) a Nomoto ship does
+    not simulate.
+    """
+    k = NOISE_LEVELS[level]
+    return (SensorSpec("imu", ("r",), rate, noise={"r": 0.002 * k}),
+            SensorSpec("attitude", ("psi",), rate, noise={"psi": 0.002 * k}),
+            SensorSpec("gps", ("lat", "lon", "sog", "cog"), min(rate, 10.0),
+                       noise={"lat": 0.3 * k, "lon": 0.3 * k, "sog": 0.02 * k, "cog": 0.01 * k}))
+
+
+def schedule(vessel) -> Schedule:
+    """The vessel's standard sea trial; AAUSHIP also backs astern once (a reverse surge step)."""
+    s = sea_trial(vessel)
+    if vessel.has_rigid_body and vessel.damping is not None:
+        d = float(vessel.damping[0, 0])
+        tc = float(vessel.mass_matrix()[0, 0]) / d
+        hold = max(6 * tc, 3.0)
+        s = Schedule(s.manoeuvres + (step_and_coast("surge", -d * 1.0, hold, hold), rest(3 * tc)))
+    return s
+
+
+@dataclass(frozen=True)
+class Case:
+    """One benchmark trial."""
+
+    vessel: str
+    effect: str | None
+    magnitude: str
+    noise: str
+    seed: int
+    dof: str | None = None
+    settings: dict = field(default_factory=dict, hash=False, compare=False)
+
+    @property
+    def name(self) -> str:
+        return f"{self.vessel}-{self.effect or 'clean'}-{self.magnitude}-{self.noise}-{self.seed}"
+
+
+def _aauship_effect(effect: str, mag: int, rng: np.random.Generator) -> tuple[Effects, str | None, dict]:
+    """AAUSHIP effect at magnitude index ``mag`` (0 small, 1 large), a random DOF where it has one."""
+    d = np.array([2.86, 32.5, 0.1094, 7.203, 0.26285])
+    if effect == "nonlinear_damping":
+        dof = ["surge", "sway", "yaw"][rng.integers(3)]
+        i, typ = {"surge": (0, 1.5), "sway": (1, 0.3), "yaw": (4, 0.5)}[dof]
+        ratio = (0.4, 1.0)[mag]
+        q = np.zeros(5)
+        q[i] = ratio * d[i] / typ
+        return Effects(quadratic_damping=q), dof, {"D2": q[i]}
+    if effect == "current":
+        speed = (0.05, 0.15)[mag]
+        ang = rng.uniform(0, 2 * np.pi)
+        return Effects(current=(speed * np.cos(ang), speed * np.sin(ang))), None, {"speed": speed}
+    if effect == "actuator_delay":
+        tau = (0.15, 0.4)[mag]
+        return Effects(actuator_delay=tau), None, {"tau_d": tau}
+    if effect == "actuator_rate_limit":
+        ch = ["delta", "tau_x"][rng.integers(2)]
+        swing = {"delta": np.radians(10), "tau_x": 4.3}[ch]
+        rate = swing / (1.0, 3.0)[mag]
+        return Effects(actuator_rate_limit={ch: rate}), {"delta": "yaw", "tau_x": "surge"}[ch], {ch: rate}
+    if effect == "thrust_asymmetry":
+        g = (0.75, 0.5)[mag]
+        return Effects(thrust_reverse_gain=g), "surge", {"reverse_gain": g}
+    if effect == "waves":
+        sigma = np.radians((1.0, 2.5)[mag])
+        om = float(rng.choice([2.0, 3.0]))
+        return Effects(waves=_waves(om, 0.1, sigma)), "yaw", {"sigma_deg": float(np.degrees(sigma)), "omega0": om}
+    if effect == "coupling":
+        c = np.zeros((5, 5))
+        if rng.integers(2):
+            c[4, 1] = (0.05, 0.15)[mag]
+            return Effects(coupling=c), "yaw", {"N_v": c[4, 1]}
+        c[1, 4] = (1.0, 3.0)[mag]
+        return Effects(coupling=c), "sway", {"Y_r": c[1, 4]}
+    raise ValueError(effect)
+
+
+def _waves(omega0: float, lam: float, sigma: float) -> WaveParams:
+    """Wave model whose heading has standard deviation ``sigma`` [rad]: var = K_w^2 / (4 lam omega0)."""
+    return WaveParams(omega0=omega0, lam=lam, kw=float(sigma * np.sqrt(4 * lam * omega0)))
+
+
+def _nomoto_effect(effect: str, mag: int, vessel, rng: np.random.Generator) -> tuple[Effects, str | None, dict]:
+    k, t = vessel.nomoto["K"], vessel.nomoto["T"]
+    if effect == "nonlinear_damping":
+        r_typ = k * np.radians(10)
+        d2 = (0.5, 1.5)[mag] / r_typ
+        q = np.zeros(5)
+        q[4] = d2
+        return Effects(quadratic_damping=q), "yaw", {"d2": d2}
+    if effect == "current":
+        b = np.radians((0.5, 1.5)[mag]) * float(rng.choice([-1, 1]))
+        return Effects(rudder_bias=b), "yaw", {"b_deg": float(np.degrees(b))}
+    if effect == "actuator_delay":
+        tau = (0.02, 0.06)[mag] * t
+        return Effects(actuator_delay=tau), "yaw", {"tau_d": tau}
+    if effect == "actuator_rate_limit":
+        rate = np.radians(10) / ((0.1, 0.3)[mag] * t)
+        return Effects(actuator_rate_limit={"delta": rate}), "yaw", {"delta": rate}
+    if effect == "waves":
+        sigma = np.radians((1.0, 2.5)[mag])
+        om = float(rng.choice([0.6, 0.9])) if t > 20 else float(rng.choice([1.5, 2.5]))
+        return Effects(waves=_waves(om, 0.1, sigma)), "yaw", {"sigma_deg": float(np.degrees(sigma)), "omega0": om}
+    raise ValueError(effect)
+
+
+def applicable(vessel_name: str) -> tuple[str, ...]:
+    """Effects a vessel's simulation can carry (a Nomoto ship has no thrust and no other DOF)."""
+    if vessel_name == "aauship":
+        return EFFECTS
+    return ("nonlinear_damping", "current", "actuator_delay", "actuator_rate_limit", "waves")
+
+
+def cases(quick: bool = False, clean_seeds: int = 6, calibrate: bool = False) -> list[Case]:
+    """Benchmark trials: every applicable effect at two magnitudes and three noise levels per
+    vessel, and clean trials (quick: one noise level per effect, fewer clean trials)."""
+    out = []
+    names = list(vessels())
+    if not calibrate:
+        for vn in names:
+            for j, effect in enumerate(applicable(vn)):
+                for mag in (0, 1):
+                    for ni, noise in enumerate(NOISES):
+                        if quick and (ni != (j + mag) % 3 or (vn != "aauship" and mag == 0)):
+                            continue
+                        out.append(Case(vn, effect, ("small", "large")[mag], noise, 100 + 10 * j + 3 * mag + ni))
+    seeds = range(2 if quick else clean_seeds)
+    for vn in names:
+        for noise in NOISES:
+            for s in seeds:
+                if quick and noise != NOISES[s % 3]:
+                    continue
+                out.append(Case(vn, None, "-", noise, 500 + s))
+    return out
+
+
+def simulate_case(case: Case, folder: Path) -> Path:
+    """Simulate a case and write it as canonical CSV; returns the file."""
+    vs = vessels()
+    v = vs[case.vessel]
+    rng = np.random.default_rng(case.seed)
+    if case.effect is None:
+        eff, dof, settings = Effects(), None, {}
+    elif case.vessel == "aauship":
+        eff, dof, settings = _aauship_effect(case.effect, ("small", "large").index(case.magnitude), rng)
+    else:
+        eff, dof, settings = _nomoto_effect(case.effect, ("small", "large").index(case.magnitude), v, rng)
+    if case.vessel == "aauship":
+        sensors, dt, cmd_rate = default_sensors(case.noise), 0.01, 50.0
+    elif case.vessel == "ship100":
+        sensors, dt, cmd_rate = nomoto_sensors(case.noise, 10.0), 0.1, 10.0
+    else:
+        sensors, dt, cmd_rate = nomoto_sensors(case.noise, 50.0), 0.02, 50.0
+    res = simulate(v, schedule(v), eff, sensors=sensors, seed=case.seed, dt=dt, actuator_rate=cmd_rate)
+    path = folder / f"{case.name}.csv"
+    write_log(res.log, path, vessel=v)
+    meta = {"dof": dof, "settings": settings}
+    path.with_suffix(".json").write_text(json.dumps(meta, default=float))
+    return path
+
+
+def run_case(case: Case) -> dict:
+    """Simulate, read back and diagnose one case; returns the outcome."""
+    from pipeline.diagnose import diagnose
+
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        path = simulate_case(case, Path(tmp))
+        meta = json.loads(path.with_suffix(".json").read_text())
+        v = vessels()[case.vessel]
+        trial = load_trial([path], v)
+        t1 = time.perf_counter()
+        try:
+            rep = diagnose(trial, v)
+        except Exception as exc:  # a crash is a benchmark result, not an abort
+            import traceback
+
+            return {"case": case.name, "vessel": case.vessel, "effect": case.effect, "magnitude": case.magnitude,
+                    "noise": case.noise, "true_dof": meta["dof"], "settings": meta["settings"], "verdict": "ERROR",
+                    "verdict_dof": None, "trial_shrink": 0.0, "right_shrink": None, "right_significant": False,
+                    "verdict_shrink": None, "candidates": [], "t_sim": t1 - t0, "t_diagnose": float("nan"),
+                    "error": traceback.format_exc()}
+        t2 = time.perf_counter()
+    right = [c for c in rep.candidates if c.effect == case.effect]
+    if meta["dof"] is not None:
+        right_dof = [c for c in right if c.dof == meta["dof"]]
+        right = right_dof or right
+    best_right = max(right, key=lambda c: c.gain, default=None)
+    cands = [{"effect": c.effect, "dof": c.dof, "label": c.label, "shrink": c.shrink, "explained": c.explained,
+              "p_value": c.p_value, "significant": c.significant} for c in rep.candidates]
+    return {
+        "case": case.name, "vessel": case.vessel, "effect": case.effect, "magnitude": case.magnitude,
+        "noise": case.noise, "true_dof": meta["dof"], "settings": meta["settings"],
+        "verdict": rep.effect, "verdict_dof": rep.dof,
+        "trial_shrink": rep.shrink if rep.effect else 0.0,
+        "right_shrink": best_right.shrink if best_right else None,
+        "right_significant": bool(best_right.significant) if best_right else False,
+        "verdict_shrink": rep.verdict.shrink if rep.verdict else None,
+        "candidates": cands, "t_sim": t1 - t0, "t_diagnose": t2 - t1,
+    }
+
+
+# ----------------------------------------------------------------------------- reporting
+def confusion(results: list[dict]) -> str:
+    """Confusion matrix as text: rows the true effect (clean = none), columns the verdict."""
+    cols = list(EFFECTS) + ["null", "ERROR"]
+    rows = list(EFFECTS) + ["clean"]
+    short = {"nonlinear_damping": "nonlin", "current": "current", "actuator_delay": "delay",
+             "actuator_rate_limit": "rate", "thrust_asymmetry": "asym", "waves": "waves", "coupling": "coupl",
+             "null": "null", "ERROR": "ERROR", "clean": "clean"}
+    m = {(r, c): 0 for r in rows for c in cols}
+    for res in results:
+        r = res["effect"] or "clean"
+        c = res["verdict"] if res["verdict"] in cols else ("null" if res["verdict"] is None else "ERROR")
+        m[(r, c)] += 1
+    head = f"{'true/verdict':<14}" + "".join(f"{short[c]:>8}" for c in cols) + f"{'n':>6}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        n = sum(m[(r, c)] for c in cols)
+        if n == 0:
+            continue
+        lines.append(f"{short[r]:<14}" + "".join(f"{m[(r, c)]:>8}" for c in cols) + f"{n:>6}")
+    return "\n".join(lines)
+
+
+def summary(results: list[dict]) -> dict:
+    """Headline numbers."""
+    aff = [r for r in results if r["effect"]]
+    clean = [r for r in results if not r["effect"]]
+    right = [r for r in aff if r["verdict"] == r["effect"]]
+    dof_ok = [r for r in right if r["true_dof"] is None or r["verdict_dof"] == r["true_dof"]]
+    shrink = [r["right_shrink"] for r in aff if r["right_shrink"] is not None]
+    shrink_v = [r["verdict_shrink"] for r in right if r["verdict_shrink"] is not None]
+    trial = [r["trial_shrink"] for r in right]
+    return {
+        "affected": len(aff), "right_first": len(right) / len(aff) if aff else float("nan"),
+        "right_dof": len(dof_ok) / len(right) if right else float("nan"),
+        "clean": len(clean), "clean_null": sum(r["verdict"] is None for r in clean) / len(clean) if clean else float("nan"),
+        "median_shrink_right_effect": float(np.median(shrink)) if shrink else float("nan"),
+        "median_shrink_verdict": float(np.median(shrink_v)) if shrink_v else float("nan"),
+        "median_trial_shrink": float(np.median(trial)) if trial else float("nan"),
+        "errors": sum(r["verdict"] == "ERROR" for r in results),
+        "median_t_diagnose": float(np.nanmedian([r["t_diagnose"] for r in results])),
+    }
+
+
+def print_report(results: list[dict]) -> None:
+    s = summary(results)
+    print(confusion(results))
+    print()
+    print(f"right effect first : {100 * s['right_first']:.1f}% of {s['affected']} affected trials (target >= 90%)"
+          f"; right DOF among those {100 * s['right_dof']:.1f}%")
+    print(f"null on clean      : {100 * s['clean_null']:.1f}% of {s['clean']} clean trials (target >= 95%)")
+    print(f"median shrink      : {s['median_shrink_right_effect']:.1f}% held-out shrink of the DOF gap with the right "
+          f"effect added (target >= 70%); {s['median_shrink_verdict']:.1f}% for correct verdicts; "
+          f"whole-trial gap {s['median_trial_shrink']:.1f}%")
+    print(f"median diagnose    : {s['median_t_diagnose']:.1f} s per trial; errors: {s['errors']}")
+    print()
+    print("by vessel / effect (right first, median shrink of the right effect):")
+    for vn in vessels():
+        for eff in list(EFFECTS) + [None]:
+            sub = [r for r in results if r["vessel"] == vn and r["effect"] == eff]
+            if not sub:
+                continue
+            if eff is None:
+                print(f"  {vn:<8} clean                null {sum(r['verdict'] is None for r in sub)}/{len(sub)}")
+                continue
+            ok = sum(r["verdict"] == eff for r in sub)
+            sh = [r["right_shrink"] for r in sub if r["right_shrink"] is not None]
+            print(f"  {vn:<8} {eff:<20} {ok}/{len(sub)}  shrink {np.median(sh) if sh else float('nan'):6.1f}%")
+    wrong = [r for r in results if (r["effect"] and r["verdict"] != r["effect"]) or (not r["effect"] and r["verdict"])]
+    if wrong:
+        print()
+        print("misses and false positives:")
+        for r in wrong:
+            top = next((c for c in r.get("candidates", []) if c["significant"]), None)
+            rs = r.get("right_shrink")
+            if r.get("error"):
+                print(f"  {r['case']:<44} ERROR {r['error'].strip().splitlines()[-1]}")
+                continue
+            print(f"  {r['case']:<44} verdict {r['verdict']} {r.get('verdict_dof')}; right effect shrink "
+                  f"{rs if rs is None else round(rs, 1)} sig={r.get('right_significant')}"
+                  + (f"; top {top['label']}/{top['dof']} {top['shrink']:.1f}%" if top else ""))
+
+
+def calibration_report(results: list[dict]) -> None:
+    """For clean trials: the most extreme candidate statistics, and the false-positive rate at the
+    constants in :mod:`pipeline.diagnose.significance`."""
+    from pipeline.diagnose import significance as sig
+
+    clean = [r for r in results if not r["effect"]]
+    print(f"{len(clean)} clean trials; constants ALPHA={sig.ALPHA:g}, MIN_SHRINK={sig.MIN_SHRINK:g}%, "
+          f"MIN_EXPLAINED={sig.MIN_EXPLAINED:g}")
+    rows = []
+    for r in clean:
+        cs = r.get("candidates", [])
+        # The candidate that came closest: passing the p-value test with the largest explained error.
+        worst = max(cs, key=lambda c: (c["explained"] or -1) if (c["p_value"] or 1) < sig.ALPHA else -1, default=None)
+        rows.append((r["case"], worst))
+        if worst:
+            print(f"  {r['case']:<34} {worst['label']:<28} {worst['dof']:<6} shrink {worst['shrink']:6.1f}% "
+                  f"explained {worst['explained']:.4f} p {worst['p_value']:.1e} {'SIGNIFICANT' if worst['significant'] else ''}")
+    fp = sum(r["verdict"] is not None for r in clean)
+    print(f"false positives: {fp}/{len(clean)} = {100 * fp / max(len(clean), 1):.1f}% (target <= 5%)")
+    for q in (0.5, 0.9, 0.95, 1.0):
+        ex = [w["explained"] for _, w in rows if w and w["p_value"] < sig.ALPHA]
+        sh = [w["shrink"] for _, w in rows if w and w["p_value"] < sig.ALPHA]
+        if ex:
+            print(f"  quantile {q:.2f} of the closest call: explained {np.quantile(ex, q):.4f}, shrink {np.quantile(sh, q):.1f}%")
+
+
+def timing(minutes: float = 30.0) -> None:
+    """Time ``vesselid diagnose`` on a trial of ``minutes`` of AAUSHIP sea trials (CLI, end to end)."""
+    v = vessels()["aauship"]
+    base = schedule(v)
+    reps = int(np.ceil(minutes * 60 / base.duration))
+    long = Schedule(base.manoeuvres * reps)
+    # Trim to the requested length: drop whole manoeuvres from the end.
+    items = list(long.manoeuvres)
+    while sum(m.duration for m in items) > minutes * 60 and len(items) > 1:
+        items.pop()
+    long = Schedule(tuple(items))
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        res = simulate(v, long, Effects(actuator_delay=0.3), seed=7)
+        path = write_log(res.log, Path(tmp) / "long.csv", vessel=v)
+        t1 = time.perf_counter()
+        out = Path(tmp) / "out.json"
+        cmd = [sys.executable, "-m", "pipeline.cli", "diagnose", "--vessel", str(ROOT / "vessel_configs" / "aauship.toml"),
+               str(path), "--json", str(out)]
+        t2 = time.perf_counter()
+        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+        t3 = time.perf_counter()
+        doc = json.loads(out.read_text()) if out.exists() else {}
+    print(f"trial: {long.duration / 60:.1f} min of AAUSHIP sea trials ({reps} repeats, actuator delay 0.3 s), "
+          f"simulated and written in {t1 - t0:.1f} s")
+    print(f"command: {' '.join(cmd[1:])}")
+    print(f"vesselid diagnose: exit {proc.returncode}, {t3 - t2:.1f} s wall clock (target < 120 s on 2 cores)")
+    print(f"verdict: {doc.get('verdict')}, gap {doc.get('gap_before')} -> {doc.get('gap_after')}")
+    if proc.returncode:
+        print(proc.stderr)
+
+
+# ----------------------------------------------------------------------------- measured sets
+REALDATA = ROOT.parent / "shared" / "realdata"
+
+
+def _write_csv(path: Path, columns: dict) -> Path:
+    """Canonical CSV from equal-length columns (NaN written as empty cells)."""
+    import pandas as pd
+
+    pd.DataFrame(columns).to_csv(path, index=False, na_rep="", float_format="%.9g")
+    return path
+
+
+def _concat_runs(runs: list[tuple[np.ndarray, dict]], gap: float) -> dict:
+    """Runs (time, columns) one after another with ``gap`` seconds of no data between them."""
+    t_all, cols = [], {}
+    offset = 0.0
+    for t, c in runs:
+        t = np.asarray(t, float)
+        t_all.append(t - t[0] + offset)
+        for k, v in c.items():
+            cols.setdefault(k, []).append(np.asarray(v, float))
+        offset = t_all[-1][-1] + gap
+    out = {"t": np.concatenate(t_all)}
+    out.update({k: np.concatenate(v) for k, v in cols.items()})
+    return out
+
+
+def realdata_sets(folder: Path) -> list[tuple[str, Path, str]]:
+    """Convert each measured set to canonical CSV in ``folder``.
+
+    Returns ``(name, csv, vessel TOML)`` triples for the sets found (none when the shared folder is
+    absent).
+    """
+    import pandas as pd
+
+    out = []
+    aau = REALDATA / "aauship-2014-trials" / "csv"
+    if aau.is_dir():
+        runs = []
+        for f in ("yaw_rate_decay_bow_thrusters.csv", "yaw_rate_decay_main_propellers.csv"):
+            df = pd.read_csv(aau / f)
+            for _, g in df[df["kind"] == "measured"].groupby("series", sort=False):
+                g = g.sort_values("t_s").drop_duplicates("t_s")
+                runs.append((g["t_s"].to_numpy(), {"r": np.radians(g["r_degps"].to_numpy())}))
+        out.append(("aauship-yaw-decays", _write_csv(folder / "aauship_yaw_decays.csv", _concat_runs(runs, 20.0)),
+                    str(ROOT / "vessel_configs" / "aauship.toml")))
+    nemi = REALDATA / "nemi-catamaran-usv-2022"
+    if nemi.is_dir():
+        df = pd.read_csv(nemi / "surge_speed_steps_full_100Hz.csv")
+        out.append(("nemi-surge-steps", _write_csv(folder / "nemi_surge.csv", {
+            "t": df["t_s"], "u": df["u_meas_mps"], "tau_x": df["cmd_mean_thrust_pct"]}), "nemi"))
+        df = pd.read_csv(nemi / "yaw_rate_steps_full_100Hz.csv")
+        out.append(("nemi-yaw-steps", _write_csv(folder / "nemi_yaw.csv", {
+            "t": df["t_s"], "r": df["r_meas_radps"], "tau_n": df["cmd_diff_thrust_pct"]}), "nemi"))
+    ce6 = REALDATA / "ce6-boat-limfjord-2022" / "csv"
+    if ce6.is_dir():
+        runs = []
+        for f in sorted(ce6.glob("Boat_test_2_VirtualMass_*.csv")):
+            df = pd.read_csv(f).dropna(subset=["sog_mps"])
+            cog = np.angle(np.exp(1j * np.radians(df["cog_deg"].to_numpy())))
+            runs.append((df["t_s"].to_numpy(), {"sog": df["sog_mps"].to_numpy(), "cog": cog,
+                                                "lat": df["lat"].to_numpy(), "lon": df["lon"].to_numpy()}))
+        out.append(("ce6-coast-downs", _write_csv(folder / "ce6_coast_downs.csv", _concat_runs(runs, 20.0)), "ce6"))
+    runs_dir = REALDATA / "ce6-boat-autopilot-runs" / "csv"
+    if runs_dir.is_dir():
+        for run in ("287", "258"):
+            f = runs_dir / f"dataFolder{run}.csv"
+            if not f.is_file():
+                continue
+            df = pd.read_csv(f)
+            # The rudder's encoder is zeroed with the rudder centred: delta_c (SOURCE.md).
+            out.append((f"ce6-turns-{run}", _write_csv(folder / f"ce6_turns_{run}.csv", {
+                "t": df["t"], "lat": df["lat"], "lon": df["lon"], "sog": df["sog"],
+                "cog": np.angle(np.exp(1j * df["cog"].to_numpy())), "r": df["r"], "p": df["p"], "q": df["q"],
+                "delta": df["delta_c"], "tau_x": df["thrust_n"]}), "ce6"))
+    return out
+
+
+def realdata(out_dir: Path) -> None:
+    """Diagnose every measured set; figures into ``out_dir``; Markdown summary on stdout."""
+    from pipeline.diagnose import diagnose
+    from pipeline.diagnose.figures import write_figures
+    from pipeline.diagnose.segments import diagnose_segments
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        sets = realdata_sets(Path(tmp))
+        if not sets:
+            print(f"no measured sets found under {REALDATA}")
+            return
+        for name, csv, vessel_src in sets:
+            if vessel_src.endswith(".toml"):
+                v = load_vessel(vessel_src)
+            else:
+                v = parse_vessel({"name": vessel_src})
+            t0 = time.perf_counter()
+            trial = load_trial([csv], v)
+            segs = diagnose_segments(trial)
+            try:
+                rep = diagnose(trial, v, segs)
+            except Exception as exc:
+                print(f"### {name}\n\nno diagnosis: {exc}\n")
+                continue
+            dt = time.perf_counter() - t0
+            figs = write_figures(rep, out_dir / name)
+            print(f"### {name}\n")
+            print(f"{trial.t[-1]:.0f} s at {trial.fs:.0f} Hz, {len(segs.items)} segments, diagnosed in {dt:.1f} s. "
+                  f"Verdict: **{rep.effect or 'none'}**{' in ' + rep.dof if rep.dof else ''}; trial gap "
+                  f"{rep.gap_before:.3g} -> {rep.gap_after:.3g} (noise units).\n")
+            print("| DOF | baseline | gap | replay gap |\n|---|---|---|---|")
+            for d in rep.dofs:
+                base = ", ".join(f"{p.name} = {p.value:.4g} +- {p.stderr:.2g}" for p in d.baseline)
+                print(f"| {d.dof} | {base} | {d.gap:.3g} | {d.replay_gap:.3g} |")
+            print("\n| DOF | candidate | gap before | gap after | shrink % | p | significant | parameters |")
+            print("|---|---|---|---|---|---|---|---|")
+            for c in rep.candidates[:6]:
+                ps = "; ".join(f"{p.name} = {p.value:.4g} +- {p.stderr:.2g} {p.unit}" for p in c.params)
+                print(f"| {c.dof} | {c.label} | {c.gap_before:.3g} | {c.gap_after:.3g} | {c.shrink:.1f} | "
+                      f"{c.p_value:.2g} | {'yes' if c.significant else 'no'} | {ps} |")
+            top = [p for p in rep.places if p.share > 0][:4]
+            if top:
+                print("\nWhere: " + "; ".join(f"{p.dof} {p.category} *{p.name}* {100 * p.share:.0f}%" for p in top))
+            print("\nFigures: " + ", ".join(f"`{out_dir.name}/{name}/{p.name}`" for p in figs.values()) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="a small run (about 30 trials)")
+    ap.add_argument("--calibrate", action="store_true", help="clean trials only: print the calibration")
+    ap.add_argument("--clean-seeds", type=int, default=6, help="clean trials per vessel and noise level")
+    ap.add_argument("--timing", action="store_true", help="time the CLI on a 30-minute trial")
+    ap.add_argument("--jobs", type=int, default=2, help="worker processes")
+    ap.add_argument("--save", metavar="JSON", help="write every trial's outcome")
+    ap.add_argument("--realdata", metavar="DIR", help="diagnose the measured sets; figures into DIR")
+    args = ap.parse_args(argv)
+    if args.realdata:
+        realdata(Path(args.realdata))
+        return 0
+    if args.timing:
+        timing()
+        return 0
+    todo = cases(args.quick, args.clean_seeds, args.calibrate)
+    quiet = bool(os.environ.get("CI")) or not sys.stderr.isatty()
+    t0 = time.perf_counter()
+    results = []
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        it = pool.map(run_case, todo)
+        if not quiet:
+            from tqdm import tqdm
+
+            it = tqdm(it, total=len(todo), desc="diagnose benchmark", unit="trial")
+        for r in it:
+            results.append(r)
+    if args.save:
+        Path(args.save).write_text(json.dumps(results, indent=1, default=float))
+    print(f"{len(results)} trials in {time.perf_counter() - t0:.0f} s with {args.jobs} workers")
+    print(f"command: .venv/bin/python benchmarks/diagnose.py{' --quick' if args.quick else ''}"
+          f"{' --calibrate' if args.calibrate else ''}")
+    print()
+    if args.calibrate:
+        calibration_report(results)
+    else:
+        print_report(results)
+        print()
+        calibration_report(results)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

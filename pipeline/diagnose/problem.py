@@ -1,0 +1,536 @@
+"""What the diagnosis analyses: one :class:`DofProblem` per excited DOF, cut into windows.
+
+A window is a stretch of the trial that one or more overlapping segments cover; the model is
+re-initialised at each window start from the measured state and driven by the recorded inputs.
+Every DOF is replayed over every window (a yaw model during a sway step predicts no yaw: if the
+boat turns anyway, that is a coupling gap). Long windows are cut into time blocks so that the
+cross-validation has enough independent pieces.
+
+Signals are block-averaged from the trial rate to an analysis step ``dt`` of about a twentieth of
+the DOF's time constant (capped so that the wave band stays resolved), which keeps the refits fast
+on long trials without losing the dynamics: averaging is a proper anti-alias filter, and the
+models predict block averages exactly (see :mod:`pipeline.diagnose.models`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import DiagnoseError
+from ..records import Segment, Segments, Trial
+from ..segment import noise_std
+from ..vessel import Vessel
+
+#: DOF name -> response (velocity) channels in order of preference. A boat without a heading
+#: sensor still has speed over ground, which is surge speed when it goes straight.
+RESPONSE: Mapping[str, tuple[str, ...]] = {
+    "surge": ("u", "sog"), "sway": ("v",), "yaw": ("r",), "roll": ("p",), "pitch": ("q",),
+}
+#: DOF name -> generalised-force input channel.
+FORCE: Mapping[str, str] = {"surge": "tau_x", "sway": "tau_y", "yaw": "tau_n", "roll": "tau_k", "pitch": "tau_m"}
+#: Velocity channels the coupling candidate may use as regressors.
+VELOCITIES = ("u", "v", "p", "q", "r")
+#: Largest analysis step [s]: keeps the Nyquist frequency (pi/dt) above pi rad/s, so the wave band
+#: of a ship (0.3-1.5 rad/s) stays resolved even when its time constant is a minute.
+DT_MAX = 1.0
+#: Analysis steps per time constant.
+STEPS_PER_T = 20.0
+#: Longest window, in time constants, of a DOF's own manoeuvre before it is cut into blocks: the
+#: cross-validation needs several pieces even when a DOF has a single step (AAUSHIP sway).
+BLOCK_T = 2.5
+
+
+@dataclass(frozen=True)
+class Window:
+    """One stretch of the trial replayed from its measured initial state.
+
+    Attributes
+    ----------
+    i0, i1 : int
+        Trial sample range ``[i0, i1)``.
+    t0, t1 : float
+        Start and end [s, trial clock].
+    kinds : tuple[str, ...]
+        Kinds of the segments covering it (``step``, ``coast_down``, ...), time-ordered.
+    dofs : tuple[str, ...]
+        DOFs of the segments covering it.
+    label : str
+        Short description (for figures).
+    """
+
+    i0: int
+    i1: int
+    t0: float
+    t1: float
+    kinds: tuple[str, ...]
+    dofs: tuple[str, ...] = ()
+    label: str = ""
+
+
+@dataclass(frozen=True)
+class DofProblem:
+    """Everything the refits of one DOF need, on the analysis grid.
+
+    Attributes
+    ----------
+    dof : str
+        DOF name (surge, sway, yaw, ...).
+    channel : str
+        Response channel (``u``, ``v``, ``r``, ``sog``).
+    angle : str or None
+        Attitude channel integrated from the response (``psi`` for yaw) or None.
+    heading : str or None
+        Heading used to rotate a current into the body frame (``psi``, else ``cog``).
+    inputs : tuple[str, ...]
+        Input channels that drive the DOF.
+    regressors : tuple[str, ...]
+        Other DOFs' measured velocities offered to the coupling candidate.
+    fs : float
+        Trial rate [Hz].
+    m : int
+        Trial samples per analysis sample.
+    dt : float
+        Analysis step [s] (``m / fs``).
+    windows : tuple[Window, ...]
+        Windows (after cutting into blocks), time-ordered.
+    t_guess : float
+        Time constant [s] of the first quick fit that sized ``dt``.
+    raw : Mapping[str, numpy.ndarray]
+        Trial-rate signals: inputs (NaN filled with the last value, then 0), the response, the
+        angle and heading (unwrapped), regressors.
+    noise : Mapping[str, float]
+        White-noise standard deviation of each output channel at the trial rate [SI].
+    """
+
+    dof: str
+    channel: str
+    angle: str | None
+    heading: str | None
+    inputs: tuple[str, ...]
+    regressors: tuple[str, ...]
+    fs: float
+    m: int
+    dt: float
+    windows: tuple[Window, ...]
+    t_guess: float
+    raw: Mapping[str, np.ndarray] = field(repr=False)
+    noise: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        """Output channels scored: the response and, for yaw, the heading."""
+        return (self.channel,) + ((self.angle,) if self.angle else ())
+
+    @property
+    def n(self) -> int:
+        """Longest window in analysis samples."""
+        return max(len_blocks(w, self.m) for w in self.windows)
+
+
+def len_blocks(w: Window, m: int) -> int:
+    """Analysis samples in window ``w`` at ``m`` trial samples each."""
+    return (w.i1 - w.i0) // m
+
+
+def block_average(x: np.ndarray, windows: tuple[Window, ...], m: int, n: int, trapezoid: bool = False) -> np.ndarray:
+    """Block means of ``m`` trial samples per analysis sample, one row per window, NaN-padded.
+
+    Parameters
+    ----------
+    x : numpy.ndarray, shape (N,)
+        Trial-rate signal.
+    windows : tuple[Window, ...]
+        Windows.
+    m : int
+        Samples per block.
+    n : int
+        Columns of the output (longest window).
+    trapezoid : bool
+        For point samples of a state: weight the block's first sample and the next block's first
+        sample by 1/2, which makes the mean that of the state over ``[t_k, t_k + dt)``, the
+        interval the model's exact block means and the held inputs refer to. A plain mean of the
+        samples ``t_k ... t_k + dt - h`` is that average half a sample early, a lag that a delay
+        candidate would otherwise "explain". Inputs (held over each sample) use plain means.
+
+    Returns
+    -------
+    numpy.ndarray, shape (len(windows), n)
+        NaN where a window is shorter or every sample of a block is missing.
+    """
+    out = np.full((len(windows), n), np.nan)
+    for k, w in enumerate(windows):
+        nb = len_blocks(w, m)
+        if nb == 0:
+            continue
+        seg = x[w.i0:w.i0 + nb * m].reshape(nb, m)
+        if trapezoid and m > 1:
+            after = w.i0 + m * np.arange(1, nb + 1)
+            nxt = np.where(after < len(x), x[np.minimum(after, len(x) - 1)], np.nan)
+            # Where the closing sample is missing, the block's own last sample stands in.
+            nxt = np.where(np.isfinite(nxt), nxt, seg[:, -1])
+            seg = np.concatenate([0.5 * seg[:, :1], seg[:, 1:], 0.5 * nxt[:, None]], axis=1)
+        ok = np.isfinite(seg)
+        # Weights: a trapezoid's two half samples count as one sample between them.
+        cnt = ok.sum(axis=1) - (1.0 if trapezoid and m > 1 else 0.0)
+        s = np.where(ok, seg, 0.0).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[k, :nb] = np.where(cnt > 0, s / np.maximum(cnt, 1), np.nan)
+    return out
+
+
+def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) -> np.ndarray:
+    """Moments of a held input within each block: ``sum u_j``, ``sum (m-1-j) u_j``, ``sum (m-1-j)^2 u_j``.
+
+    They let :mod:`pipeline.diagnose.models` weight the samples of a block by how long each acts
+    before the block ends (an input switching inside a block, as a zig-zag's does), to second order
+    in ``h / T``, for any time constant T.
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, len(windows), n)
+        Zero-padded; NaN inputs count as zero.
+    """
+    out = np.zeros((3, len(windows), n))
+    lag = (m - 1 - np.arange(m)).astype(float)
+    for k, w in enumerate(windows):
+        nb = len_blocks(w, m)
+        if nb == 0:
+            continue
+        seg = np.nan_to_num(u[w.i0:w.i0 + nb * m].reshape(nb, m))
+        out[0, k, :nb] = seg.sum(axis=1)
+        out[1, k, :nb] = seg @ lag
+        out[2, k, :nb] = seg @ lag**2
+    return out
+
+
+def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int) -> float:
+    """White-noise standard deviation of an ``m``-sample block mean of ``x`` [SI].
+
+    Blocks of ``mb = max(m, 8)`` samples are split in quarters and the contrast
+    ``q1 - q2 - q3 + q4`` of the quarter means is taken: it cancels any level and slope within the
+    block, and for noise of variance ``s^2`` per sample it has variance ``16 s^2 / mb``, sixteen
+    times that of the block mean. Noise correlated over a few samples (a sensor interpolated to
+    the trial rate, where plain differences of neighbours vanish) is measured at the block's own
+    scale. Robust (median absolute deviation), so manoeuvres and outliers do not inflate it; scaled
+    from ``mb`` to ``m`` samples as white noise.
+    """
+    mb = max(m, 8)
+    q = mb // 4
+    cs = []
+    for w in windows:
+        nb = (w.i1 - w.i0) // mb
+        if nb == 0:
+            continue
+        blk = x[w.i0:w.i0 + nb * mb].reshape(nb, mb)[:, :4 * q].reshape(nb, 4, q).mean(axis=2)
+        cs.append(blk[:, 0] - blk[:, 1] - blk[:, 2] + blk[:, 3])
+    c = np.concatenate(cs) if cs else np.zeros(0)
+    c = c[np.isfinite(c)]
+    if len(c) < 8:
+        return float("nan")
+    s_mb = 1.4826 * np.median(np.abs(c - np.median(c))) / 4.0
+    return float(s_mb * np.sqrt(mb / m))
+
+
+def initial_values(x: np.ndarray, windows: tuple[Window, ...], half: int) -> np.ndarray:
+    """Measured value at each window start [SI]: a straight line through the ``2 half + 1``
+    samples ending there, evaluated at the start.
+
+    One-sided because a window starts where an input changes, so the response has a kink there
+    (a zig-zag's reversal is a peak: a median across it is biased). The samples after the start
+    are used only when there are none before it (the start of the data, or after a dropout).
+    """
+    out = np.empty(len(windows))
+    span = 2 * half + 1
+    for k, w in enumerate(windows):
+        for lo, hi in ((w.i0 - span + 1, w.i0 + 1), (w.i0, w.i0 + span)):
+            lo, hi = max(lo, 0), min(hi, len(x))
+            idx = np.arange(lo, hi)
+            vals = x[lo:hi]
+            ok = np.isfinite(vals)
+            if ok.sum() >= 3:
+                c = np.polyfit(idx[ok] - w.i0, vals[ok], 1)
+                out[k] = float(c[1])
+                break
+        else:
+            after = x[w.i0:w.i1]
+            after = after[np.isfinite(after)]
+            out[k] = after[0] if len(after) else 0.0
+    return out
+
+
+def _fill_input(u: np.ndarray) -> np.ndarray:
+    """Inputs held between logged samples (zero-order hold), zero before the first one."""
+    u = np.asarray(u, float).copy()
+    ok = np.isfinite(u)
+    if not ok.any():
+        return np.zeros_like(u)
+    idx = np.where(ok, np.arange(len(u)), 0)
+    np.maximum.accumulate(idx, out=idx)
+    filled = u[idx]
+    filled[: int(np.argmax(ok))] = 0.0
+    return filled
+
+
+def _unwrap_nan(x: np.ndarray) -> np.ndarray:
+    out = np.asarray(x, float).copy()
+    ok = np.isfinite(out)
+    if ok.sum() > 1:
+        out[ok] = np.unwrap(out[ok])
+    return out
+
+
+def _merge_windows(trial: Trial, segments: tuple[Segment, ...]) -> list[Window]:
+    """Overlapping segments merge into one window; merely adjacent ones stay apart."""
+    fs = trial.fs
+    t = trial.t
+    spans = sorted((s.t_start, s.t_end, s.kind, s.dof) for s in segments if s.t_end > s.t_start)
+    merged: list[list] = []
+    tol = 0.5 / fs
+    for a, b, kind, dof in spans:
+        if merged and a < merged[-1][1] - tol:
+            merged[-1][1] = max(merged[-1][1], b)
+            merged[-1][2].append(kind)
+            merged[-1][3].append(dof)
+        else:
+            merged.append([a, b, [kind], [dof]])
+    out = []
+    for a, b, kinds, dofs in merged:
+        i0 = int(np.searchsorted(t, a - tol))
+        i1 = int(np.searchsorted(t, b + tol))
+        if i1 - i0 < 4:
+            continue
+        out.append(Window(i0, i1, float(t[i0]), float(t[i1 - 1]), tuple(dict.fromkeys(kinds)),
+                          tuple(dict.fromkeys(dofs)), "+".join(dict.fromkeys(kinds))))
+    return out
+
+
+def _cut_gaps(trial: Trial, windows: list[Window]) -> list[Window]:
+    """A window never spans a dropout: cut it at the gap."""
+    out = []
+    t = trial.t
+    for w in windows:
+        pieces = [(w.i0, w.i1)]
+        for g in trial.gaps:
+            nxt = []
+            for a, b in pieces:
+                ga = int(np.searchsorted(t, g.t_start))
+                gb = int(np.searchsorted(t, g.t_end))
+                if ga >= b or gb <= a:
+                    nxt.append((a, b))
+                    continue
+                if ga - a >= 4:
+                    nxt.append((a, ga))
+                if b - gb >= 4:
+                    nxt.append((gb, b))
+            pieces = nxt
+        out += [Window(a, b, float(t[a]), float(t[b - 1]), w.kinds, w.dofs, w.label) for a, b in pieces]
+    return out
+
+
+def _blocks(windows: list[Window], own: list[Window], t_const: float, t: np.ndarray) -> list[Window]:
+    """Cut the DOF's own windows longer than ``BLOCK_T`` time constants into equal blocks.
+
+    Windows where the DOF is only a bystander stay whole: cutting them would only add pieces in
+    which nothing happens.
+    """
+    out = []
+    limit = BLOCK_T * t_const
+    for w in windows:
+        length = w.t1 - w.t0
+        k = int(length // limit) if limit > 0 and w in own else 1
+        if k <= 1:
+            out.append(w)
+            continue
+        edges = np.linspace(w.i0, w.i1, k + 1).astype(int)
+        for j in range(k):
+            a, b = int(edges[j]), int(edges[j + 1])
+            out.append(Window(a, b, float(t[a]), float(t[b - 1]), w.kinds, w.dofs, f"{w.label} ({j + 1}/{k})"))
+    return out
+
+
+def _channel(trial: Trial, names: tuple[str, ...]) -> str | None:
+    for c in names:
+        if trial.has(c):
+            return c
+    return None
+
+
+def dof_inputs(trial: Trial, vessel: Vessel | None, dof: str) -> tuple[str, ...]:
+    """Input channels that drive ``dof`` and vary in the trial."""
+    names = [FORCE[dof]]
+    if dof == "yaw":
+        names.append("delta")
+    if dof == "sway" and vessel is not None and vessel.rudder.get("sway_force"):
+        names.append("delta")
+    out = []
+    for c in names:
+        if trial.has(c):
+            u = trial.data[c].to_numpy()
+            if np.nanmax(np.abs(u)) > 0:
+                out.append(c)
+    return tuple(out)
+
+
+def quick_time_constant(y: np.ndarray, u: np.ndarray | None, fs: float, windows: list[Window]) -> float:
+    """Rough time constant [s]: least squares of y_dot = (-y + k u)/T on smoothed data.
+
+    Equation error on derivatives is biased by noise, but it only sizes the analysis step and the
+    search ranges, so a factor of two is of no consequence.
+    """
+    rows_d, rows_y, rows_u = [], [], []
+    w_s = max(int(0.05 * fs), 1)
+    kernel = np.ones(w_s) / w_s
+    for w in windows:
+        yy = y[w.i0:w.i1]
+        if len(yy) < 3 * w_s + 3 or not np.all(np.isfinite(yy)):
+            continue
+        ys = np.convolve(yy, kernel, mode="same")
+        d = np.gradient(ys) * fs
+        sl = slice(w_s, len(yy) - w_s)
+        rows_d.append(d[sl])
+        rows_y.append(ys[sl])
+        rows_u.append(u[w.i0:w.i1][sl] if u is not None else np.zeros(len(ys[sl])))
+    if not rows_d:
+        return np.nan
+    d, yv, uv = (np.concatenate(r) for r in (rows_d, rows_y, rows_u))
+    a = np.column_stack([yv, uv, np.ones_like(yv)]) if u is not None else np.column_stack([yv, np.ones_like(yv)])
+    coef, *_ = np.linalg.lstsq(a, d, rcond=None)
+    if coef[0] >= 0:
+        return np.nan
+    return float(-1.0 / coef[0])
+
+
+#: Most analysis samples per DOF problem (over all windows): bounds the cost of a refit on long
+#: trials; the step grows beyond T/20 only when the windows are longer than this many steps.
+MAX_SAMPLES = 12000
+
+
+def build_problems(trial: Trial, segments: Segments, vessel: Vessel | None = None,
+                   dofs: tuple[str, ...] = ("surge", "sway", "yaw"),
+                   time_constants: Mapping[str, float] | None = None) -> list[DofProblem]:
+    """One :class:`DofProblem` per DOF that the trial excites and measures.
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial.
+    segments : Segments
+        Its segments (detected or from a manifest).
+    vessel : Vessel, optional
+        Vessel config (decides whether the rudder also pushes sideways).
+    dofs : tuple[str, ...]
+        DOFs to consider.
+    time_constants : Mapping[str, float], optional
+        Time constant per DOF [s] from a first fit; sizes the analysis step and the blocks.
+        Default: a rough equation-error estimate.
+
+    Returns
+    -------
+    list[DofProblem]
+        Possibly empty when no DOF is both excited and measured.
+
+    Raises
+    ------
+    DiagnoseError
+        When the trial has no segments at all.
+    """
+    if not segments.items:
+        raise DiagnoseError(f"{trial.name}: expected at least one segment (coast-down, step, zig-zag, decay) "
+                            f"to replay, found none")
+    base = _cut_gaps(trial, _merge_windows(trial, segments.items))
+    problems = []
+    for dof in dofs:
+        p = _problem(trial, vessel, dof, base, (time_constants or {}).get(dof))
+        if p is not None:
+            problems.append(p)
+    return problems
+
+
+def _moves(y: np.ndarray, w: Window, noise: float) -> bool:
+    """True when the response in ``w`` leaves the noise band (worth replaying for a bystander DOF)."""
+    seg = y[w.i0:w.i1]
+    seg = seg[np.isfinite(seg)]
+    if len(seg) < 4:
+        return False
+    # 20-sample means: noise drops by sqrt(20), a steady offset or slow response does not.
+    k = len(seg) // 20
+    means = seg[:k * 20].reshape(k, 20).mean(axis=1) if k else seg
+    return bool(np.percentile(np.abs(means), 95) > 6 * noise / np.sqrt(20 if k else 1))
+
+
+def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
+             t_const: float | None) -> DofProblem | None:
+    fs = trial.fs
+    t = trial.t
+    ch = _channel(trial, RESPONSE[dof])
+    if ch is None:
+        return None
+    inputs = dof_inputs(trial, vessel, dof)
+    own_w = [w for w in base if dof in w.dofs]
+    if not inputs and not own_w:
+        return None
+    y = trial.data[ch].to_numpy(float)
+    noise = noise_std(y)
+    if not np.isfinite(noise):
+        return None
+    noise = max(noise, 1e-12)
+    windows0 = [w for w in base if dof in w.dofs or _moves(y, w, noise)]
+    if not windows0:
+        return None
+    # Excited: some window moves the response well above the noise, judged on means over half
+    # a second or a fiftieth of the window, so that a slow ship logged by a noisy gyro counts.
+    peak = 0.0
+    for w in windows0:
+        seg = y[w.i0:w.i1]
+        seg = seg[np.isfinite(seg)]
+        k_s = max(int(0.5 * fs), len(seg) // 50, 1)
+        nb = len(seg) // k_s
+        if nb < 2:
+            continue
+        means = seg[:nb * k_s].reshape(nb, k_s).mean(axis=1)
+        peak = max(peak, float(np.max(np.abs(means - np.median(means)))) / (noise / np.sqrt(k_s)))
+    if not peak > 10:
+        return None
+    raw = {ch: y}
+    for c in inputs:
+        raw[c] = _fill_input(trial.data[c].to_numpy(float))
+    if t_const is None or not np.isfinite(t_const) or t_const <= 0:
+        # For the time-constant guess only: inputs scaled to comparable size and summed.
+        u_sum = sum(raw[c] / max(np.max(np.abs(raw[c])), 1e-12) for c in inputs) if inputs else None
+        t_const = quick_time_constant(y, u_sum, fs, own_w or windows0)
+        if not np.isfinite(t_const) or t_const <= 0:
+            t_const = 0.2 * float(np.median([w.t1 - w.t0 for w in (own_w or windows0)]))
+    total = sum(w.t1 - w.t0 for w in windows0)
+    dt_target = min(max(t_const / STEPS_PER_T, 1.0 / fs, total / MAX_SAMPLES), DT_MAX)
+    m = max(int(round(dt_target * fs)), 1)
+    windows = [w for w in _blocks(windows0, own_w, t_const, t) if len_blocks(w, m) >= 4]
+    if not windows:
+        return None
+    angle = "psi" if dof == "yaw" and trial.has("psi") else None
+    heading = "psi" if trial.has("psi") else ("cog" if trial.has("cog") else None)
+    noises = {ch: noise}
+    if angle:
+        raw[angle] = _unwrap_nan(trial.data[angle].to_numpy(float))
+        noises[angle] = noise_std(raw[angle])
+    if heading and heading not in raw:
+        raw[heading] = _unwrap_nan(trial.data[heading].to_numpy(float))
+    regs = []
+    for c in VELOCITIES:
+        if c == ch or not trial.has(c):
+            continue
+        x = trial.data[c].to_numpy(float)
+        vals = np.concatenate([x[w.i0:w.i1] for w in windows])
+        vals = vals[np.isfinite(vals)]
+        if len(vals) < 10:
+            continue
+        # A regressor that barely varies is a constant bias in disguise: the current and
+        # bias candidates cover that more simply.
+        if np.std(vals) < 0.05 * np.sqrt(np.mean(vals**2)) or np.std(vals) < 5 * noise_std(x):
+            continue
+        raw[c] = x
+        regs.append(c)
+    return DofProblem(dof=dof, channel=ch, angle=angle, heading=heading, inputs=inputs, regressors=tuple(regs),
+                      fs=fs, m=m, dt=m / fs, windows=tuple(windows), t_guess=float(t_const), raw=raw, noise=noises)

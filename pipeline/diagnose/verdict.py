@@ -1,0 +1,230 @@
+"""The diagnosis end to end: problems -> cross-validated candidates -> scores -> :class:`GapReport`.
+
+Verdict: among the significant candidates (:mod:`pipeline.diagnose.significance`), the one that
+removes the largest part of the trial's total squared gap; none when no candidate is
+significant. "How far": the trial gap before, and after the verdict's effect is added in every DOF
+where that effect is significant.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, Mapping
+
+import numpy as np
+
+from ..errors import DiagnoseError
+from ..records import CHANNEL_UNITS, Fits, Segments, Trial
+from ..vessel import Vessel
+from . import significance as sig
+from .candidates import Candidate, candidates_for
+from .crossval import CandidateRun, cross_validate, jackknife_stderr
+from .models import grid_data
+from .problem import DofProblem, build_problems
+from .records import CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
+from .replay import default_band, rank_places, replay, traces, where
+from .segments import diagnose_segments
+
+
+def _unit(name: str, p: DofProblem, run: CandidateRun) -> str:
+    """SI unit of a candidate parameter."""
+    uy = CHANNEL_UNITS.get(p.channel, "")
+    src = _input_of(run) or ""
+    us = CHANNEL_UNITS.get(src, "")
+    if name in ("T", "tau_d"):
+        return "s"
+    if name in ("k_fwd", "k_rev"):
+        return f"({uy})/({us})"
+    if name.startswith("k_"):
+        return f"({uy})/({CHANNEL_UNITS.get(name[2:], '-')})"
+    wave_ch = p.angle if run.candidate.data.angle is not None else p.channel
+    return {"d2": f"1/({uy})", "V_n": "m/s", "V_e": "m/s", "b": "rad", "bias": uy, "ratio": "-",
+            "R": f"{us}/s", "omega0": "rad/s", "lambda": "-", "sigma_w": CHANNEL_UNITS.get(wave_ch or "", ""),
+            "c": f"({uy})/({us})"}.get(name, "")
+
+
+def _params(run: CandidateRun, p: DofProblem, names) -> tuple[EffectParam, ...]:
+    se = jackknife_stderr(run.full.params, run.fold_params)
+    return tuple(EffectParam(n, float(run.full.params[n]), float(se.get(n, math.nan)), _unit(n, p, run))
+                 for n in names if n in run.full.params)
+
+
+def _input_of(run: CandidateRun) -> str | None:
+    ch = getattr(run.candidate, "channel", None)
+    if ch:
+        return ch
+    if run.candidate.effect == "coupling" and isinstance(run.full.state, tuple) and len(run.full.state) == 3:
+        return run.full.state[2]
+    return None
+
+
+def _refine_time_constants(trial: Trial, segments: Segments, vessel: Vessel | None) -> dict[str, float]:
+    """First pass: fit the baseline on every window to size the analysis step and blocks."""
+    out = {}
+    for p in build_problems(trial, segments, vessel):
+        d = grid_data(p)
+        fitted = Candidate(p, d).fit(np.arange(len(p.windows)))
+        out[p.dof] = float(fitted.params["T"])
+    return out
+
+
+def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | None = None, fits: Fits | None = None,
+             progress: Callable[[int], Callable[[], None]] | None = None) -> GapReport:
+    """Diagnose the sim-to-real gap of a trial.
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial (any mix of coast-downs, steps, zig-zags and decays, any sample rate).
+    vessel : Vessel, optional
+        Vessel config (a rudder ship's may hold only ``name``).
+    segments : Segments, optional
+        Segments to replay; default: detected (:func:`pipeline.diagnose.segments.diagnose_segments`).
+    fits : Fits, optional
+        The fit stage's result; the diagnosis refits its own baselines fold by fold regardless, and
+        notes the fit stage's Nomoto and damping values for comparison.
+    progress : callable, optional
+        ``progress(total_steps)`` returning a ``tick()`` called once per step (a progress bar).
+
+    Returns
+    -------
+    GapReport
+
+    Raises
+    ------
+    DiagnoseError
+        No segment, or no DOF that is both excited by the trial and measured.
+    """
+    notes: list[str] = []
+    segs = segments if segments is not None else diagnose_segments(trial)
+    if not segs.items:
+        raise DiagnoseError(f"{trial.name}: expected at least one manoeuvre segment (coast-down, step, zig-zag, "
+                            f"decay) or a logged input to replay, found none in channels "
+                            f"{[c for c in trial.data.columns if c != 't']}")
+    t_consts = _refine_time_constants(trial, segs, vessel)
+    problems = build_problems(trial, segs, vessel, time_constants=t_consts)
+    if not problems:
+        raise DiagnoseError(f"{trial.name}: expected a DOF whose response (u, v or r, or sog) is measured and "
+                            f"excited by the segments, found none (channels "
+                            f"{[c for c in trial.data.columns if c != 't']}, {len(segs.items)} segments)")
+    datas = [grid_data(p) for p in problems]
+    cands = [candidates_for(p, d) for p, d in zip(problems, datas)]
+    from .crossval import assign_folds
+
+    total = sum(int(assign_folds(p).max()) + 2 for p in problems)
+    tick = progress(total) if progress else None
+
+    results: list[CandidateResult] = []
+    summaries: list[DofSummary] = []
+    per_dof: dict[str, dict] = {}
+    for p, d, cs in zip(problems, datas, cands):
+        runs = cross_validate(p, d, cs, tick=tick)
+        names = {"y": p.channel, "angle": p.angle}
+        base = runs[0]
+        scored = []
+        for r in runs[1:]:
+            s = sig.score(d, base.heldout, r.heldout, r.candidate.n_extra, names, folds=base.fold_of)
+            res = CandidateResult(
+                effect=r.candidate.effect, dof=p.dof, label=r.label, input_channel=_input_of(r),
+                gap_before=s.gap_before, gap_after=s.gap_after, shrink=s.shrink, explained=s.explained,
+                p_value=s.p_value, significant=s.significant,
+                params=_params(r, p, r.full.effect_params),
+                model=_params(r, p, tuple(r.full.params)),
+                channels=tuple(ChannelGap(c.channel, c.gap_before, c.gap_after, c.p_value, c.n_eff) for c in s.channels),
+                gain=s.gain)
+            results.append(res)
+            scored.append((res, r, s))
+        base_score = sig.score(d, base.heldout, base.heldout, 1, names)
+        per_dof[p.dof] = {"problem": p, "data": d, "runs": runs, "scored": scored, "names": names,
+                          "channel_gaps": {c.channel: c.gap_before for c in base_score.channels}}
+        resid = sig.heldout_residuals(d, base.heldout)
+        floor = d.sigma_y
+        summaries.append(DofSummary(
+            dof=p.dof, channels=p.outputs, inputs=p.inputs, dt=p.dt, n_windows=len(p.windows),
+            n_folds=int(base.fold_of.max()) + 1, baseline=_params(base, p, tuple(base.full.params)),
+            gap=base_score.gap_before, noise_floor=float(floor), replay_gap=math.nan))
+        per_dof[p.dof]["resid"] = resid
+
+    ranked = sorted(results, key=lambda c: -c.gain)
+    winner = next((c for c in ranked if c.significant), None)
+
+    # Trial gap: RMS over every scored channel of every DOF.
+    before = {(dof, ch): g for dof, v in per_dof.items() for ch, g in v["channel_gaps"].items()}
+    after = dict(before)
+    if winner is not None:
+        for dof, v in per_dof.items():
+            best = max((res for res, _, _ in v["scored"] if res.significant and res.effect == winner.effect),
+                       key=lambda c: c.gain, default=None)
+            if best is not None:
+                for cg in best.channels:
+                    after[(dof, cg.channel)] = cg.gap_after
+    gb = float(np.sqrt(np.nanmean(np.array(list(before.values())) ** 2)))
+    ga = float(np.sqrt(np.nanmean(np.array(list(after.values())) ** 2)))
+
+    # Where: places and spectra from the baseline's held-out residuals.
+    raw_places = []
+    spectra = []
+    all_traces: list[Trace] = []
+    for i, (dof, v) in enumerate(per_dof.items()):
+        p, d = v["problem"], v["data"]
+        waves_run = next(((res, r) for res, r, _ in v["scored"] if res.effect == "waves"), None)
+        band = default_band(p)
+        if waves_run is not None and waves_run[0].significant:
+            om = waves_run[1].full.params.get("omega0", math.nan)
+            if math.isfinite(om):
+                band = (om / math.sqrt(2), om * math.sqrt(2))
+        units = sig.noise_units(d)
+        in_noise = {k: r / units[k] if np.isfinite(units[k]) else r for k, r in v["resid"].items()}
+        pl, sp = where(p, d, in_noise, trial, band, v["names"])
+        raw_places += [(dof, cat, name, ss, n) for cat, name, ss, n in pl]
+        spectra += sp
+        # Overlays: the DOF's best significant candidate, else its best by gain.
+        cand = [x for x in v["scored"] if x[0].significant] or v["scored"]
+        best = max(cand, key=lambda x: x[0].gain, default=None)
+        base_run = v["runs"][0]
+        if best is not None:
+            all_traces += traces(p, d, base_run.heldout, best[1].heldout, best[0].label, "heldout", v["names"])
+        else:
+            all_traces += traces(p, d, base_run.heldout, None, None, "heldout", v["names"])
+        # Whole-trial replay of the baseline fitted on every window.
+        rd, rout, rp = replay(p, trial, lambda dd, c=base_run.candidate, f=base_run.full:
+                              _replay_sim(c, f, dd))
+        if rd is not None:
+            all_traces += traces(rp, rd, rout, None, None, "replay", v["names"])
+            rr = sig.heldout_residuals(rd, rout)
+            gaps = [float(np.sqrt(np.nanmean(x**2))) for x in rr.values() if np.isfinite(x).any()]
+            summaries[i] = _with_replay(summaries[i], float(np.sqrt(np.mean(np.square(gaps)))) if gaps else math.nan)
+    total_ss = sum(max(ss - n, 0.0) for _, cat, _, ss, n in raw_places if cat == "channel")
+    places = rank_places(raw_places, total_ss)
+
+    if fits is not None:
+        for key in ("K_nomoto", "T_nomoto", "X_u", "Y_v", "N_r"):
+            e = fits.estimates.get(key)
+            if e is not None and e.success:
+                notes.append(f"fit stage: {key} = {e.value:.4g} {e.unit}")
+    for p in problems:
+        notes.append(f"{p.dof}: {len(p.windows)} windows, response {p.channel}"
+                     + (f" and heading {p.angle}" if p.angle else "")
+                     + (f", inputs {', '.join(p.inputs)}" if p.inputs else ", no input (free decays)")
+                     + f", analysis step {p.dt:.3g} s")
+    thresholds = {"alpha": sig.ALPHA, "alpha_robust": sig.ALPHA_ROBUST, "min_shrink_percent": sig.MIN_SHRINK,
+                  "min_explained": sig.MIN_EXPLAINED}
+    return GapReport(
+        trial=trial.name, vessel=vessel.name if vessel is not None else "",
+        effect=winner.effect if winner else None, dof=winner.dof if winner else None,
+        gap_before=gb, gap_after=ga if winner else gb, candidates=tuple(ranked), places=places,
+        dofs=tuple(summaries), traces=tuple(all_traces), spectra=tuple(spectra), thresholds=thresholds,
+        notes=tuple(notes))
+
+
+def _replay_sim(candidate: Candidate, fitted, data) -> dict[str, np.ndarray]:
+    from .models import predict_linear
+
+    spec, theta = fitted.state
+    return predict_linear(data, spec, fitted.params["T"], theta)
+
+
+def _with_replay(s: DofSummary, gap: float) -> DofSummary:
+    from dataclasses import replace
+
+    return replace(s, replay_gap=gap)
