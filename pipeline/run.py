@@ -31,7 +31,7 @@ def run_manifest(manifest_path: str | Path, out: str | Path | None = None) -> Pa
 
     man = load_manifest(manifest_path)
     out_dir = Path(out) if out else Path("reports") / man.name
-    steps = ["ingest + align", "segment", "fit", "autopilot", "report"]
+    steps = ["ingest + align", "segment", "fit", "autopilot", "diagnose", "report"]
     bar = tqdm(steps, desc=f"vesselid run {man.name}", disable=not show_progress(), leave=False)
     bar.set_postfix_str(steps[0])
     vessel = load_vessel(man.vessel)
@@ -55,7 +55,43 @@ def run_manifest(manifest_path: str | Path, out: str | Path | None = None) -> Pa
         extra += list(autopilot_for_report(fits, vessel, out_dir, man))
     bar.update()
     bar.set_postfix_str(steps[4])
+    extra += _diagnosis_section(trial, vessel, fits, out_dir)
+    bar.update()
+    bar.set_postfix_str(steps[5])
     write_report(fits, out_dir, trial=trial, segments=segments, extra_sections=extra)
     bar.update()
     bar.close()
     return out_dir
+
+
+def _diagnosis_section(trial, vessel, fits, out_dir: Path) -> list[tuple[str, str]]:
+    """Run the gap diagnosis, write ``diagnosis.json`` and its figures, return the report section.
+
+    A trial the diagnosis cannot use (no manoeuvre it can replay) gets a section saying why.
+
+    Parameters
+    ----------
+    trial : pipeline.records.Trial
+        The aligned trial.
+    vessel : pipeline.vessel.Vessel
+        Vessel config.
+    fits : pipeline.records.Fits
+        The fit stage's result.
+    out_dir : Path
+        Report folder.
+    """
+    import html
+
+    from .diagnose import diagnose
+    from .diagnose.figures import write_figures
+    from .diagnose.html import diagnose_html_section
+    from .errors import DiagnoseError
+
+    title = "Sim-to-real gap"
+    try:
+        report = diagnose(trial, vessel, fits=fits)
+    except DiagnoseError as exc:
+        return [(title, f"<p>No diagnosis: {html.escape(str(exc))}</p>")]
+    write_json(report.to_dict(), out_dir / "diagnosis.json")
+    write_figures(report, out_dir)
+    return [diagnose_html_section(report)]
