@@ -71,6 +71,15 @@ def delay_input(u: np.ndarray, tau: float, fs: float) -> np.ndarray:
     """``u(t - tau)`` on the trial grid [SI]; fractional delays interpolate between samples.
 
     Before the record starts the actuator holds the first value.
+
+    Parameters
+    ----------
+    u : numpy.ndarray
+        Input on the trial grid [SI].
+    tau : float
+        Delay [s], not negative.
+    fs : float
+        Trial rate [Hz].
     """
     s = tau * fs
     i = int(np.floor(s))
@@ -96,6 +105,15 @@ def rate_limit(u: np.ndarray, rate: float, fs: float) -> np.ndarray:
     ``x_k = x_{k-1} + clip(u_k - x_{k-1}, -rate/fs, rate/fs)``, as an actuator slews. Computed per
     run of constant command (a ramp toward each new level), which is fast for the piecewise-constant
     commands of manoeuvres.
+
+    Parameters
+    ----------
+    u : numpy.ndarray
+        Commanded input on the trial grid [SI].
+    rate : float
+        Largest rate of change [SI/s].
+    fs : float
+        Trial rate [Hz].
     """
     step = rate / fs
     n = len(u)
@@ -194,7 +212,15 @@ class Candidate:
         return Fitted({"T": t, **_gain_params(self.spec, theta)}, (), sse, (self.spec, theta))
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
-        """Open-loop outputs on windows ``idx`` (``"y"``, and ``"angle"`` for yaw)."""
+        """Open-loop outputs on windows ``idx`` (``"y"``, and ``"angle"`` for yaw).
+
+        Parameters
+        ----------
+        fitted : Fitted
+            The candidate fitted (on other windows, when ``idx`` is held out).
+        idx : numpy.ndarray
+            Window indices; each window's initial state is estimated on it, nothing else.
+        """
         spec, theta = fitted.state
         return predict_linear(self.data.rows(idx), spec, fitted.params["T"], theta)
 
@@ -218,18 +244,36 @@ class NonlinearDamping(Candidate):
         self.init_spec = LinearSpec(self.spec.forcing + ("__q",))
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
+        """Refit on windows ``train``; see :meth:`Candidate.fit`.
+
+        Parameters
+        ----------
+        train : numpy.ndarray
+            Window indices.
+        start : Fitted, optional
+            The baseline fitted on the same windows.
+        """
         d = self.data.rows(train).with_forcing(__q=self.q[train])
         t, theta, sse = self._fit(d, self.init_spec, start)
         # The separable estimate with the measured |y| y is consistent when the model is right,
         # and an output-error refinement on the nonlinear simulation moved it by well under its
         # standard error in tests; the held-out scores below use the true nonlinear simulation.
-        y_max = max(float(np.nanmax(np.abs(d.y))), 1e-12)
+        y_max = max(float(np.nanmax(np.abs(d.y))) if np.isfinite(d.y).any() else 0.0, 1e-12)
         d2 = float(np.clip(-theta[-1], -0.5 / y_max, D2_MAX / y_max))
         x = np.concatenate([[np.log(t), d2], theta[:-1]])
         params = {"T": float(t), **_gain_params(self.spec, theta[:-1]), "d2": d2}
         return Fitted(params, ("d2",), sse, x)
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
+        """Open-loop outputs on windows ``idx``; see :meth:`Candidate.simulate`.
+
+        Parameters
+        ----------
+        fitted : Fitted
+            The candidate fitted.
+        idx : numpy.ndarray
+            Window indices.
+        """
         d = self.data.rows(idx)
         x = fitted.state
         t_const = float(np.exp(x[0]))
@@ -282,6 +326,15 @@ class Current(Candidate):
             self.cspec = LinearSpec(self.spec.forcing + ("__one",))
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
+        """Refit on windows ``train``; see :meth:`Candidate.fit`.
+
+        Parameters
+        ----------
+        train : numpy.ndarray
+            Window indices.
+        start : Fitted, optional
+            The baseline fitted on the same windows.
+        """
         d = self.data.rows(train)
         t, theta, sse = self._fit(d, self.cspec, start)
         params = {"T": t, **_gain_params(self.spec, theta[:len(self.spec.forcing)])}
@@ -335,6 +388,15 @@ class _InputTransform(Candidate):
         return 0.0
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
+        """Refit on windows ``train``; see :meth:`Candidate.fit`.
+
+        Parameters
+        ----------
+        train : numpy.ndarray
+            Window indices.
+        start : Fitted, optional
+            The baseline fitted on the same windows.
+        """
         base = start if start is not None else Candidate.fit(self, train)
         t_i = base.params["T"]
         # Coordinate search: the transform parameter on a grid at the current T, then T refitted
@@ -364,6 +426,15 @@ class _InputTransform(Candidate):
         raise NotImplementedError
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
+        """Open-loop outputs on windows ``idx``; see :meth:`Candidate.simulate`.
+
+        Parameters
+        ----------
+        fitted : Fitted
+            The candidate fitted.
+        idx : numpy.ndarray
+            Window indices.
+        """
         v, theta = fitted.state
         return predict_linear(self._data_for(v).rows(idx), self.spec, fitted.params["T"], theta)
 
@@ -382,6 +453,7 @@ class ActuatorDelay(_InputTransform):
         self.grid = np.linspace(0.0, tmax, 21)
 
     def applicable(self) -> bool:
+        """See :meth:`Candidate.applicable`."""
         return bool(self.problem.inputs)
 
     def _snap(self, v: float) -> float:
@@ -422,6 +494,7 @@ class ActuatorRateLimit(_InputTransform):
         self.grid = np.exp(np.linspace(np.log(r_max), np.log(r_min), 21))
 
     def applicable(self) -> bool:
+        """See :meth:`Candidate.applicable`."""
         return self.swing > 0
 
     def _transformed(self, value: float) -> dict[str, np.ndarray]:
@@ -431,6 +504,15 @@ class ActuatorRateLimit(_InputTransform):
         return out
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
+        """Refit on windows ``train``; see :meth:`Candidate.fit`.
+
+        Parameters
+        ----------
+        train : numpy.ndarray
+            Window indices.
+        start : Fitted, optional
+            The baseline fitted on the same windows.
+        """
         # Search in log R so the bounded refinement is even-handed across decades.
         return super().fit(train, start)
 
@@ -464,9 +546,19 @@ class ThrustAsymmetry(Candidate):
         self.both_signs = bool(amp > 0 and np.sum(big & (u > 0)) > 10 and np.sum(big & (u < 0)) > 10)
 
     def applicable(self) -> bool:
+        """See :meth:`Candidate.applicable`."""
         return self.both_signs
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
+        """Refit on windows ``train``; see :meth:`Candidate.fit`.
+
+        Parameters
+        ----------
+        train : numpy.ndarray
+            Window indices.
+        start : Fitted, optional
+            The baseline fitted on the same windows.
+        """
         d = self.data.rows(train)
         t, theta, sse = self._fit(d, self.aspec, start)
         params = {"T": t, **{f"k_{n}": float(v) for n, v in zip(self.aspec.names[:-2], theta[:-2])}}
@@ -494,9 +586,19 @@ class Coupling(Candidate):
                                          for c in p.regressors})
 
     def applicable(self) -> bool:
+        """See :meth:`Candidate.applicable`."""
         return bool(self.problem.regressors)
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
+        """Refit on windows ``train``; see :meth:`Candidate.fit`.
+
+        Parameters
+        ----------
+        train : numpy.ndarray
+            Window indices.
+        start : Fitted, optional
+            The baseline fitted on the same windows.
+        """
         d = self.data.rows(train)
         best = None
         for c in self.problem.regressors:
@@ -509,6 +611,15 @@ class Coupling(Candidate):
         return Fitted(params, ("c",), sse, (spec, theta, c))
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
+        """Open-loop outputs on windows ``idx``; see :meth:`Candidate.simulate`.
+
+        Parameters
+        ----------
+        fitted : Fitted
+            The candidate fitted.
+        idx : numpy.ndarray
+            Window indices.
+        """
         spec, theta, _ = fitted.state
         return predict_linear(self.data.rows(idx), spec, fitted.params["T"], theta)
 
@@ -532,6 +643,7 @@ class Waves(Candidate):
         return wave_model.search_band(self.problem.t_guess, self.problem.dt)
 
     def applicable(self) -> bool:
+        """See :meth:`Candidate.applicable`."""
         lo, hi = self._band()
         return hi > 1.5 * lo
 
@@ -539,6 +651,15 @@ class Waves(Candidate):
         return d.angle if self.key == "angle" else d.y
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
+        """Refit on windows ``train``; see :meth:`Candidate.fit`.
+
+        Parameters
+        ----------
+        train : numpy.ndarray
+            Window indices.
+        start : Fitted, optional
+            The baseline fitted on the same windows.
+        """
         base = start if start is not None and start.effect_params == () else Candidate.fit(self, train)
         d = self.data.rows(train)
         pred = Candidate.simulate(self, base, train)
@@ -548,6 +669,15 @@ class Waves(Candidate):
         return Fitted(params, self.param_names, base.sse, (base, spec))
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
+        """Open-loop outputs on windows ``idx``; see :meth:`Candidate.simulate`.
+
+        Parameters
+        ----------
+        fitted : Fitted
+            The candidate fitted.
+        idx : numpy.ndarray
+            Window indices.
+        """
         base, spec = fitted.state
         d = self.data.rows(idx)
         pred = Candidate.simulate(self, base, idx)
@@ -562,6 +692,13 @@ def candidates_for(problem: DofProblem, data: GridData) -> list[Candidate]:
     """Every applicable candidate of a DOF problem, baseline first.
 
     Per-input candidates (rate limit, thrust asymmetry) appear once per input channel.
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem.
+    data : GridData
+        Its analysis-grid data.
     """
     out: list[Candidate] = [Candidate(problem, data), NonlinearDamping(problem, data), Current(problem, data),
                             ActuatorDelay(problem, data)]
@@ -572,6 +709,12 @@ def candidates_for(problem: DofProblem, data: GridData) -> list[Candidate]:
 
 
 def candidate_label(c: Candidate) -> str:
-    """``effect`` plus the input channel for per-input candidates."""
+    """``effect`` plus the input channel for per-input candidates.
+
+    Parameters
+    ----------
+    c : Candidate
+        The candidate.
+    """
     ch = getattr(c, "channel", None)
     return f"{c.name}[{ch}]" if ch else c.name

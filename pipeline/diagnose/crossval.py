@@ -55,6 +55,13 @@ def signature(problem: DofProblem, i: int) -> frozenset[str]:
 
     A held-out window can only be predicted when the training windows saw the same inputs in
     the same direction (a gain astern cannot be learnt from runs ahead).
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem.
+    i : int
+        Window index.
     """
     w = problem.windows[i]
     out = set()
@@ -72,7 +79,15 @@ def signature(problem: DofProblem, i: int) -> frozenset[str]:
 
 
 def excitation(problem: DofProblem, i: int) -> float:
-    """How much the inputs move in window ``i``: summed absolute changes over each input's range."""
+    """How much the inputs move in window ``i``: summed absolute changes over each input's range.
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem.
+    i : int
+        Window index.
+    """
     w = problem.windows[i]
     total = 0.0
     for c in problem.inputs:
@@ -92,6 +107,13 @@ def assign_folds(problem: DofProblem, k_max: int = MAX_FOLDS) -> np.ndarray:
     by input signature and time), so the few windows that pin a gain down (the rudder steps from
     rest of a slow ship) land in different folds and no training set lacks them all; bystander
     windows follow in time order.
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem.
+    k_max : int
+        Largest number of folds (fewer when there are fewer windows).
     """
     n = len(problem.windows)
     sigs = [signature(problem, i) for i in range(n)]
@@ -109,7 +131,15 @@ def assign_folds(problem: DofProblem, k_max: int = MAX_FOLDS) -> np.ndarray:
 
 
 def supported(problem: DofProblem, train: np.ndarray, test: np.ndarray) -> np.ndarray:
-    """Test windows whose inputs (and signs) all appear in some training window."""
+    """Test windows whose inputs (and signs) all appear in some training window.
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem.
+    train, test : numpy.ndarray
+        Window indices.
+    """
     seen = set().union(*(signature(problem, i) for i in train)) if len(train) else set()
     return np.array([signature(problem, i) <= seen for i in test], bool)
 
@@ -137,21 +167,32 @@ def cross_validate(problem: DofProblem, data: GridData, candidates: list[Candida
     folds = assign_folds(problem)
     k = int(folds.max()) + 1
     shape = data.y.shape
+    failed: set[int] = set()
     keys = ("y", "angle") if data.angle is not None else ("y",)
     held = [{key: np.full(shape, np.nan) for key in keys} for _ in candidates]
     fparams: list[list[Mapping[str, float]]] = [[] for _ in candidates]
     for f in range(k):
         train = np.flatnonzero(folds != f)
         test = np.flatnonzero(folds == f)
+        if len(train) == 0:
+            continue
         # Windows driven by an input the training set never saw are not scored for anyone.
         test = test[supported(problem, train, test)]
         base = candidates[0].fit(train)
         for j, c in enumerate(candidates):
-            fitted = base if j == 0 else c.fit(train, start=base)
-            if len(test):
-                pred = c.simulate(fitted, test)
-                for key in keys:
-                    held[j][key][test] = pred[key]
+            if j in failed:
+                continue
+            try:
+                fitted = base if j == 0 else c.fit(train, start=base)
+                if len(test):
+                    pred = c.simulate(fitted, test)
+                    for key in keys:
+                        held[j][key][test] = pred[key]
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+                # A candidate that cannot be fitted on these data (degenerate windows, no
+                # excitation) is dropped; it must not cost the user the other candidates.
+                failed.add(j)
+                continue
             fparams[j].append(dict(fitted.params))
         if tick:
             tick()
@@ -159,7 +200,12 @@ def cross_validate(problem: DofProblem, data: GridData, candidates: list[Candida
     base_full = candidates[0].fit(everything)
     runs = []
     for j, c in enumerate(candidates):
-        full = base_full if j == 0 else c.fit(everything, start=base_full)
+        if j in failed:
+            continue
+        try:
+            full = base_full if j == 0 else c.fit(everything, start=base_full)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            continue
         runs.append(CandidateRun(candidate_label(c), c, held[j], tuple(fparams[j]), full, folds))
     if tick:
         tick()
@@ -171,6 +217,13 @@ def jackknife_stderr(full: Mapping[str, float], folds: tuple[Mapping[str, float]
 
     ``se^2 = (K - 1) / K sum_f (theta_f - mean theta)^2`` over the K fold fits (each leaves one
     group of windows out); NaN with fewer than two folds.
+
+    Parameters
+    ----------
+    full : Mapping[str, float]
+        Parameters fitted on every window (their names are used).
+    folds : tuple[Mapping[str, float], ...]
+        Parameters fitted in each fold.
     """
     out = {}
     k = len(folds)

@@ -53,7 +53,15 @@ def _display(channel: str) -> tuple[float, str]:
 
 
 def plot_where(report: GapReport, top: int = 18) -> Figure:
-    """Horizontal bars: the places holding the largest shares of the baseline's excess gap."""
+    """Horizontal bars: the places holding the largest shares of the baseline's excess gap.
+
+    Parameters
+    ----------
+    report : GapReport
+        The diagnosis.
+    top : int
+        Most places shown.
+    """
     places = [p for p in report.places if p.share > 0][:top]
     fig = _new(8.5, 0.32 * max(len(places), 3) + 1.4)
     ax = fig.add_subplot()
@@ -73,7 +81,13 @@ def plot_where(report: GapReport, top: int = 18) -> Figure:
 
 
 def plot_candidates(report: GapReport) -> Figure:
-    """Held-out shrink of every candidate per DOF; significant ones filled."""
+    """Held-out shrink of every candidate per DOF; significant ones filled.
+
+    Parameters
+    ----------
+    report : GapReport
+        The diagnosis.
+    """
     dofs = list(dict.fromkeys(c.dof for c in report.candidates))
     fig = _new(8.5, 2.3 * max(len(dofs), 1) + 0.6)
     if not dofs:
@@ -95,7 +109,13 @@ def plot_candidates(report: GapReport) -> Figure:
 
 
 def plot_spectra(report: GapReport) -> Figure:
-    """PSD of the baseline's held-out residuals with the wave band shaded."""
+    """PSD of the baseline's held-out residuals with the wave band shaded.
+
+    Parameters
+    ----------
+    report : GapReport
+        The diagnosis.
+    """
     specs = [s for s in report.spectra if len(s.omega)]
     fig = _new(8.5, 2.4 * max(len(specs), 1) + 0.4)
     if not specs:
@@ -114,20 +134,38 @@ def plot_spectra(report: GapReport) -> Figure:
 
 
 def plot_traces(traces: list[Trace], title: str) -> Figure:
-    """Measured, baseline and (when given) the model with the effect, one panel per channel."""
-    fig = _new(9.0, 2.5 * max(len(traces), 1) + 0.5)
+    """Measured, baseline and (when given) the model with the effect, one panel per channel, each
+    with its residuals below (a heading that turns through hundreds of degrees hides a gap of a
+    degree; its residual does not).
+
+    Parameters
+    ----------
+    traces : list[Trace]
+        Series to plot, two panels each.
+    title : str
+        Figure title.
+    """
+    fig = _new(9.0, 3.6 * max(len(traces), 1) + 0.5)
     if not traces:
         fig.add_subplot().set_axis_off()
         return fig
-    axes = fig.subplots(len(traces), 1, squeeze=False, sharex=True)[:, 0]
-    for ax, tr in zip(axes, traces):
+    axes = fig.subplots(2 * len(traces), 1, squeeze=False, sharex=True,
+                        gridspec_kw={"height_ratios": [2, 1] * len(traces)})[:, 0]
+    for j, tr in enumerate(traces):
+        ax, axr = axes[2 * j], axes[2 * j + 1]
         k, unit = _display(tr.channel)
         ax.plot(tr.t, k * tr.measured, color="#999", lw=0.8, label="measured")
         ax.plot(tr.t, k * tr.baseline, color="#c33", lw=1.0, label="baseline model")
+        axr.plot(tr.t, k * (tr.measured - tr.baseline), color="#c33", lw=0.8, label="measured - baseline")
         if tr.effect and np.isfinite(tr.with_effect).any():
             ax.plot(tr.t, k * tr.with_effect, color="#26a", lw=1.0, label=f"with {tr.effect}")
+            axr.plot(tr.t, k * (tr.measured - tr.with_effect), color="#26a", lw=0.8,
+                     label=f"measured - with {tr.effect}")
+        axr.axhline(0.0, color="#333", lw=0.5)
         ax.set_ylabel(f"{tr.channel} [{unit}]", fontsize=8)
+        axr.set_ylabel(f"residual [{unit}]", fontsize=8)
         ax.legend(fontsize=7, loc="upper right")
+        axr.legend(fontsize=7, loc="upper right")
     axes[0].set_title(title, fontsize=10)
     axes[-1].set_xlabel("time from trial start [s]", fontsize=8)
     return fig
@@ -142,7 +180,13 @@ def _save(fig: Figure, path: Path) -> Path:
 
 
 def figure_names(report: GapReport) -> dict[str, str]:
-    """File name of every figure :func:`write_figures` writes for ``report``, by key."""
+    """File name of every figure :func:`write_figures` writes for ``report``, by key.
+
+    Parameters
+    ----------
+    report : GapReport
+        The diagnosis.
+    """
     out = {k: NAMES[k] for k in ("where", "candidates", "spectra")}
     for dof in dict.fromkeys(t.dof for t in report.traces):
         safe = _SAFE.sub("_", dof)

@@ -98,7 +98,13 @@ class GridData:
         return _demean(np.nan_to_num(self.angle), self.angle_mask)
 
     def rows(self, idx: np.ndarray) -> "GridData":
-        """The same data restricted to windows ``idx``."""
+        """The same data restricted to windows ``idx``.
+
+        Parameters
+        ----------
+        idx : numpy.ndarray
+            Window indices.
+        """
         idx = np.asarray(idx)
         return GridData(
             dt=self.dt, y=self.y[idx], y0=self.y0[idx],
@@ -108,7 +114,13 @@ class GridData:
             w_y=self.w_y, w_angle=self.w_angle, sigma_y=self.sigma_y, sigma_angle=self.sigma_angle)
 
     def with_forcing(self, **arrays: np.ndarray) -> "GridData":
-        """A copy with forcing regressors added or replaced."""
+        """A copy with forcing regressors added or replaced.
+
+        Parameters
+        ----------
+        **arrays : numpy.ndarray
+            Regressors by name, (W, n) or (3, W, n).
+        """
         return replace(self, forcing={**self.forcing, **arrays})
 
 
@@ -168,7 +180,15 @@ def _first(x: np.ndarray) -> np.ndarray:
 
 
 def channel_scale(x: np.ndarray, mask: np.ndarray) -> float:
-    """Scale of a channel: standard deviation of its samples in the windows (floor 1e-9) [SI]."""
+    """Scale of a channel: standard deviation of its samples in the windows (floor 1e-9) [SI].
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Block means (W, n).
+    mask : numpy.ndarray
+        Samples to use.
+    """
     vals = x[mask & np.isfinite(x)]
     if len(vals) < 2:
         return 1.0
@@ -176,7 +196,15 @@ def channel_scale(x: np.ndarray, mask: np.ndarray) -> float:
 
 
 def coefficients(t_const: float, dt: float) -> tuple[float, float]:
-    """``a = exp(-dt/T)`` and ``c1 = T (1 - a) / dt`` of the exact ZOH recursion."""
+    """``a = exp(-dt/T)`` and ``c1 = T (1 - a) / dt`` of the exact ZOH recursion.
+
+    Parameters
+    ----------
+    t_const : float
+        Time constant T [s].
+    dt : float
+        Analysis step [s].
+    """
     x = dt / t_const
     a = float(np.exp(-x))
     c1 = float(-np.expm1(-x) / x)
@@ -191,6 +219,22 @@ def effective_forcing(f: np.ndarray, t_const: float, dt: float, m: int) -> tuple
     ``b^(m-1-j)`` for the state at the step's end and ``1 - c_h b^(m-1-j)`` for the step's mean,
     with ``b = exp(-h/T)`` and ``c_h = T (1 - b) / h``; they are expanded to second order in ``h/T``
     and normalised so that a constant input is reproduced exactly.
+
+    Parameters
+    ----------
+    f : numpy.ndarray
+        Regressor, (W, n) or (3, W, n) moments.
+    t_const : float
+        Time constant [s].
+    dt : float
+        Analysis step [s].
+    m : int
+        Trial samples per step.
+
+    Returns
+    -------
+    f_state, f_mean : numpy.ndarray
+        (W, n) each.
     """
     if f.ndim == 2:
         return f, f
@@ -207,13 +251,29 @@ def effective_forcing(f: np.ndarray, t_const: float, dt: float, m: int) -> tuple
 
 def zero_state(f_state: np.ndarray, f_mean: np.ndarray, a: float, c1: float) -> tuple[np.ndarray, np.ndarray]:
     """Response from rest: block means ``c1 s_k + (1 - c1) f_mean_k`` and the states ``s_k`` at the
-    step starts, with ``s_{k+1} = a s_k + (1 - a) f_state_k``."""
+    step starts, with ``s_{k+1} = a s_k + (1 - a) f_state_k``.
+
+    Parameters
+    ----------
+    f_state, f_mean : numpy.ndarray
+        Forcing for the state update and for the step means (..., n).
+    a, c1 : float
+        Coefficients of :func:`coefficients`.
+    """
     s = scipy.signal.lfilter([0.0, 1.0 - a], [1.0, -a], f_state, axis=-1)
     return c1 * s + (1.0 - c1) * f_mean, s
 
 
 def free_response(n: int, a: float, c1: float) -> np.ndarray:
-    """Block-mean response to a unit initial state: ``c1 a^k`` (n,)."""
+    """Block-mean response to a unit initial state: ``c1 a^k`` (n,).
+
+    Parameters
+    ----------
+    n : int
+        Steps.
+    a, c1 : float
+        Coefficients of :func:`coefficients`.
+    """
     return c1 * a ** np.arange(n)
 
 
@@ -223,6 +283,15 @@ def integrate_blocks(ybar: np.ndarray, dt: float, within: np.ndarray | None = No
     ``psi_bar_k = dt sum_{j<k} ybar_j + w_k``: the increments are exact; ``w_k`` is the mean of the
     integral within step ``k``, exact when given (:func:`within_block`), else the trapezoid
     ``dt ybar_k / 2``.
+
+    Parameters
+    ----------
+    ybar : numpy.ndarray
+        Block means of the signal (..., n).
+    dt : float
+        Step [s].
+    within : numpy.ndarray, optional
+        Within-step means of the integral (..., n) [SI s].
     """
     c = np.cumsum(ybar, axis=-1) - ybar
     return dt * c + (0.5 * dt * ybar if within is None else within)
@@ -233,6 +302,17 @@ def within_block(y_start: np.ndarray, f_mean: np.ndarray, t_const: float, dt: fl
     response from ``y_start`` under constant forcing ``f_mean``.
 
     ``(1/dt) int_0^dt int_0^s y = f dt / 2 + (y_k - f) T (1 - c1)``.
+
+    Parameters
+    ----------
+    y_start : numpy.ndarray
+        State at each step's start [SI].
+    f_mean : numpy.ndarray or float
+        Forcing over the step [SI].
+    t_const : float
+        Time constant [s].
+    dt : float
+        Step [s].
     """
     _, c1 = coefficients(t_const, dt)
     return f_mean * dt / 2 + (y_start - f_mean) * t_const * (1 - c1)
@@ -363,6 +443,22 @@ def solve_linear(d: GridData, spec: LinearSpec, t_const: float, ridge: float = 1
     reduced system for ``theta`` is solved on scaled columns with a tiny ridge, which keeps
     unexcited directions (a current component along a heading never sailed, an input absent from
     the training windows) at zero instead of at a noise-driven value.
+
+    Parameters
+    ----------
+    d : GridData
+        Windows.
+    spec : LinearSpec
+        Regressors.
+    t_const : float
+        Time constant [s].
+    ridge : float
+        Ridge on the scaled reduced normal matrix.
+
+    Returns
+    -------
+    theta, sse
+        Linear parameters and the weighted sum of squares.
     """
     ne = _normal(d, spec, t_const)
     gy = np.where(ne.g_yy > 0, ne.g_yy, 1.0)
@@ -389,6 +485,17 @@ def initial_states(d: GridData, spec: LinearSpec, t_const: float, theta: np.ndar
     On a held-out window this is the only thing fitted to it: the state the boat was in when the
     window began, estimated from the whole window rather than from the few samples at its start
     (a start value off by the gyro's noise would otherwise be integrated into the heading).
+
+    Parameters
+    ----------
+    d : GridData
+        Windows.
+    spec : LinearSpec
+        Regressors.
+    t_const : float
+        Time constant [s].
+    theta : numpy.ndarray
+        Linear parameters.
     """
     ne = _normal(d, spec, t_const)
     gy = np.where(ne.g_yy > 0, ne.g_yy, 1.0)
@@ -446,7 +553,17 @@ def fit_linear(d: GridData, spec: LinearSpec, t_guess: float, t_range: tuple[flo
 
 
 def refit_linear(d: GridData, spec: LinearSpec, t_near: float) -> tuple[float, np.ndarray, float]:
-    """:func:`fit_linear` in a narrow range (``t_near / 1.6`` to ``t_near * 1.6``) [s]."""
+    """:func:`fit_linear` in a narrow range (``t_near / 1.6`` to ``t_near * 1.6``) [s].
+
+    Parameters
+    ----------
+    d : GridData
+        Windows.
+    spec : LinearSpec
+        Regressors.
+    t_near : float
+        Time constant to search around [s].
+    """
     return fit_linear(d, spec, t_near, (t_near / 1.6, t_near * 1.6))
 
 
@@ -485,7 +602,17 @@ def predict_linear(d: GridData, spec: LinearSpec, t_const: float, theta: np.ndar
 
 
 def outputs_from_response(d: GridData, yhat: np.ndarray, within: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Package a predicted response (and its integrated heading) as model outputs."""
+    """Package a predicted response (and its integrated heading) as model outputs.
+
+    Parameters
+    ----------
+    d : GridData
+        Windows.
+    yhat : numpy.ndarray
+        Predicted block means of the response (W, n).
+    within : numpy.ndarray, optional
+        Within-step means of its integral (W, n); default the trapezoid.
+    """
     m = d.mask
     out = {"y": np.where(m, yhat, np.nan)}
     if d.angle is not None:
@@ -598,7 +725,15 @@ def refine_initial_states(d: GridData, simulate, y0: np.ndarray, iterations: int
 
 
 def weighted_residuals(d: GridData, outputs: Mapping[str, np.ndarray]) -> np.ndarray:
-    """Weighted residuals of every channel, stacked (the least-squares objective's vector)."""
+    """Weighted residuals of every channel, stacked (the least-squares objective's vector).
+
+    Parameters
+    ----------
+    d : GridData
+        Windows.
+    outputs : Mapping[str, numpy.ndarray]
+        Model outputs (``"y"``, ``"angle"``).
+    """
     m = d.mask
     parts = [(d.y[m] - outputs["y"][m]) * d.w_y]
     if d.angle is not None and "angle" in outputs:

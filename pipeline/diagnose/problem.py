@@ -131,7 +131,15 @@ class DofProblem:
 
 
 def len_blocks(w: Window, m: int) -> int:
-    """Analysis samples in window ``w`` at ``m`` trial samples each."""
+    """Analysis samples in window ``w`` at ``m`` trial samples each.
+
+    Parameters
+    ----------
+    w : Window
+        The window.
+    m : int
+        Trial samples per analysis sample.
+    """
     return (w.i1 - w.i0) // m
 
 
@@ -188,6 +196,17 @@ def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) ->
     before the block ends (an input switching inside a block, as a zig-zag's does), to second order
     in ``h / T``, for any time constant T.
 
+    Parameters
+    ----------
+    u : numpy.ndarray
+        Held input on the trial grid [SI].
+    windows : tuple[Window, ...]
+        Windows.
+    m : int
+        Samples per block.
+    n : int
+        Blocks of the longest window.
+
     Returns
     -------
     numpy.ndarray, shape (3, len(windows), n)
@@ -216,6 +235,15 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int) -> float:
     the trial rate, where plain differences of neighbours vanish) is measured at the block's own
     scale. Robust (median absolute deviation), so manoeuvres and outliers do not inflate it; scaled
     from ``mb`` to ``m`` samples as white noise.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Trial-rate signal.
+    windows : tuple[Window, ...]
+        Windows to measure it in.
+    m : int
+        Samples per block.
     """
     mb = max(m, 8)
     q = mb // 4
@@ -241,6 +269,15 @@ def initial_values(x: np.ndarray, windows: tuple[Window, ...], half: int) -> np.
     One-sided because a window starts where an input changes, so the response has a kink there
     (a zig-zag's reversal is a peak: a median across it is biased). The samples after the start
     are used only when there are none before it (the start of the data, or after a dropout).
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Trial-rate signal.
+    windows : tuple[Window, ...]
+        Windows.
+    half : int
+        The line runs through ``2 half + 1`` samples.
     """
     out = np.empty(len(windows))
     span = 2 * half + 1
@@ -359,7 +396,17 @@ def _channel(trial: Trial, names: tuple[str, ...]) -> str | None:
 
 
 def dof_inputs(trial: Trial, vessel: Vessel | None, dof: str) -> tuple[str, ...]:
-    """Input channels that drive ``dof`` and vary in the trial."""
+    """Input channels that drive ``dof`` and vary in the trial.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    vessel : Vessel or None
+        Its config (a rudder with a sway force also drives sway).
+    dof : str
+        DOF name.
+    """
     names = [FORCE[dof]]
     if dof == "yaw":
         names.append("delta")
@@ -379,6 +426,17 @@ def quick_time_constant(y: np.ndarray, u: np.ndarray | None, fs: float, windows:
 
     Equation error on derivatives is biased by noise, but it only sizes the analysis step and the
     search ranges, so a factor of two is of no consequence.
+
+    Parameters
+    ----------
+    y : numpy.ndarray
+        Response on the trial grid [SI].
+    u : numpy.ndarray or None
+        Summed normalised inputs, or None for free decays.
+    fs : float
+        Trial rate [Hz].
+    windows : list[Window]
+        Windows to use.
     """
     rows_d, rows_y, rows_u = [], [], []
     w_s = max(int(0.05 * fs), 1)
@@ -507,7 +565,13 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
     dt_target = min(max(t_const / STEPS_PER_T, 1.0 / fs, total / MAX_SAMPLES), DT_MAX)
     m = max(int(round(dt_target * fs)), 1)
     windows = [w for w in _blocks(windows0, own_w, t_const, t) if len_blocks(w, m) >= 4]
-    if not windows:
+    if len(windows) == 1 and len_blocks(windows[0], m) >= 8:
+        # Cross-validation needs two pieces at least: a lone window is cut in halves.
+        w = windows[0]
+        mid = (w.i0 + w.i1) // 2
+        windows = [Window(w.i0, mid, w.t0, float(t[mid - 1]), w.kinds, w.dofs, f"{w.label} (1/2)"),
+                   Window(mid, w.i1, float(t[mid]), w.t1, w.kinds, w.dofs, f"{w.label} (2/2)")]
+    if len(windows) < 2:
         return None
     angle = "psi" if dof == "yaw" and trial.has("psi") else None
     heading = "psi" if trial.has("psi") else ("cog" if trial.has("cog") else None)

@@ -43,6 +43,15 @@ def band_split(resid: np.ndarray, dt: float, band: tuple[float, float]) -> dict[
     """Sum of squares of residual rows below, in and above ``band`` [rad/s] (Parseval per window).
 
     The mean of a window counts as "below": a constant offset is the lowest frequency there is.
+
+    Parameters
+    ----------
+    resid : numpy.ndarray
+        Residual rows (W, n), NaN outside windows.
+    dt : float
+        Step [s].
+    band : tuple[float, float]
+        Wave band [rad/s].
     """
     out = {"below wave band": 0.0, "in wave band": 0.0, "above wave band": 0.0}
     for row in resid:
@@ -64,8 +73,16 @@ def band_split(resid: np.ndarray, dt: float, band: tuple[float, float]) -> dict[
 
 
 def pooled_psd(resid: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """PSD [1/(rad/s)] of residual rows pooled over windows (segment length of the shortest
-    usable window, at least 16 samples)."""
+    """PSD [1/(rad/s)] of residual rows pooled over windows (Welch, segments up to 1024 samples,
+    windows of at least 16 samples).
+
+    Parameters
+    ----------
+    resid : numpy.ndarray
+        Residual rows (W, n), NaN outside windows.
+    dt : float
+        Step [s].
+    """
     lengths = [int(np.isfinite(r).sum()) for r in resid]
     usable = [n for n in lengths if n >= 16]
     if not usable:
@@ -157,6 +174,13 @@ def rank_places(raw: list[tuple[str, str, str, float, int]], total: float) -> tu
 
     ``raw`` holds ``(dof, category, name, summed squared error, samples)`` in noise units; a
     place's excess is ``sum e^2 - n`` (the noise's own contribution removed), floored at zero.
+
+    Parameters
+    ----------
+    raw : list of tuples
+        Places as described above.
+    total : float
+        Total excess of the trial (over every channel).
     """
     places = [Place(cat, dof, name, max(ss - n, 0.0) / total if total > 0 else 0.0,
                     float(np.sqrt(ss / n)) if n else np.nan, n)
@@ -165,7 +189,15 @@ def rank_places(raw: list[tuple[str, str, str, float, int]], total: float) -> tu
 
 
 def whole_trial_windows(problem: DofProblem, trial: Trial) -> tuple[Window, ...]:
-    """The whole trial as windows, split only at dropouts of the response."""
+    """The whole trial as windows, split only at dropouts of the response.
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem (its response and analysis step).
+    trial : Trial
+        The trial.
+    """
     y = problem.raw[problem.channel]
     ok = np.isfinite(y)
     t = trial.t
@@ -209,7 +241,25 @@ def replay(problem: DofProblem, trial: Trial, simulate) -> tuple[GridData, dict[
 
 def traces(problem: DofProblem, data: GridData, base: dict[str, np.ndarray], effect: dict[str, np.ndarray] | None,
            label: str | None, kind: str, names: dict[str, str]) -> list[Trace]:
-    """Overlay series of each output channel: windows joined in time with a NaN between them."""
+    """Overlay series of each output channel: windows joined in time with a NaN between them.
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem.
+    data : GridData
+        Its data (the measurements).
+    base : dict
+        Baseline outputs (``"y"``, ``"angle"``).
+    effect : dict or None
+        Outputs of the model with the effect.
+    label : str or None
+        The effect's label.
+    kind : str
+        ``heldout`` or ``replay``.
+    names : dict
+        Output key -> channel name.
+    """
     out = []
     for key in base:
         meas = data.y if key == "y" else data.angle
@@ -235,5 +285,11 @@ def traces(problem: DofProblem, data: GridData, base: dict[str, np.ndarray], eff
 
 
 def default_band(problem: DofProblem) -> tuple[float, float]:
-    """Wave band used for the frequency split when no wave peak was fitted [rad/s]."""
+    """Wave band used for the frequency split when no wave peak was fitted [rad/s].
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem (its time constant and step).
+    """
     return wave_model.search_band(problem.t_guess, problem.dt)

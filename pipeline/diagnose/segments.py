@@ -25,7 +25,7 @@ from ..segment import noise_std
 from .problem import FORCE, RESPONSE, _channel, dof_inputs
 
 #: Smallest free decay: its peak over the noise, and its length in samples.
-DECAY_SNR = 20.0
+DECAY_SNR = 8.0
 DECAY_MIN_SAMPLES = 10
 #: A free run is cut into pieces of at most this length [s] so it can be cross-validated.
 FREE_RUN_PIECE = 60.0
@@ -71,8 +71,9 @@ def velocity_decays(trial: Trial, dof: str, channel: str) -> list[Segment]:
     out = []
     for a, b in _runs(np.isfinite(y), DECAY_MIN_SAMPLES):
         seg = y[a:b]
-        # Edges held, not zero-padded: a zero-padded mean would fake a decay at the end of the data.
-        ys = scipy.ndimage.uniform_filter1d(seg, w, mode="nearest") if len(seg) > 2 * w else seg
+        # A median over half a second ignores the gyro spikes digitised records carry; edges are
+        # held, not zero-padded, which would fake a decay at the end of the data.
+        ys = scipy.ndimage.median_filter(seg, size=w, mode="nearest") if len(seg) > 2 * w else seg
         i = 0
         while i < len(seg) - DECAY_MIN_SAMPLES:
             mag = np.abs(ys[i:])
@@ -91,7 +92,9 @@ def velocity_decays(trial: Trial, dof: str, channel: str) -> list[Segment]:
             start = k + int(near[-1]) if len(near) else k
             gone = np.flatnonzero(np.abs(ys[k90:]) < 0.1 * peak)
             end = k90 + int(gone[0]) if len(gone) else len(seg) - 1
-            if end - start >= DECAY_MIN_SAMPLES:
+            # A decay loses most of its peak; a plateau that merely wobbles does not.
+            fell = np.abs(ys[end]) < 0.4 * peak
+            if end - start >= DECAY_MIN_SAMPLES and fell:
                 out.append(Segment("coast_down", dof, float(t[a + start]), float(t[a + end]), None, float(seg[start]),
                                    0.0, quality=float(np.clip(1 - np.exp(-peak / noise / 20), 0, 1)),
                                    label=f"{channel} free decay from {seg[start]:.3g} (no input logged)"))
@@ -100,7 +103,19 @@ def velocity_decays(trial: Trial, dof: str, channel: str) -> list[Segment]:
 
 
 def free_runs(trial: Trial, dof: str, channel: str, inputs: tuple[str, ...]) -> list[Segment]:
-    """The recorded input replayed over each continuous stretch of data, in pieces."""
+    """The recorded input replayed over each continuous stretch of data, in pieces.
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial.
+    dof : str
+        DOF name.
+    channel : str
+        Response channel.
+    inputs : tuple[str, ...]
+        The DOF's input channels.
+    """
     y = trial.data[channel].to_numpy(float)
     t = trial.t
     piece = max(int(FREE_RUN_PIECE * trial.fs), 2)
@@ -115,7 +130,13 @@ def free_runs(trial: Trial, dof: str, channel: str, inputs: tuple[str, ...]) -> 
 
 
 def input_changes(trial: Trial) -> np.ndarray:
-    """Times [s] at which any logged input changes by more than 1% of its range."""
+    """Times [s] at which any logged input changes by more than 1% of its range.
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial.
+    """
     t = trial.t
     times = [t[-1]]
     for c in INPUT_UNITS:
@@ -130,7 +151,15 @@ def input_changes(trial: Trial) -> np.ndarray:
 
 
 def extend_segments(trial: Trial, items: list[Segment]) -> list[Segment]:
-    """Input-driven segments run on to the next input change (never across a dropout)."""
+    """Input-driven segments run on to the next input change (never across a dropout).
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial.
+    items : list[Segment]
+        Segments.
+    """
     changes = input_changes(trial)
     out = []
     for s in items:

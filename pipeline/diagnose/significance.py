@@ -118,7 +118,15 @@ class Score:
 
 
 def heldout_residuals(data: GridData, outputs: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Scale-weighted held-out residual rows per output key (``"y"``, ``"angle"``), NaN off-window."""
+    """Scale-weighted held-out residual rows per output key (``"y"``, ``"angle"``), NaN off-window.
+
+    Parameters
+    ----------
+    data : GridData
+        Measured data.
+    outputs : Mapping[str, numpy.ndarray]
+        Model outputs.
+    """
     out = {"y": np.where(data.mask, (data.y - outputs["y"]) * data.w_y, np.nan)}
     if data.angle is not None and "angle" in outputs:
         am = data.mask & np.isfinite(data.angle)
@@ -127,7 +135,13 @@ def heldout_residuals(data: GridData, outputs: Mapping[str, np.ndarray]) -> dict
 
 
 def noise_units(data: GridData) -> dict[str, float]:
-    """Noise level of each output key in the scale-weighted residual's units."""
+    """Noise level of each output key in the scale-weighted residual's units.
+
+    Parameters
+    ----------
+    data : GridData
+        Measured data.
+    """
     out = {"y": data.sigma_y * data.w_y}
     if data.angle is not None:
         out["angle"] = data.sigma_angle * data.w_angle
@@ -135,7 +149,13 @@ def noise_units(data: GridData) -> dict[str, float]:
 
 
 def lag1(resid: np.ndarray) -> float:
-    """Lag-1 autocorrelation of residual rows, pooled within windows [-]."""
+    """Lag-1 autocorrelation of residual rows, pooled within windows [-].
+
+    Parameters
+    ----------
+    resid : numpy.ndarray
+        Residual rows (W, n), NaN outside windows.
+    """
     a, b = resid[:, :-1], resid[:, 1:]
     ok = np.isfinite(a) & np.isfinite(b)
     den = np.nansum(np.where(np.isfinite(resid), resid**2, 0.0))
@@ -145,8 +165,21 @@ def lag1(resid: np.ndarray) -> float:
 
 
 def channel_score(name: str, e0: np.ndarray, e1: np.ndarray, p: int, n_windows: int, noise: float) -> ChannelScore:
-    """Held-out F test of one channel (scale-weighted residual rows of baseline ``e0`` and
-    candidate ``e1``; ``noise`` in the same units)."""
+    """Held-out F test of one channel.
+
+    Parameters
+    ----------
+    name : str
+        Channel name.
+    e0, e1 : numpy.ndarray
+        Scale-weighted residual rows of the baseline and of the candidate.
+    p : int
+        Parameters the candidate adds.
+    n_windows : int
+        Windows (the least number of independent samples).
+    noise : float
+        Noise level in the residuals' units (NaN: gaps stay scale-normalised).
+    """
     ok = np.isfinite(e0) & np.isfinite(e1)
     n = int(ok.sum())
     if n == 0:

@@ -43,6 +43,15 @@ def waves_with_sigma(omega0: float, lam: float, sigma: float) -> WaveParams:
 
     For ``psi_w = K_w s / (s^2 + 2 lam omega0 s + omega0^2) w`` with unit white noise,
     ``var(psi_w) = K_w^2 / (4 lam omega0)``.
+
+    Parameters
+    ----------
+    omega0 : float
+        Peak frequency [rad/s].
+    lam : float
+        Relative damping [-].
+    sigma : float
+        Standard deviation of the wave heading [rad].
     """
     return WaveParams(omega0=float(omega0), lam=float(lam), kw=float(sigma * np.sqrt(4 * lam * omega0)))
 

@@ -63,7 +63,13 @@ class WaveSpectrum:
     band: tuple[float, float]
 
     def parts(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Wave PSD and the rest (noise + leakage) at ``omega`` [rad/s]."""
+        """Wave PSD and the rest (noise + leakage) at ``omega`` [rad/s].
+
+        Parameters
+        ----------
+        omega : numpy.ndarray
+            Frequencies [rad/s].
+        """
         w = np.maximum(np.asarray(omega, float), 1e-9)
         if not np.isfinite(self.omega0) or self.sigma <= 0:
             return np.zeros_like(w), self.n0 + self.a_lf / w**2
@@ -75,6 +81,17 @@ def wave_psd(omega: np.ndarray, omega0: float, lam: float, sigma: float) -> np.n
 
     ``shape = omega^2 / ((omega0^2 - omega^2)^2 + (2 lam omega0 omega)^2)`` integrates to
     ``pi / (4 lam omega0)`` over ``(0, inf)``.
+
+    Parameters
+    ----------
+    omega : numpy.ndarray
+        Frequencies [rad/s].
+    omega0 : float
+        Peak frequency [rad/s].
+    lam : float
+        Relative damping [-].
+    sigma : float
+        Standard deviation of the wave component [unit].
     """
     w = np.asarray(omega, float)
     shape = w**2 / ((omega0**2 - w**2) ** 2 + (2 * lam * omega0 * w) ** 2)
@@ -82,7 +99,15 @@ def wave_psd(omega: np.ndarray, omega0: float, lam: float, sigma: float) -> np.n
 
 
 def search_band(t_const: float, dt: float) -> tuple[float, float]:
-    """Wave frequencies [rad/s] searched for a DOF of time constant ``t_const`` sampled at ``dt``."""
+    """Wave frequencies [rad/s] searched for a DOF of time constant ``t_const`` sampled at ``dt``.
+
+    Parameters
+    ----------
+    t_const : float
+        The DOF's time constant [s].
+    dt : float
+        Analysis step [s].
+    """
     lo = max(BAND_ABS[0], BAND_LO_T / max(t_const, 1e-9))
     hi = min(BAND_ABS[1], 0.8 * np.pi / dt)
     return float(lo), float(hi)
@@ -99,6 +124,17 @@ def residual_psd(resid: np.ndarray, dt: float, omega_lo: float, n_omega: int = 2
     An AR model fitted by least squares on lagged samples of every window (each detrended
     linearly) resolves a wave peak from windows far shorter than a Welch segment would need
     (Burg 1967 and Akaike 1969 for parametric spectra); ``S = sigma_e^2 dt / (pi |A(e^{i omega dt})|^2)``.
+
+    Parameters
+    ----------
+    resid : numpy.ndarray
+        Residual rows (W, n), NaN outside windows.
+    dt : float
+        Step [s].
+    omega_lo : float
+        Lowest frequency of interest [rad/s].
+    n_omega : int
+        Frequencies evaluated.
 
     Returns
     -------
