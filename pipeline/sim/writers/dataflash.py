@@ -46,8 +46,9 @@ from pymavlink.DFReader import FORMAT_TO_STRUCT
 from ...atomic import atomic_path
 from ...errors import SimError
 from ...geo import latlon_to_ned
-from ...records import ANGLE_CHANNELS, INPUT_UNITS, Channel, RawLog
+from ...records import INPUT_UNITS, Channel, RawLog
 from ...vessel import ActuatorMap, Vessel
+from ._sampling import hold_channel as _hold, interp_channel as _interp
 
 HEAD1, HEAD2 = 0xA3, 0x95
 FMT_TYPE = 128
@@ -234,23 +235,6 @@ class _Clock:
         """GPS week and milliseconds of week at ``t``."""
         ms = np.round((self.gps0 + np.asarray(t, float)) * 1000.0).astype(np.int64)
         return ms // (_WEEK_S * 1000), ms % (_WEEK_S * 1000)
-
-
-def _interp(ch: Channel, t: np.ndarray) -> np.ndarray:
-    """Linear interpolation of a state onto ``t``; angles through their unwrapped form."""
-    tc = np.asarray(ch.t, float)
-    v = np.asarray(ch.values, float)
-    if tc.shape == t.shape and np.array_equal(tc, t):
-        return v
-    if ch.name.split("@")[0] in ANGLE_CHANNELS:
-        return np.interp(t, tc, np.unwrap(v))
-    return np.interp(t, tc, v)
-
-
-def _hold(ch: Channel, t: np.ndarray) -> np.ndarray:
-    """Zero-order hold of an input onto ``t``: an actuator keeps its last command."""
-    idx = np.clip(np.searchsorted(ch.t, t, side="right") - 1, 0, len(ch.t) - 1)
-    return np.asarray(ch.values, float)[idx]
 
 
 def _to_int(values: np.ndarray, lo: int, hi: int, what: str) -> np.ndarray:

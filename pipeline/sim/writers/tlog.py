@@ -33,8 +33,9 @@ import numpy as np
 
 from ...atomic import atomic_path
 from ...errors import SimError
-from ...records import ANGLE_CHANNELS, INPUT_UNITS, Channel, RawLog
+from ...records import INPUT_UNITS, Channel, RawLog
 from ...vessel import ActuatorMap, Vessel
+from ._sampling import hold_channel as _hold, interp_channel as _interp
 
 #: Standard gravity [m/s^2], the one ArduPilot uses to turn m/s^2 into mG.
 G0 = 9.80665
@@ -192,23 +193,6 @@ class _Clock:
         if us.size and us.min() < 0:
             raise SimError(f"time_usec: expected round(t*1e6) + boot_offset_ms*1000 >= 0, found {us.min()}")
         return us
-
-
-def _interp(ch: Channel, t: np.ndarray) -> np.ndarray:
-    """Linear interpolation of a state onto ``t``; angles through their unwrapped form."""
-    tc = np.asarray(ch.t, float)
-    v = np.asarray(ch.values, float)
-    if tc.shape == t.shape and np.array_equal(tc, t):
-        return v
-    if ch.name.split("@")[0] in ANGLE_CHANNELS:
-        return np.interp(t, tc, np.unwrap(v))
-    return np.interp(t, tc, v)
-
-
-def _hold(ch: Channel, t: np.ndarray) -> np.ndarray:
-    """Zero-order hold of an input onto ``t``: an actuator keeps its last command."""
-    idx = np.clip(np.searchsorted(ch.t, t, side="right") - 1, 0, len(ch.t) - 1)
-    return np.asarray(ch.values, float)[idx]
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:

@@ -37,7 +37,8 @@ from pyubx2 import GET, UBXMessage
 
 from ...atomic import atomic_path
 from ...errors import SimError
-from ...records import ANGLE_CHANNELS, Channel, RawLog
+from ...records import Channel, RawLog
+from ._sampling import interp_channel as _interp
 
 #: Leap seconds GPS - UTC [s] (constant since 2017-01-01).
 GPS_LEAP_S = 18
@@ -63,17 +64,6 @@ def _gps_seconds(when: datetime) -> float:
     if when.tzinfo is None:
         raise SimError(f"week_start: expected a timezone-aware UTC datetime, found naive {when}")
     return (when - GPS_EPOCH).total_seconds() + GPS_LEAP_S
-
-
-def _interp(ch: Channel, t: np.ndarray) -> np.ndarray:
-    """Linear interpolation onto ``t``; angles through their unwrapped form."""
-    tc = np.asarray(ch.t, float)
-    v = np.asarray(ch.values, float)
-    if tc.shape == t.shape and np.array_equal(tc, t):
-        return v
-    if ch.name.split("@")[0] in ANGLE_CHANNELS:
-        return np.interp(t, tc, np.unwrap(v))
-    return np.interp(t, tc, v)
 
 
 def _check(name: str, ch: Channel) -> None:
