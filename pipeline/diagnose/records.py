@@ -84,8 +84,9 @@ class CandidateResult:
     shrink : float
         ``100 (1 - gap_after / gap_before)`` [%].
     explained : float
-        ``sqrt(gap_before^2 - gap_after^2)``: the normalised RMS error the effect accounts for [-]
-        (negative when the candidate makes things worse).
+        RMS error the effect accounts for, ``sqrt(e_before^2 - e_after^2)`` of the held-out RMS
+        errors over the channel's scale, largest over the DOF's channels [-] (negative when the
+        candidate makes things worse).
     p_value : float
         Bonferroni-corrected held-out F-test p-value.
     significant : bool
@@ -129,7 +130,8 @@ class Place:
     name : str
         The place (``r``, ``zigzag``, ``below wave band``, ``0.5-1.0 m/s``, ...).
     share : float
-        Share of the trial's total squared normalised gap [0-1].
+        Share of the trial's excess squared gap (above the sensor noise) within its category
+        [0-1]; the shares of one category sum to one.
     gap : float
         Normalised RMS error inside the place [-].
     n : int

@@ -169,20 +169,23 @@ def where(problem: DofProblem, data: GridData, resid: dict[str, np.ndarray], tri
     return out, spectra
 
 
-def rank_places(raw: list[tuple[str, str, str, float, int]], total: float) -> tuple[Place, ...]:
-    """Places with their share of ``total`` excess, largest share first.
+def rank_places(raw: list[tuple[str, str, str, float, int]]) -> tuple[Place, ...]:
+    """Places with their share of the trial's excess, largest share first.
 
     ``raw`` holds ``(dof, category, name, summed squared error, samples)`` in noise units; a
     place's excess is ``sum e^2 - n`` (the noise's own contribution removed), floored at zero.
+    Each category (channel, segment kind, frequency band, speed, input amplitude) splits the same
+    excess its own way, so shares are taken within the category and sum to one there.
 
     Parameters
     ----------
     raw : list of tuples
         Places as described above.
-    total : float
-        Total excess of the trial (over every channel).
     """
-    places = [Place(cat, dof, name, max(ss - n, 0.0) / total if total > 0 else 0.0,
+    totals: dict[str, float] = {}
+    for _, cat, _, ss, n in raw:
+        totals[cat] = totals.get(cat, 0.0) + max(ss - n, 0.0)
+    places = [Place(cat, dof, name, max(ss - n, 0.0) / totals[cat] if totals[cat] > 0 else 0.0,
                     float(np.sqrt(ss / n)) if n else np.nan, n)
               for dof, cat, name, ss, n in raw]
     return tuple(sorted(places, key=lambda p: -p.share))

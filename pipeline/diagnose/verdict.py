@@ -194,8 +194,7 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             rr = sig.heldout_residuals(rd, rout)
             gaps = [float(np.sqrt(np.nanmean(x**2))) for x in rr.values() if np.isfinite(x).any()]
             summaries[i] = _with_replay(summaries[i], float(np.sqrt(np.mean(np.square(gaps)))) if gaps else math.nan)
-    total_ss = sum(max(ss - n, 0.0) for _, cat, _, ss, n in raw_places if cat == "channel")
-    places = rank_places(raw_places, total_ss)
+    places = rank_places(raw_places)
 
     if fits is not None:
         for key in ("K_nomoto", "T_nomoto", "X_u", "Y_v", "N_r"):
