@@ -12,6 +12,8 @@ from pathlib import Path
 from typing import Sequence
 
 from . import __version__
+from .autopilot.cli import add_autopilot_parser, add_waves_parser
+from .diagnose.cli import add_diagnose_parser
 from .errors import VesselidError
 
 EXIT_BAD_INPUT = 2
@@ -63,6 +65,10 @@ def cmd_align(args: argparse.Namespace) -> int:
     from .records import Channel, IngestSummary, RawLog
     from .sim.writers.csv_writer import write_csv_log
 
+    if args.out:
+        from .atomic import check_output_file
+
+        check_output_file(args.out, "--out")
     trial = load_trial(args.logs, _vessel(args.vessel), fs=args.fs)
     for note in trial.notes:
         print(f"note: {note}")
@@ -84,6 +90,40 @@ def _trial_and_segments(args: argparse.Namespace):
     return vessel, trial, segments
 
 
+def _inputs(args: argparse.Namespace) -> list[str]:
+    """Input files named on the command line (vessel, segments, logs), for the provenance."""
+    out = [getattr(args, k) for k in ("vessel", "segments") if getattr(args, k, None)]
+    return out + list(getattr(args, "logs", []))
+
+
+def print_summary(fits, warnings=(), out=None) -> None:
+    """The end-of-command table: D diagonal, Nomoto K and T, model structure, flags; then warnings once.
+
+    Parameters
+    ----------
+    fits : pipeline.records.Fits
+        Fit results.
+    warnings : Sequence[str]
+        Warnings to print (already short), each once.
+    out : file, optional
+        Where to print; default ``sys.stdout``.
+    """
+    from .report.quality import segment_quality
+    from .report.summary import summary_rows
+
+    out = out or sys.stdout
+    rows = summary_rows(fits, [segment_quality(sf) for sf in fits.segment_fits])
+    print(f"{'quantity':<16} {'value +- std. error':<26} {'95% CI':<28} {'unit':<10} flags", file=out)
+    for r in rows:
+        if not r.name:
+            print(f"{r.label:<16} {r.value}", file=out)
+            continue
+        value = r.value.replace("±", "+-")
+        print(f"{r.label:<16} {value:<26} {r.ci:<28} {r.unit:<10} {'; '.join(r.flags)}".rstrip(), file=out)
+    for w in dict.fromkeys(warnings):
+        print(f"warning: {w}", file=sys.stderr)
+
+
 def cmd_segment(args: argparse.Namespace) -> int:
     """``vesselid segment``: detect segments and print the table; optionally write JSON and a plot.
 
@@ -101,6 +141,11 @@ def cmd_segment(args: argparse.Namespace) -> int:
     from .flow import segments_to_json, write_json
     from .segment import segment_table
 
+    from .atomic import check_output_file
+
+    for flag, path in (("--json", args.json), ("--plot", args.plot)):
+        if path:
+            check_output_file(path, flag)
     _, trial, segments = _trial_and_segments(args)
     print(segment_table(segments))
     if args.json:
@@ -114,7 +159,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    """``vesselid fit``: ingest, segment and fit; write the coefficients JSON and print them.
+    """``vesselid fit``: ingest, segment and fit; write the coefficients JSON and print the summary.
 
     Parameters
     ----------
@@ -128,23 +173,29 @@ def cmd_fit(args: argparse.Namespace) -> int:
     int
         0 (errors are raised and turned into an exit code by :func:`main`).
     """
-    from .fit import fit_trial
-    from .flow import write_json
+    from .atomic import check_output_file
+    from .flow import run_flow, segments_from_json
     from .report import fits_to_dict
+    from .report.quality import segment_quality
+    from .report.summary import findings
+    from .flow import write_json
 
-    vessel, trial, segments = _trial_and_segments(args)
-    fits = fit_trial(trial, segments, vessel)
+    check_output_file(args.json, "--json")
+    vessel = _vessel(args.vessel)
+    segments = segments_from_json(args.segments) if args.segments else None
+    result = run_flow(args.logs, vessel, None, fs=args.fs, segments=segments, stop_after="fit")
+    fits = result.fits
     write_json(fits_to_dict(fits), args.json)
     ok = sum(e.success for e in fits.estimates.values())
-    print(f"fitted {len(fits.segment_fits)} segments; {ok} of {len(fits.estimates)} coefficients identified; wrote {args.json}")
-    for e in fits.estimates.values():
-        status = f"{e.value:.6g} +- {e.stderr:.2g} {e.unit}" if e.success else f"not identified: {e.message}"
-        print(f"  {e.name:<10} {status}")
+    print(f"fitted {len(fits.segment_fits)} segments; {ok} of {len(fits.estimates)} coefficients identified; "
+          f"wrote {args.json} (details and messages there)")
+    found = findings(fits, [segment_quality(sf, result.trial) for sf in fits.segment_fits])
+    print_summary(fits, found.warnings)
     return 0
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    """``vesselid report``: ingest, segment, fit and write the report folder.
+    """``vesselid report``: every stage (as ``vesselid run``) on logs and a vessel config, into a folder.
 
     Parameters
     ----------
@@ -158,14 +209,24 @@ def cmd_report(args: argparse.Namespace) -> int:
     int
         0 (errors are raised and turned into an exit code by :func:`main`).
     """
-    from .fit import fit_trial
-    from .report import write_report
+    from .atomic import check_output_folder
+    from .flow import make_provenance, run_flow, segments_from_json
 
-    vessel, trial, segments = _trial_and_segments(args)
-    fits = fit_trial(trial, segments, vessel)
-    paths = write_report(fits, args.out, trial=trial, segments=segments)
-    print(f"wrote report to {args.out} ({paths.html})")
+    check_output_folder(args.out)
+    vessel = _vessel(args.vessel)
+    segments = segments_from_json(args.segments) if args.segments else None
+    result = run_flow(args.logs, vessel, args.out, fs=args.fs, segments=segments,
+                      provenance=make_provenance(_inputs(args)))
+    _print_run(result)
     return 0
+
+
+def _print_run(result) -> None:
+    paths = result.report
+    print_summary(result.fits, paths.warnings)
+    for stage, why in result.skipped.items():
+        print(f"warning: {stage} skipped: {why}", file=sys.stderr)
+    print(f"wrote {paths.out_dir}/ (open {paths.html})")
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -210,8 +271,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     """
     from .run import run_manifest
 
-    out = run_manifest(args.manifest, args.out)
-    print(f"wrote report to {out}")
+    if args.out:
+        from .atomic import check_output_folder
+
+        check_output_folder(args.out)
+    _print_run(run_manifest(args.manifest, args.out))
     return 0
 
 
@@ -259,20 +323,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="DIR", help="report folder")
     p.set_defaults(func=cmd_report)
 
-    try:
-        from .autopilot.cli import add_autopilot_parser, add_waves_parser
-    except ImportError:  # autopilot stage not installed in this checkout
-        pass
-    else:
-        add_waves_parser(sub)
-        add_autopilot_parser(sub)
-
-    try:
-        from .diagnose.cli import add_diagnose_parser
-    except ImportError:
-        pass
-    else:
-        add_diagnose_parser(sub)
+    add_waves_parser(sub)
+    add_autopilot_parser(sub)
+    add_diagnose_parser(sub)
 
     p = sub.add_parser("simulate", help="simulate a sea trial of a vessel and write it as a log file")
     p.add_argument("--vessel", required=True, metavar="VESSEL.toml", help="vessel config with [damping] or [nomoto]")
@@ -311,8 +364,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except VesselidError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except (OSError, ValueError) as exc:
-        print(f"error: {type(exc).__name__}: {exc}", file=sys.stderr)
+    except OSError as exc:
+        # Every OSError carries the file it concerns; say which and why, without the class name.
+        where = exc.filename or "an input or output file"
+        print(f"error: {where}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except ValueError as exc:
+        # A bad value no reader caught: name the command's inputs, since the value names none.
+        named = ", ".join(_inputs(args)) or getattr(args, "manifest", "") or "the input"
+        print(f"error: {args.command}: unexpected value in {named}: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)

@@ -31,6 +31,10 @@ class FitError(VesselidError):
     """A fit cannot be made (segment too short, no excitation, non-convergence)."""
 
 
+class OutputError(VesselidError):
+    """An output file or folder cannot be written (names the path and why)."""
+
+
 class ReportError(VesselidError):
     """A report cannot be written."""
 

@@ -1,26 +1,40 @@
 """The flow, stage by stage: each function starts from the record of the stage before it.
 
-``read_logs`` -> ``align`` -> ``segment_trial`` -> ``fit_trial`` -> ``write_report`` (+ autopilot,
-diagnosis). The CLI and ``vesselid run`` are thin layers over these functions, so a script can
-start at any stage (a re-fit never re-parses logs when it keeps the Trial).
+``read_logs`` -> ``load_trial`` (ingest + align) -> ``segment_trial`` -> ``fit_segments`` ->
+``design_autopilot`` -> ``diagnose_trial`` -> ``write_outputs`` (report). :func:`run_flow` chains
+them; ``vesselid run`` is manifest -> :func:`run_flow`, and every CLI subcommand calls these same
+functions, so ``vesselid report`` and ``vesselid run`` write the same report and ``vesselid
+autopilot`` and ``run`` design the same autopilot (one default crossover,
+:func:`pipeline.autopilot.pd.default_crossover`). A script can start at any stage (a re-fit never
+re-parses logs when it keeps the Trial).
 """
 
 from __future__ import annotations
 
+import datetime
+import hashlib
 import json
+import math
 import os
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
+from tqdm import tqdm
+
+from . import __version__
 from .align import align
-from .atomic import atomic_path
-from .errors import SegmentError
+from .atomic import atomic_folder, atomic_path, check_output_file, check_output_folder
+from .errors import AutopilotError, DiagnoseError, SegmentError
 from .ingest import read_log
-from .records import RawLog, Segment, Segments, Trial
+from .records import Fits, Provenance, RawLog, Segment, Segments, Trial
 from .segment import apply_manifest_segments, detect_segments
 from .vessel import Vessel
+
+if TYPE_CHECKING:  # the later stages are imported where they run: they import this module themselves
+    from .autopilot import AutopilotResult
+    from .report import ReportPaths
 
 
 def show_progress() -> bool:
@@ -143,3 +157,298 @@ def write_json(obj: Any, path: str | Path) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(obj, indent=2, allow_nan=False) + "\n")
     return Path(path)
+
+
+# --------------------------------------------------------------------------- fit, autopilot, diagnose
+def fit_segments(trial: Trial, segments: Segments, vessel: Vessel) -> Fits:
+    """Fit every segment and combine them into coefficients (fit stage).
+
+    Parameters
+    ----------
+    trial : Trial
+        The aligned trial.
+    segments : Segments
+        Its segments (detected, from a manifest, or from ``segments.json``).
+    vessel : Vessel
+        Mass, inertia, added mass and restoring.
+    """
+    from .fit import fit_trial
+
+    return fit_trial(trial, segments, vessel)
+
+
+#: Keys a manifest's ``[autopilot]`` table may hold.
+AUTOPILOT_OPTIONS = ("crossover", "phase_margin_deg")
+
+
+def design_autopilot(fits: Fits, vessel: Vessel | None = None,
+                     options: Mapping[str, Any] | None = None) -> AutopilotResult:
+    """Design the PD autopilot and Kalman filter from the identified Nomoto K and T (autopilot stage).
+
+    Parameters
+    ----------
+    fits : Fits
+        Needs identified ``K_nomoto`` and ``T_nomoto``.
+    vessel : Vessel, optional
+        ``[rudder]`` limits; ``[nomoto]`` as the simulated truth of the closed-loop check.
+    options : Mapping, optional
+        A manifest's ``[autopilot]`` table: ``crossover`` [rad/s] and ``phase_margin_deg`` [deg];
+        without ``crossover`` the one default (:func:`pipeline.autopilot.pd.default_crossover`).
+
+    Raises
+    ------
+    AutopilotError
+        An unknown option, or K or T not identified.
+    """
+    from .autopilot import build_autopilot, nomoto_from_fits
+
+    opts = dict(options or {})
+    unknown = sorted(set(opts) - set(AUTOPILOT_OPTIONS))
+    if unknown:
+        raise AutopilotError(f"manifest [autopilot]: unknown key(s) {unknown}; allowed: {list(AUTOPILOT_OPTIONS)}")
+    kwargs: dict[str, float] = {}
+    if "crossover" in opts:
+        kwargs["crossover"] = float(opts["crossover"])
+    if "phase_margin_deg" in opts:
+        kwargs["phase_margin"] = math.radians(float(opts["phase_margin_deg"]))
+    return build_autopilot(nomoto_from_fits(fits), vessel=vessel, **kwargs)
+
+
+def diagnose_trial(trial: Trial, vessel: Vessel, fits: Fits):
+    """Where and why the identified model disagrees with the trial (diagnose stage).
+
+    Parameters
+    ----------
+    trial : Trial
+        The aligned trial.
+    vessel : Vessel
+        Vessel config.
+    fits : Fits
+        The fit stage's result.
+
+    Returns
+    -------
+    pipeline.diagnose.records.GapReport
+
+    Raises
+    ------
+    DiagnoseError
+        The trial holds nothing the diagnosis can replay.
+    """
+    from .diagnose import diagnose
+
+    return diagnose(trial, vessel, fits=fits)
+
+
+# --------------------------------------------------------------------------- provenance
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 of a file (of every file under it, in name order, for a ROS 2 bag folder).
+
+    Parameters
+    ----------
+    path : str or Path
+        Input file or folder.
+    """
+    h = hashlib.sha256()
+    p = Path(path)
+    files = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
+    for f in files:
+        with open(f, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
+
+
+def make_provenance(inputs: Sequence[str | Path], argv: Sequence[str] | None = None) -> Provenance:
+    """What produced a report: version, UTC time, command line, and input files with their hashes.
+
+    Parameters
+    ----------
+    inputs : Sequence[str or Path]
+        Input files (vessel config, manifest, logs, segments JSON); unreadable ones get an empty hash.
+    argv : Sequence[str], optional
+        The command line; default ``sys.argv`` with the program shown as ``vesselid``.
+    """
+    args = list(sys.argv[1:] if argv is None else argv)
+    files = []
+    for p in inputs:
+        try:
+            digest = file_sha256(p)
+        except OSError:
+            digest = ""
+        files.append((str(p), digest))
+    now = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0)
+    return Provenance(version=f"vesselid {__version__}", created=now.isoformat(),
+                      command=" ".join(["vesselid", *args]), inputs=tuple(files))
+
+
+# --------------------------------------------------------------------------- the whole flow
+#: Name of the segments file in a report folder.
+SEGMENTS_NAME = "segments.json"
+#: Name of the diagnosis file in a report folder.
+DIAGNOSIS_NAME = "diagnosis.json"
+
+
+@dataclass(frozen=True)
+class FlowResult:
+    """What :func:`run_flow` made.
+
+    Attributes
+    ----------
+    trial : Trial
+    segments : Segments
+    fits : Fits
+    autopilot : AutopilotResult or None
+        None when K or T was not identified (``skipped`` says why).
+    diagnosis : GapReport or None
+        None when the trial holds nothing to replay (``skipped`` says why).
+    report : ReportPaths or None
+        The report files; None when no report folder was asked for.
+    skipped : Mapping[str, str]
+        Stage name -> why it produced nothing.
+    """
+
+    trial: Trial
+    segments: Segments
+    fits: Fits
+    autopilot: AutopilotResult | None = None
+    diagnosis: Any = None
+    report: ReportPaths | None = None
+    skipped: Mapping[str, str] = field(default_factory=dict)
+
+
+STEPS = ("ingest + align", "segment", "fit", "autopilot", "diagnose", "report")
+
+
+def run_flow(logs: Sequence[str | Path], vessel: Vessel, out: str | Path | None = None, *,
+             name: str | None = None, fs: float | None = None, columns: Mapping[str, str] | None = None,
+             units: Mapping[str, str] | None = None, manual_segments: Sequence[Mapping[str, Any]] = (),
+             segments_mode: str = "replace", segments: Segments | None = None,
+             autopilot_options: Mapping[str, Any] | None = None, provenance: Provenance | None = None,
+             stop_after: str = "report", trial: Trial | None = None) -> FlowResult:
+    """Every stage, in flow order: ingest -> align -> segment -> fit -> autopilot -> diagnose -> report.
+
+    Parameters
+    ----------
+    logs : Sequence[str or Path]
+        Log files of one trial.
+    vessel : Vessel
+        Vessel config.
+    out : str or Path, optional
+        Report folder. Checked before any work starts; written as a whole at the end (a staging
+        folder swapped in, so a failed or interrupted run leaves the previous report intact).
+    name, fs, columns, units
+        Trial name, resample rate [Hz], CSV column and unit maps (see :func:`load_trial`).
+    manual_segments, segments_mode
+        A manifest's ``[[segments]]`` and ``segments_mode`` (see :func:`segment_trial`).
+    segments : Segments, optional
+        Segments to use instead of detecting them (``--segments SEG.json``).
+    autopilot_options : Mapping, optional
+        A manifest's ``[autopilot]`` table (see :func:`design_autopilot`).
+    provenance : Provenance, optional
+        For the report footer; default made from the logs and ``sys.argv``.
+    stop_after : str
+        Last stage to run: ``fit`` or ``report`` (everything).
+    trial : Trial, optional
+        An aligned trial to start from instead of reading ``logs``.
+
+    Returns
+    -------
+    FlowResult
+    """
+    if out is not None:
+        check_output_folder(out)
+    steps = STEPS if stop_after == "report" else STEPS[:STEPS.index(stop_after) + 1]
+    bar = tqdm(total=len(steps), desc="vesselid", disable=not show_progress(), leave=False,
+               bar_format="{desc}: {n_fmt}/{total_fmt} [{elapsed}] {postfix}")
+
+    def step(label: str, fn: Callable[[], Any]) -> Any:
+        bar.set_postfix_str(label)
+        value = fn()
+        bar.update()
+        return value
+
+    try:
+        if trial is None:
+            trial = step(steps[0], lambda: load_trial(logs, vessel, name=name, fs=fs, columns=columns, units=units))
+        else:
+            bar.update()
+        if segments is None:
+            segments = step(steps[1], lambda: segment_trial(trial, manual_segments, segments_mode))
+        else:
+            bar.update()
+        fits = step(steps[2], lambda: fit_segments(trial, segments, vessel))
+        if stop_after == "fit":
+            return FlowResult(trial, segments, fits)
+        skipped: dict[str, str] = {}
+        autopilot = diagnosis = None
+        try:
+            autopilot = step(steps[3], lambda: design_autopilot(fits, vessel, autopilot_options))
+        except AutopilotError as exc:
+            skipped["autopilot"] = str(exc)
+            bar.update()
+        try:
+            diagnosis = step(steps[4], lambda: diagnose_trial(trial, vessel, fits))
+        except DiagnoseError as exc:
+            skipped["diagnose"] = str(exc)
+            bar.update()
+        paths = None
+        if out is not None:
+            prov = provenance or make_provenance(list(logs))
+            paths = step(steps[5], lambda: write_outputs(out, trial, segments, fits, autopilot, diagnosis,
+                                                         skipped, prov))
+        return FlowResult(trial, segments, fits, autopilot, diagnosis, paths, skipped)
+    finally:
+        bar.close()
+
+
+def write_outputs(out: str | Path, trial: Trial, segments: Segments, fits: Fits,
+                  autopilot: AutopilotResult | None, diagnosis, skipped: Mapping[str, str],
+                  provenance: Provenance | None = None) -> ReportPaths:
+    """Write the report folder as a whole: segments, coefficients, autopilot, diagnosis, report.
+
+    Everything goes into a staging folder beside ``out`` that replaces ``out`` only once complete
+    (:func:`pipeline.atomic.atomic_folder`).
+
+    Parameters
+    ----------
+    out : str or Path
+        Report folder.
+    trial, segments, fits
+        The records of the earlier stages.
+    autopilot : AutopilotResult or None
+        The autopilot design; None writes a section saying why (``skipped["autopilot"]``).
+    diagnosis : GapReport or None
+        The diagnosis; None writes a section saying why (``skipped["diagnose"]``).
+    skipped : Mapping[str, str]
+        Stage -> reason it produced nothing.
+    provenance : Provenance, optional
+        Footer of the report.
+    """
+    import html as _html
+
+    from .autopilot import write_autopilot_outputs
+    from .autopilot.report_section import autopilot_html_section
+    from .diagnose.figures import write_figures as write_diagnosis_figures
+    from .diagnose.html import diagnose_html_section
+    from .report import write_report
+
+    with atomic_folder(out) as stage:
+        write_json(segments_to_json(segments), stage / SEGMENTS_NAME)
+        sections = []
+        if autopilot is not None:
+            write_autopilot_outputs(autopilot, stage)
+            sections.append(autopilot_html_section(autopilot))
+        else:
+            sections.append(("Heading autopilot and Kalman filter",
+                             f"<p>No autopilot was designed: {_html.escape(skipped.get('autopilot', ''))}</p>"))
+        if diagnosis is not None:
+            write_json(diagnosis.to_dict(), stage / DIAGNOSIS_NAME)
+            write_diagnosis_figures(diagnosis, stage)
+            sections.append(diagnose_html_section(diagnosis))
+        else:
+            sections.append(("Sim-to-real gap",
+                             f"<p>No diagnosis: {_html.escape(skipped.get('diagnose', ''))}</p>"))
+        paths = write_report(fits, stage, trial=trial, segments=segments, extra_sections=sections,
+                             diagnosis=diagnosis, provenance=provenance)
+    return paths.moved_to(Path(out))

@@ -419,3 +419,26 @@ class Fits:
         "M nu_dot + D nu = tau with D positive definite; hydrodynamic derivatives follow Fossen "
         "(X_u = -D[0,0] < 0); DOF order u, v, p, q, r; Nomoto psi/delta = K/(s(Ts+1))."
     )
+
+
+# --------------------------------------------------------------------------- report
+@dataclass(frozen=True)
+class Provenance:
+    """What produced a report: shown in its footer.
+
+    Attributes
+    ----------
+    version : str
+        As ``vesselid --version`` prints it.
+    created : str
+        UTC time, ISO 8601.
+    command : str
+        The command line.
+    inputs : tuple[tuple[str, str], ...]
+        ``(path, sha256)`` of every input file (empty hash: unreadable).
+    """
+
+    version: str
+    created: str
+    command: str
+    inputs: tuple[tuple[str, str], ...] = ()

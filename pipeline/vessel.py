@@ -244,6 +244,27 @@ def _number(where: str, value: Any, positive: bool = False) -> float:
     return float(value)
 
 
+def _check_positive_definite(where: str, D: np.ndarray) -> None:
+    """Raise ConfigError unless ``D`` is positive definite (its symmetric part has eigenvalues > 0).
+
+    A damping matrix with a zero or negative eigenvalue makes a vessel that gains energy from the
+    water: usually a derivative entered with Fossen's negative sign (``X_u``) instead of ``D = -X_u``.
+
+    Parameters
+    ----------
+    where : str
+        Config file and table, for the message.
+    D : numpy.ndarray
+        5x5 damping matrix, DOF order u v p q r [SI].
+    """
+    eig = np.linalg.eigvalsh(0.5 * (D + D.T))
+    if eig.min() <= 0.0:
+        diag = ", ".join(f"{x:.6g}" for x in np.diag(D))
+        raise ConfigError(f"{where}: expected a positive definite damping matrix D (M nu_dot + D nu = tau, "
+                          f"D = -derivative, so the diagonal is positive), found smallest eigenvalue "
+                          f"{eig.min():.6g} (diagonal {diag}); enter D, not Fossen's negative derivatives")
+
+
 def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
     """Build a :class:`Vessel` from a parsed TOML document.
 
@@ -302,6 +323,8 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
         kw["damping"] = mat
     elif "diagonal" in dmp:
         kw["damping"] = np.diag(_vector(f"{path} damping.diagonal", dmp["diagonal"], 5))
+    if "damping" in kw:
+        _check_positive_definite(f"{path} [damping]", kw["damping"])
     if "quadratic" in dmp:
         kw["quadratic_damping"] = _vector(f"{path} damping.quadratic", dmp["quadratic"], 5)
 

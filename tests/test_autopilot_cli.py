@@ -135,4 +135,4 @@ def test_still_and_noise_std_are_exclusive(tmp_path):
 
 def test_handler_signature_is_the_namespace():
     args = _parser().parse_args(["autopilot", "--coefficients", "c.json", "--out", "a.toml"])
-    assert args.func is cmd_autopilot and args.phase_margin == 50.0 and args.crossover == 0.1
+    assert args.func is cmd_autopilot and args.phase_margin == 50.0 and args.crossover is None

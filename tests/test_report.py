@@ -23,8 +23,8 @@ from pipeline.report import (ReportPaths, damping_from_dict, fits_to_dict, load_
                              write_report)
 from pipeline.report import atomic as atomic_mod
 from pipeline.report import coefficients_json, figures, html as html_mod, tables
-from pipeline.report._common import STANDARD_COEFFICIENTS, format_uncertain
-from pipeline.report.atomic import TEMP_PREFIX, atomic_write_text
+from pipeline.report.rows import STANDARD_COEFFICIENTS, format_uncertain
+from pipeline.atomic import TEMP_PREFIX, atomic_write_text
 from pipeline.report.coefficients_json import COEFFICIENT_KEYS
 from pipeline.report.tables import latex_escape
 

@@ -7,8 +7,8 @@ Modules
 ``kalman``       5-state model [xi_w, psi_w, psi, r, b], observability, Van Loan, the discrete filter.
 ``config``       :class:`AutopilotConfig`, ``AUTOPILOT.toml`` writer/reader, input readers, ArduPilot export.
 ``closed_loop``  Heading-loop simulation: PD alone, with wave filtering, with bias feed-forward.
-``stage``        :func:`build_autopilot` and :func:`write_autopilot_outputs` (what the CLI and ``run`` call).
-``section``      :func:`autopilot_html_section` for the HTML report.
+``design``       :func:`build_autopilot` and :func:`write_autopilot_outputs` (what the CLI and ``run`` call).
+``report_section`` :func:`autopilot_html_section` for the HTML report.
 ``figures``      Closed-loop and wave-fit figures (PNG bytes).
 ``cli``          ``vesselid waves`` and ``vesselid autopilot``.
 
@@ -23,9 +23,9 @@ from .config import (ArduPilotExport, AutopilotConfig, NomotoCoefficients, Sourc
 from .kalman import (KALMAN_STATES, KalmanModel, KalmanRun, continuous_model, kalman_model, kalman_predict,
                      kalman_update, observability, run_kalman_filter, sampled_noise_variance, steady_state,
                      van_loan)
-from .pd import DiscretePD, PDGains, discretise_pd, loop_margins, margin_table, pd_gains
-from .section import autopilot_html_section
-from .stage import AutopilotResult, build_autopilot, nomoto_from_fits, write_autopilot_outputs
+from .pd import DiscretePD, PDGains, default_crossover, discretise_pd, loop_margins, margin_table, pd_gains
+from .report_section import autopilot_html_section
+from .design import AutopilotResult, build_autopilot, nomoto_from_fits, write_autopilot_outputs
 from .waves_fit import HeadingRecord, WaveFit, fit_wave_record, fit_wave_spectrum, read_heading_record, welch_psd
 
 __all__ = [
@@ -36,7 +36,7 @@ __all__ = [
     "write_ardupilot_params", "write_autopilot_toml",
     "KALMAN_STATES", "KalmanModel", "KalmanRun", "continuous_model", "kalman_model", "kalman_predict",
     "kalman_update", "observability", "run_kalman_filter", "sampled_noise_variance", "steady_state", "van_loan",
-    "DiscretePD", "PDGains", "discretise_pd", "loop_margins", "margin_table", "pd_gains",
+    "DiscretePD", "PDGains", "default_crossover", "discretise_pd", "loop_margins", "margin_table", "pd_gains",
     "autopilot_html_section",
     "AutopilotResult", "build_autopilot", "nomoto_from_fits", "write_autopilot_outputs",
     "HeadingRecord", "WaveFit", "fit_wave_record", "fit_wave_spectrum", "read_heading_record", "welch_psd",

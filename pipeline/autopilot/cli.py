@@ -13,11 +13,12 @@ import math
 from pathlib import Path
 
 from ..errors import AutopilotError, VesselidError
-from .config import (DEFAULT_TS, _atomic_write, read_coefficients_json, read_waves_json, source_file,
+from .config import (DEFAULT_TS, read_coefficients_json, read_waves_json, source_file,
                      write_ardupilot_params, write_autopilot_toml)
 from .kalman import DEFAULT_Q, sampled_noise_variance
-from .pd import DEFAULT_CROSSOVER
-from .stage import build_autopilot, write_autopilot_outputs
+from ..atomic import atomic_write_bytes
+from .pd import CROSSOVER_TIMES_T
+from .design import build_autopilot, write_autopilot_outputs
 from .waves_fit import fit_wave_record, read_heading_record
 
 
@@ -80,14 +81,14 @@ def cmd_waves(args: argparse.Namespace) -> int:
     doc["source"] = {"path": str(args.log), "sha256": source_file("waves_record", args.log).sha256,
                      "series": rec.source}
     try:
-        _atomic_write(Path(args.json), (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode())
+        atomic_write_bytes(Path(args.json), (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode())
     except OSError as exc:
         raise AutopilotError(f"{args.json}: expected a writable JSON path, found: {exc}") from None
     if getattr(args, "plot", None):
         from .figures import wave_fit_figure
 
         try:
-            _atomic_write(Path(args.plot), wave_fit_figure(fit))
+            atomic_write_bytes(Path(args.plot), wave_fit_figure(fit))
         except OSError as exc:
             raise AutopilotError(f"{args.plot}: expected a writable PNG path, found: {exc}") from None
     print(f"omega0 = {fit.omega0:.4f} +- {fit.omega0_se:.2g} rad/s, lambda = {fit.lam:.4f} +- {fit.lam_se:.2g}, "
@@ -126,8 +127,8 @@ def add_autopilot_parser(subparsers) -> argparse.ArgumentParser:
                    help="the fit stage's coefficients.json (K_nomoto and T_nomoto are read)")
     p.add_argument("--waves", metavar="WAVES.json", help="wave model from `vesselid waves` "
                                                          "(default: the course record's fit, with a note)")
-    p.add_argument("--crossover", type=float, default=DEFAULT_CROSSOVER, metavar="RAD_S",
-                   help=f"PD crossover frequency [rad/s] (default {DEFAULT_CROSSOVER})")
+    p.add_argument("--crossover", type=float, default=None, metavar="RAD_S",
+                   help=f"PD crossover frequency [rad/s] (default {CROSSOVER_TIMES_T:.2f}/T, as vesselid run)")
     p.add_argument("--phase-margin", type=float, default=50.0, metavar="DEG",
                    help="PD phase margin [deg] (default 50)")
     p.add_argument("--out", required=True, metavar="AUTOPILOT.toml", help="where to write the config")
@@ -175,7 +176,7 @@ def cmd_autopilot(args: argparse.Namespace) -> int:
     AutopilotError
         Missing or malformed inputs, out-of-range design values, unwritable outputs.
     """
-    crossover = _positive_arg("--crossover", args.crossover, "rad/s")
+    crossover = None if args.crossover is None else _positive_arg("--crossover", args.crossover, "rad/s")
     pm_deg = args.phase_margin
     if pm_deg is None or not math.isfinite(pm_deg) or not 0 < pm_deg < 90:
         raise AutopilotError(f"--phase-margin: expected degrees between 0 and 90 (exclusive), found {pm_deg!r}")

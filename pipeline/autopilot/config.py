@@ -33,7 +33,7 @@ from ..atomic import atomic_write_bytes
 from ..errors import AutopilotError
 from ..model.waves import WaveParams
 from .kalman import DEFAULT_P0, DEFAULT_Q, DEFAULT_R, KALMAN_STATES, KalmanModel, kalman_model
-from .pd import DEFAULT_CROSSOVER, DEFAULT_PHASE_MARGIN, PDGains, pd_gains
+from .pd import DEFAULT_PHASE_MARGIN, PDGains, pd_gains
 
 #: Default rudder limit [rad]: 35 deg hard over (SOLAS II-1 reg. 29; the seed's +-35 deg).
 DEFAULT_MAX_ANGLE = math.radians(35.0)
@@ -138,7 +138,7 @@ class AutopilotConfig:
 def build_autopilot_config(K: float, T: float, *, K_stderr: float = math.nan, T_stderr: float = math.nan,
                            waves: WaveParams | None = None, waves_stderr: Mapping[str, float] | None = None,
                            wave_source: str = "", ts: float = DEFAULT_TS,
-                           crossover: float = DEFAULT_CROSSOVER, phase_margin: float = DEFAULT_PHASE_MARGIN,
+                           crossover: float | None = None, phase_margin: float = DEFAULT_PHASE_MARGIN,
                            r: float | None = None, r_source: str = "",
                            q: tuple[float, float] = DEFAULT_Q, p0: tuple[float, ...] = DEFAULT_P0,
                            rudder: Mapping[str, float] | None = None, rudder_source: str = "",
@@ -159,8 +159,8 @@ def build_autopilot_config(K: float, T: float, *, K_stderr: float = math.nan, T_
         Where ``waves`` came from.
     ts : float
         Sample time [s].
-    crossover : float
-        PD crossover frequency [rad/s].
+    crossover : float, optional
+        PD crossover frequency [rad/s]; default :func:`pipeline.autopilot.pd.default_crossover`.
     phase_margin : float
         PD phase margin [rad].
     r : float, optional
@@ -280,19 +280,6 @@ def config_to_dict(cfg: AutopilotConfig) -> dict[str, Any]:
     }
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` atomically (:func:`pipeline.atomic.atomic_write_bytes`).
-
-    Parameters
-    ----------
-    path : Path
-        Destination file.
-    data : bytes
-        Full file content.
-    """
-    atomic_write_bytes(path, data)
-
-
 def write_autopilot_toml(cfg: AutopilotConfig, path: str | Path) -> Path:
     """Write ``AUTOPILOT.toml`` atomically.
 
@@ -308,7 +295,7 @@ def write_autopilot_toml(cfg: AutopilotConfig, path: str | Path) -> Path:
         The path written.
     """
     try:
-        _atomic_write(Path(path), tomli_w.dumps(config_to_dict(cfg)).encode())
+        atomic_write_bytes(Path(path), tomli_w.dumps(config_to_dict(cfg)).encode())
     except OSError as exc:
         raise AutopilotError(f"{path}: expected a writable autopilot config path, found: {exc}") from None
     return Path(path)
@@ -595,7 +582,7 @@ def write_ardupilot_params(cfg: AutopilotConfig, path: str | Path) -> Path:
     lines += [f"# {n}" for n in exp.notes]
     lines += [f"{name},{value:.6g}" for name, value in sorted(exp.params.items())]
     try:
-        _atomic_write(Path(path), ("\n".join(lines) + "\n").encode())
+        atomic_write_bytes(Path(path), ("\n".join(lines) + "\n").encode())
     except OSError as exc:
         raise AutopilotError(f"{path}: expected a writable parameter-file path, found: {exc}") from None
     return Path(path)

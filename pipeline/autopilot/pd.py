@@ -30,8 +30,22 @@ import numpy as np
 
 from ..errors import AutopilotError
 
-#: Default design crossover frequency [rad/s] (the seed's).
-DEFAULT_CROSSOVER = 0.1
+#: omega_c T of the ship-autopilot seed's design (0.1 rad/s for T = 72.4 s). The default crossover keeps
+#: this product, so a small, fast model ship gets the same loop shape instead of a crossover 30x too low.
+CROSSOVER_TIMES_T = 0.1 * 72.4
+
+
+def default_crossover(T: float) -> float:
+    """The one default PD crossover frequency: ``CROSSOVER_TIMES_T / T`` [rad/s].
+
+    ``vesselid autopilot``, ``vesselid run`` and :func:`pd_gains` all take it from here.
+
+    Parameters
+    ----------
+    T : float
+        Nomoto time constant [s], positive.
+    """
+    return CROSSOVER_TIMES_T / _positive("Nomoto T", T, "s")
 #: Default design phase margin [rad] (the seed's 50 deg).
 DEFAULT_PHASE_MARGIN = math.radians(50.0)
 
@@ -71,7 +85,7 @@ def _positive(name: str, value: float, unit: str) -> float:
     return v
 
 
-def pd_gains(K: float, T: float, crossover: float = DEFAULT_CROSSOVER,
+def pd_gains(K: float, T: float, crossover: float | None = None,
              phase_margin: float = DEFAULT_PHASE_MARGIN) -> PDGains:
     """PD gains from the Nomoto model, a crossover frequency and a phase margin.
 
@@ -81,8 +95,8 @@ def pd_gains(K: float, T: float, crossover: float = DEFAULT_CROSSOVER,
         Nomoto gain [1/s], positive (positive rudder gives positive yaw rate).
     T : float
         Nomoto time constant [s].
-    crossover : float
-        Crossover frequency omega_c [rad/s].
+    crossover : float, optional
+        Crossover frequency omega_c [rad/s]; default :func:`default_crossover` of ``T``.
     phase_margin : float
         Phase margin [rad], strictly between 0 and pi/2 (the loop ``K_pd K / (s (1 + T_f s))`` has at
         most 90 deg of margin).
@@ -99,7 +113,7 @@ def pd_gains(K: float, T: float, crossover: float = DEFAULT_CROSSOVER,
     """
     K = _positive("Nomoto K", K, "1/s")
     T = _positive("Nomoto T", T, "s")
-    wc = _positive("crossover frequency", crossover, "rad/s")
+    wc = _positive("crossover frequency", default_crossover(T) if crossover is None else crossover, "rad/s")
     pm = float(phase_margin)
     if not (0.0 < pm < math.pi / 2):
         raise AutopilotError(f"phase margin: expected between 0 and 90 deg (exclusive), found "

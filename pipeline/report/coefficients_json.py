@@ -29,9 +29,9 @@ import numpy as np
 
 from ..errors import ReportError
 from ..records import DOFS, Estimate, Fits
-from ._common import (STANDARD_COEFFICIENTS, MISSING_NOTE, check_fits, checked_matrices,
+from .rows import (STANDARD_COEFFICIENTS, MISSING_NOTE, check_fits, checked_matrices,
                       default_unit, estimate_notes, finite, is_identified, ordered_names)
-from .atomic import atomic_write_text
+from ..atomic import atomic_write_text
 
 #: Keys of one coefficient entry, in the order written.
 COEFFICIENT_KEYS: tuple[str, ...] = ("value", "stderr", "ci95", "unit", "n_segments", "method",
@@ -310,7 +310,7 @@ def damping_from_dict(data: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     D, D_stderr : numpy.ndarray, shape (5, 5)
-        Damping matrix (positive diagonal) [SI, see :func:`~pipeline.report._common.damping_unit`]
+        Damping matrix (positive diagonal) [SI, see :func:`~pipeline.report.rows.damping_unit`]
         in DOF order u, v, p, q, r, and its standard errors.
     """
     dm = data["damping_matrix"]

@@ -24,8 +24,8 @@ from matplotlib.transforms import blended_transform_factory
 
 from ..errors import ReportError
 from ..records import CHANNEL_UNITS, INPUT_UNITS, SEGMENT_KINDS, Segment, SegmentFit, Trial
-from ._common import finite, format_number, format_uncertain
-from .atomic import atomic_write_bytes
+from .rows import finite, format_number, format_uncertain
+from ..atomic import atomic_write_bytes
 
 #: Resolution of every PNG [dots per inch].
 DPI = 120
@@ -313,3 +313,74 @@ def save_figure(fig: Figure, path: str | os.PathLike, dpi: int = DPI) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
     return atomic_write_bytes(path, buf.getvalue())
+
+
+def resid_figure_name(index: int, sf: SegmentFit) -> str:
+    """``resid_<index>_<kind>_<dof>.png``: the residual-analysis figure of fit ``index``.
+
+    Parameters
+    ----------
+    index : int
+        Position of the fit in ``Fits.segment_fits``.
+    sf : SegmentFit
+        The fit.
+    """
+    return f"resid_{index:02d}_{safe_name(sf.segment.kind)}_{safe_name(sf.segment.dof)}.png"
+
+
+def plot_residual_analysis(resid, index: int | None = None) -> Figure:
+    """MATLAB ``resid``: residual autocorrelation and residual-input cross-correlation with 95 % bands.
+
+    Parameters
+    ----------
+    resid : pipeline.fit.residual_tests.ResidualTest
+        The test of one segment fit's residuals.
+    index : int, optional
+        Fit number shown in the title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Left: ``rho_e(k)``, ``k = 0..M``, band ``+-1.96/sqrt(N)``; right: ``rho_eu(k)``,
+        ``k = -M..M``, band ``+-1.96 sqrt(P/N)`` per input, or a note when the input is constant.
+    """
+    # Fixed margins: constrained layout would double the drawing time of these small panels.
+    fig = Figure(figsize=(8.0, 2.6))
+    FigureCanvasAgg(fig)
+    ax, axc = fig.subplots(1, 2)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.18, top=0.8, wspace=0.28)
+    m = resid.max_lag
+    lags = np.arange(resid.autocorrelation.size)
+    ax.vlines(lags, 0.0, resid.autocorrelation, color="tab:blue")
+    ax.plot(lags, resid.autocorrelation, "o", ms=3, color="tab:blue")
+    ax.axhspan(-resid.band, resid.band, color="tab:orange", alpha=0.25, label="95 % band (white)")
+    verdict = "white" if resid.white else "NOT white"
+    ax.set_title(f"autocorrelation of residuals: {verdict} (Ljung-Box p = {format_number(resid.ljung_box_p, 2)})",
+                 fontsize=8.5, color="black" if resid.white else "tab:red")
+    ax.set_xlabel("lag [samples]", fontsize=8)
+    ax.set_ylabel("rho_e [-]", fontsize=8)
+    ax.legend(fontsize=7, loc="upper right")
+    if resid.cross_correlation:
+        ch, xc = next(iter(resid.cross_correlation.items()))
+        band = resid.cross_band.get(ch, math.nan)
+        xl = np.arange(-m, m + 1)[:len(xc)]
+        axc.vlines(xl, 0.0, xc, color="tab:green")
+        axc.plot(xl, xc, "o", ms=3, color="tab:green")
+        if finite(band):
+            axc.axhspan(-band, band, color="tab:orange", alpha=0.25)
+        p = resid.cross_p.get(ch, math.nan)
+        ok = resid.independent
+        axc.set_title(f"cross-correlation with input {ch}: {'independent' if ok else 'CORRELATED'} "
+                      f"(p = {format_number(p, 2)})", fontsize=8.5, color="black" if ok else "tab:red")
+        axc.set_xlabel("lag [samples] (negative: residual leads input)", fontsize=8)
+        axc.set_ylabel("rho_eu [-]", fontsize=8)
+    else:
+        axc.text(0.5, 0.5, "input constant over the segment (or none):\nno cross-correlation to test",
+                 transform=axc.transAxes, ha="center", va="center", fontsize=8)
+        axc.set_axis_off()
+    for a in (ax, axc):
+        a.tick_params(labelsize=7)
+        a.grid(True, alpha=0.3)
+    if index is not None:
+        fig.suptitle(f"fit {index}: residual analysis ({resid.n} residuals, {m} lags)", fontsize=9)
+    return fig

@@ -1,4 +1,10 @@
-"""``report.html``: one self-contained page (inline CSS, figures as relative links in the same folder).
+"""``report.html``: one self-contained page (inline CSS; figures embedded as data URIs by
+:func:`embed_images`, the same PNGs also beside it in the folder).
+
+Layout: a summary (``id="summary"``, before any other table) with the damping diagonal, Nomoto K
+and T, the model structure and the diagnosis headline; a table of contents; warnings apart from
+notes; then the sections in flow order (data, segments, coefficients, fit quality, autopilot,
+diagnosis); a footer with version, date, command and input hashes.
 
 Every text that comes from data (vessel name, messages, labels, captions) is escaped with
 :func:`html.escape`; only the ``extra_sections`` fragments that other stages pass in are inserted
@@ -7,20 +13,38 @@ as HTML, since producing HTML is their job.
 
 from __future__ import annotations
 
+import base64
 import html
 import re
-from typing import Sequence
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
 
 from ..errors import ReportError
-from ..records import DOFS, Fits, Segment, Trial
-from ._common import Formatted, check_fits, checked_matrices, coefficient_rows, finite, format_uncertain, \
+from ..records import DOFS, Fits, Provenance, Segment, Trial
+from .rows import Formatted, check_fits, checked_matrices, coefficient_rows, finite, format_uncertain, \
     note_labels
+from .summary import Findings, SummaryRow, method_key, method_label
 from .tables import GREEK
 
 _CSS = """
-body { font-family: system-ui, -apple-system, "Segoe UI", Helvetica, Arial, sans-serif; margin: 2em auto;
-       max-width: 1100px; padding: 0 1em; color: #222; line-height: 1.45; }
-h1 { border-bottom: 2px solid #345; padding-bottom: .2em; }
+body { font-family: system-ui, -apple-system, "Segoe UI", Helvetica, Arial, sans-serif; margin: 1em auto;
+       max-width: 1100px; padding: 0 1em; color: #222; line-height: 1.4; }
+h1 { border-bottom: 2px solid #345; padding-bottom: .1em; margin: .2em 0 .4em; font-size: 1.5em; }
+.tw { overflow-x: auto; max-width: 100%; }
+#summary { background: #f4f6f8; border: 1px solid #cdd5dd; padding: .3em .8em; }
+#summary h2 { margin: .2em 0; border: none; font-size: 1.15em; }
+#summary table { margin: .3em 0; font-size: .88em; }
+#summary td, #summary th { padding: .12em .6em; }
+.flag { color: #a33; font-weight: 600; }
+.headline { margin: .3em 0; }
+nav.toc ol { columns: 3; margin: .3em 0; font-size: .9em; }
+ul.warnings li { color: #8a3b00; }
+details { margin: .4em 0; }
+details > summary { cursor: pointer; }
+footer { margin-top: 3em; border-top: 1px solid #ccc; font-size: .8em; color: #555; overflow-wrap: anywhere; }
+.methods { font-size: .85em; color: #333; }
 h2 { margin-top: 2em; border-bottom: 1px solid #ccc; }
 table { border-collapse: collapse; margin: 1em 0; font-size: .92em; }
 caption { caption-side: top; text-align: left; padding-bottom: .4em; font-size: .92em; color: #333; }
@@ -31,7 +55,6 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: now
 td.na { color: #a33; }
 .convention { background: #f4f6f8; border-left: 4px solid #345; padding: .5em 1em; }
 .notes { font-size: .88em; color: #444; }
-ul.warnings li { color: #8a3b00; }
 figure { margin: 1.5em 0; }
 figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { font-size: .9em; color: #333; }
@@ -80,13 +103,32 @@ def _html_ci(f: Formatted | None) -> str:
     return _esc(f"[{f.ci[0]}, {f.ci[1]}]") + tail
 
 
-def coefficient_table_html(fits: Fits) -> str:
-    """The coefficient table (same content as ``tab:coefficients``) with its lettered notes.
+def method_footnotes(fits: Fits) -> dict[str, int]:
+    """Footnote number of each distinct method (segment counts left out), in table order.
 
     Parameters
     ----------
     fits : Fits
         Fit results.
+    """
+    out: dict[str, int] = {}
+    for row in coefficient_rows(fits):
+        if row.method:
+            out.setdefault(method_key(row.method), len(out) + 1)
+    return out
+
+
+def coefficient_table_html(fits: Fits, added_mass: Mapping[str, float] | None = None) -> str:
+    """The coefficient table (same content as ``tab:coefficients``), lettered notes, numbered methods.
+
+    Each method is written once, as a footnote; a row shows its short name and number.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
+    added_mass : Mapping[str, float], optional
+        The vessel config's ``[added_mass]`` (a derivative of a DOF without one gets a note).
 
     Returns
     -------
@@ -94,17 +136,22 @@ def coefficient_table_html(fits: Fits) -> str:
         HTML fragment.
     """
     check_fits(fits)
-    rows = coefficient_rows(fits)
+    rows = coefficient_rows(fits, added_mass)
     labels = note_labels(rows)
+    methods = method_footnotes(fits)
     out = ['<table class="coefficients" id="coefficient-table">',
            f"<caption>Identified hydrodynamic coefficients of {_esc(fits.vessel)}, SI units as listed per "
            f"row, with standard errors and 95&nbsp;% confidence intervals. Sign convention: "
-           f"{_esc(fits.convention)}</caption>",
+           f"{_esc(fits.convention)} Letters: notes; numbers: methods, below.</caption>",
            "<thead><tr><th>Coefficient</th><th>Value ± std. error</th><th>95&nbsp;% CI</th><th>Unit</th>"
            "<th>Segments</th><th>Method</th></tr></thead>", "<tbody>"]
     for row in rows:
         marks = "".join(f"<sup>{labels[n]}</sup>" for n in row.notes)
-        method = _esc(row.method) if row.method else "--"
+        if row.method:
+            k = methods[method_key(row.method)]
+            method = f'{_esc(method_label(row.method))}&nbsp;<a href="#method-{k}">[{k}]</a>'
+        else:
+            method = "--"
         if row.identified:
             num = _html_number(row.number) + (" ± n/a" if row.number.stderr is None else "")
             cells = f'<td class="num">{num}{marks}</td><td class="num">{_html_ci(row.number)}</td>'
@@ -114,8 +161,13 @@ def coefficient_table_html(fits: Fits) -> str:
                    f'<td class="num">{row.n_segments}</td><td>{method}</td></tr>')
     out.append("</tbody></table>")
     if labels:
-        out.append('<div class="notes"><ol type="a">')
+        out.append('<details class="notes"><summary>Notes a&ndash;' + _esc(list(labels.values())[-1])
+                   + '</summary><ol type="a">')
         out += [f"<li>{_esc(note)}</li>" for note in labels]
+        out.append("</ol></details>")
+    if methods:
+        out.append('<div class="methods"><p><b>Methods</b></p><ol>')
+        out += [f'<li id="method-{k}">{_esc(text)}</li>' for text, k in methods.items()]
         out.append("</ol></div>")
     return "\n".join(out)
 
@@ -242,25 +294,175 @@ def check_extra_sections(extra_sections) -> tuple[tuple[str, str], ...]:
     return tuple(out)
 
 
+def summary_html(rows: Sequence[SummaryRow], headline: str = "", n_warnings: int = 0) -> str:
+    """The summary block (``id="summary"``): key numbers with CI and flags, and the diagnosis headline.
+
+    Parameters
+    ----------
+    rows : Sequence[SummaryRow]
+        From :func:`pipeline.report.summary.summary_rows`.
+    headline : str
+        The diagnosis in one sentence (empty: no diagnosis).
+    n_warnings : int
+        Warnings listed further down (linked).
+    """
+    out = ['<section id="summary"><h2>Summary</h2>',
+           '<table class="summary"><thead><tr><th>Quantity</th><th>Value ± std. error</th><th>95&nbsp;% CI</th>'
+           "<th>Unit</th><th>Flags</th></tr></thead><tbody>"]
+    for r in rows:
+        flags = "; ".join(_esc(f) for f in r.flags)
+        if r.name:
+            out.append(f"<tr><td>{_esc(r.label)}</td><td class=\"num\">{_esc(r.value)}</td>"
+                       f"<td class=\"num\">{_esc(r.ci)}</td><td>{_html_unit(r.unit)}</td>"
+                       f'<td class="flag">{flags}</td></tr>')
+        else:
+            out.append(f'<tr><td>{_esc(r.label)}</td><td colspan="4">{_esc(r.value)}</td></tr>')
+    out.append("</tbody></table>")
+    if headline:
+        out.append(f'<p class="headline"><b>Sim-to-real gap:</b> {_esc(headline)} '
+                   f'<a href="#sec-sim-to-real-gap">details</a></p>')
+    if n_warnings:
+        out.append(f'<p class="headline flag"><a href="#warnings">{n_warnings} warning'
+                   f'{"s" if n_warnings != 1 else ""}</a> need attention.</p>')
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def quality_table_html(fits: Fits, qualities: Sequence) -> str:
+    """Per-segment fit quality: MATLAB ``compare`` fit %, RMSE, whiteness and input independence.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
+    qualities : Sequence[SegmentQuality]
+        One per segment fit.
+    """
+    out = ['<table class="quality" id="quality-table"><caption>Fit quality per segment: fit % = 100 (1 - '
+           '||y - y<sub>fit</sub>|| / ||y - mean y||) as MATLAB <i>compare</i>; residual tests as MATLAB '
+           '<i>resid</i> (Ljung-Box whiteness, prewhitened input cross-correlation, significance 1&nbsp;%).'
+           '</caption><thead><tr><th>Fit</th><th>Segment</th><th>Model</th><th>Channel</th><th>Fit %</th>'
+           "<th>RMSE</th><th>White (p)</th><th>Input-independent (p)</th></tr></thead><tbody>"]
+    for i, (sf, q) in enumerate(zip(fits.segment_fits, qualities)):
+        seg = sf.segment
+        pct = f"{q.fit_percent:.1f}" if finite(q.fit_percent) else "n/a"
+        rmse = f"{sf.rmse:.3g}" if finite(sf.rmse) else "n/a"
+        if q.resid is None:
+            white = indep = f"not tested: {_esc(q.message)}"
+        else:
+            white = ("yes" if q.resid.white else '<span class="flag">no</span>') + \
+                f" ({q.resid.ljung_box_p:.2g})"
+            if q.resid.cross_p:
+                p = min(q.resid.cross_p.values())
+                indep = ("yes" if q.resid.independent else '<span class="flag">no</span>') + f" ({p:.2g})"
+            else:
+                indep = "constant input"
+        status = "" if sf.success else ' <span class="flag">failed</span>'
+        out.append(f'<tr><td class="num"><a href="#fit-{i}">{i}</a></td><td>{_esc(seg.kind)}/{_esc(seg.dof)} '
+                   f"{seg.t_start:.1f}-{seg.t_end:.1f}&nbsp;s{status}</td><td>{_esc(sf.model)}</td>"
+                   f'<td>{_esc(sf.channel)}</td><td class="num">{pct}</td><td class="num">{rmse}</td>'
+                   f"<td>{white}</td><td>{indep}</td></tr>")
+    out.append("</tbody></table>")
+    return "\n".join(out)
+
+
+def correlation_table_html(names: Sequence[str], corr: np.ndarray, caption: str) -> str:
+    """A parameter correlation matrix; ``|rho| > 0.9`` marked (nearly unidentifiable apart).
+
+    Parameters
+    ----------
+    names : Sequence[str]
+        Parameter names, in matrix order.
+    corr : numpy.ndarray
+        Correlation matrix [-].
+    caption : str
+        Table caption (plain text).
+    """
+    if corr.size == 0 or corr.shape[0] != len(names):
+        return f"<p>{_esc(caption)}: no covariance available.</p>"
+    head = "".join(f"<th>{_esc(n)}</th>" for n in names)
+    rows = []
+    for i, n in enumerate(names):
+        cells = []
+        for j in range(len(names)):
+            x = corr[i, j]
+            txt = f"{x:.2f}" if finite(x) else "n/a"
+            cls = ' class="num flag"' if (i != j and finite(x) and abs(x) > 0.9) else ' class="num"'
+            cells.append(f"<td{cls}>{txt}</td>")
+        rows.append(f"<tr><th>{_esc(n)}</th>{''.join(cells)}</tr>")
+    return (f'<table class="correlation"><caption>{_esc(caption)} (|&rho;| &gt; 0.9 marked).</caption>'
+            f"<thead><tr><th></th>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>")
+
+
+def footer_html(provenance: Provenance | None) -> str:
+    """Footer: version, date, command and the SHA-256 of every input file.
+
+    Parameters
+    ----------
+    provenance : Provenance or None
+        None: the version alone.
+    """
+    from .. import __version__
+
+    if provenance is None:
+        return f"<footer><p>vesselid {_esc(__version__)}</p></footer>"
+    files = "".join(f"<li><code>{_esc(h[:16]) or 'unreadable'}</code>&hellip; {_esc(p)}</li>"
+                    for p, h in provenance.inputs)
+    return (f"<footer><p>{_esc(provenance.version)} &middot; created {_esc(provenance.created)} &middot; "
+            f"command: <code>{_esc(provenance.command)}</code></p>"
+            + (f"<p>Inputs (SHA-256, first 16 hex digits):</p><ul>{files}</ul>" if files else "") + "</footer>")
+
+
+def slug(title: str) -> str:
+    """Anchor id of a section title: ``Sim-to-real gap`` -> ``sec-sim-to-real-gap``.
+
+    Parameters
+    ----------
+    title : str
+        Section title.
+    """
+    return "sec-" + (re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-") or "x")
+
+
 def render_html(fits: Fits, figures: Sequence[tuple[str, str]] = (), segments: Sequence[Segment] = (),
                 warnings: Sequence[str] = (), trial: Trial | None = None,
-                extra_sections: Sequence[tuple[str, str]] = ()) -> str:
-    """The whole report page.
+                extra_sections: Sequence[tuple[str, str]] = (), *, summary: Sequence[SummaryRow] = (),
+                headline: str = "", notes: Sequence[str] = (), qualities: Sequence = (),
+                fit_figures: Sequence[tuple[str, str | None]] = (), overview: str | None = None,
+                added_mass: Mapping[str, float] | None = None, provenance: Provenance | None = None) -> str:
+    """The whole report page (figures as relative links; :func:`embed_images` inlines them).
 
     Parameters
     ----------
     fits : Fits
         Fit results.
     figures : sequence of (str, str)
-        ``(file name relative to the page, caption)`` per figure, in display order.
+        Further ``(file name relative to the page, caption)`` figures, shown in a Figures section.
     segments : sequence of Segment
         Segments for the segment table.
     warnings : sequence of str
-        Plain-text warnings (escaped here).
+        Plain-text warnings: things a user must act on (escaped here).
     trial : Trial, optional
         Adds a data-provenance section.
     extra_sections : sequence of (str, str)
-        ``(title, html_fragment)`` from other stages; the title is escaped, the fragment is not.
+        ``(title, html_fragment)`` from the later stages, in flow order; the title is escaped, the
+        fragment is not.
+    summary : sequence of SummaryRow
+        Rows of the summary block.
+    headline : str
+        Diagnosis headline for the summary.
+    notes : sequence of str
+        Plain-text notes (information).
+    qualities : sequence of SegmentQuality
+        One per segment fit (fit %, residual test, parameter correlation).
+    fit_figures : sequence of (str, str or None)
+        Per segment fit: fit figure and residual-analysis figure file names (None: none).
+    overview : str, optional
+        Trial overview figure file name.
+    added_mass : Mapping[str, float], optional
+        The vessel config's ``[added_mass]``, for the table notes.
+    provenance : Provenance, optional
+        Footer content.
 
     Returns
     -------
@@ -269,25 +471,104 @@ def render_html(fits: Fits, figures: Sequence[tuple[str, str]] = (), segments: S
     """
     extra = check_extra_sections(extra_sections)
     title = f"vesselid report: {fits.vessel}"
-    body = [f"<h1>{_esc(title)}</h1>",
-            f'<p class="convention"><b>Convention.</b> {_esc(fits.convention)}</p>',
-            '<h2 id="coefficients">Coefficients</h2>', coefficient_table_html(fits),
-            '<h2 id="damping">Damping matrix</h2>', damping_table_html(fits),
-            '<h2 id="warnings">Warnings</h2>']
-    if warnings:
-        body.append('<ul class="warnings">' + "".join(f"<li>{_esc(w)}</li>" for w in warnings) + "</ul>")
-    else:
-        body.append("<p>No warnings: every coefficient was identified with an error bar.</p>")
-    body += ['<h2 id="segments">Segments</h2>', segment_table_html(segments)]
+    sections: list[tuple[str, str]] = []
+    warn = ('<ul class="warnings">' + "".join(f"<li>{_esc(w)}</li>" for w in warnings) + "</ul>") if warnings \
+        else "<p>No warnings: every coefficient was identified with an error bar and white residuals.</p>"
+    if notes:
+        warn += (f"<details><summary>{len(notes)} notes (information, nothing to act on)</summary><ul>"
+                 + "".join(f"<li>{_esc(n)}</li>" for n in notes) + "</ul></details>")
+    sections.append(("Warnings", warn))
     if trial is not None:
-        body += ['<h2 id="data">Data</h2>', trial_section_html(trial)]
+        sections.append(("Data", trial_section_html(trial)))
+    seg_html = ""
+    if overview:
+        seg_html += (f'<figure><img src="{_esc(overview)}" alt="trial overview with segments">'
+                     f"<figcaption>The trial's main channels with the {len(segments)} segments shaded and numbered "
+                     f"as in the table; angles in degrees.</figcaption></figure>")
+    sections.append(("Segments", seg_html + segment_table_html(segments)))
+    sections.append(("Coefficients", coefficient_table_html(fits, added_mass)
+                     + "<h3>Damping matrix</h3>" + damping_table_html(fits)))
+    q_parts = [quality_table_html(fits, qualities)] if qualities else []
+    for i, sf in enumerate(fits.segment_fits):
+        fig, res = fit_figures[i] if i < len(fit_figures) else (None, None)
+        q = qualities[i] if i < len(qualities) else None
+        inner = []
+        if fig:
+            inner.append(f'<img src="{_esc(fig)}" alt="fit {i}: data, fit and residual">')
+        if res:
+            inner.append(f'<img src="{_esc(res)}" alt="fit {i}: residual autocorrelation and input '
+                         f'cross-correlation with 95 % bands">')
+        if q is not None and len(sf.param_names) > 1:
+            inner.append(correlation_table_html(sf.param_names, q.correlation,
+                                                f"fit {i}: parameter correlation"))
+        pct = f", fit {q.fit_percent:.1f} %" if q is not None and finite(q.fit_percent) else ""
+        seg = sf.segment
+        q_parts.append(f'<details id="fit-{i}"><summary>fit {i}: {_esc(seg.kind)}/{_esc(seg.dof)}, '
+                       f"{seg.t_start:.1f}-{seg.t_end:.1f} s, {_esc(sf.model)} on {_esc(sf.channel)}{pct}"
+                       f"</summary>{''.join(inner)}</details>")
+    cov = getattr(fits, "covariance", None)
+    names = getattr(fits, "covariance_names", None)
+    if cov is not None and names:
+        q_parts.append(correlation_table_html(list(names), _corr(cov), "Correlation of the coefficients"))
+    sections.append(("Fit quality", "\n".join(q_parts) or "<p>No segment fits.</p>"))
+    sections.extend(extra)
     if figures:
-        body.append('<h2 id="figures">Figures</h2>')
-        for k, (src, caption) in enumerate(figures, start=1):
-            body.append(f'<figure id="figure-{k}"><img src="{_esc(src)}" alt="{_esc(caption)}">'
-                        f"<figcaption>Figure {k}: {_esc(caption)}</figcaption></figure>")
-    for k, (sec_title, fragment) in enumerate(extra):
-        body.append(f'<section id="extra-{k}"><h2>{_esc(sec_title)}</h2>\n{fragment}\n</section>')
+        sections.append(("Figures", "\n".join(
+            f'<figure><img src="{_esc(src)}" alt="{_esc(cap)}"><figcaption>{_esc(cap)}</figcaption></figure>'
+            for src, cap in figures)))
+    toc = '<nav class="toc"><b>Contents</b><ol>' + "".join(
+        f'<li><a href="#{slug(t)}">{_esc(t)}</a></li>' for t, _ in sections) + "</ol></nav>"
+    body = [f"<h1>{_esc(title)}</h1>", summary_html(summary, headline, len(warnings)), toc]
+    for k, (sec_title, fragment) in enumerate(sections):
+        anchor = "warnings" if sec_title == "Warnings" else slug(sec_title)
+        body.append(f'<section id="{anchor}"><h2 id="{slug(sec_title)}">{_esc(sec_title)}</h2>\n{fragment}\n</section>'
+                    if anchor != slug(sec_title) else
+                    f'<section id="{anchor}"><h2>{_esc(sec_title)}</h2>\n{fragment}\n</section>')
+    body.append(f'<p class="convention"><b>Convention.</b> {_esc(fits.convention)}</p>')
+    body.append(footer_html(provenance))
+    page = "\n".join(body)
+    page = re.sub(r"(<table\b.*?</table>)", r'<div class="tw">\1</div>', page, flags=re.S)
     return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
             f"<title>{_esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n"
-            + "\n".join(body) + "\n</body>\n</html>\n")
+            + page + "\n</body>\n</html>\n")
+
+
+def _corr(cov) -> np.ndarray:
+    from .quality import correlation_matrix
+
+    return correlation_matrix(np.asarray(cov, float))
+
+
+_SRC = re.compile(r'(<img\b[^>]*?\bsrc=")([^"]+)(")')
+
+
+def embed_images(page: str, folder: str | Path) -> str:
+    """Replace every ``<img src="file.png">`` that names a PNG in ``folder`` by a base64 data URI.
+
+    Parameters
+    ----------
+    page : str
+        HTML text.
+    folder : str or Path
+        The folder the relative names refer to.
+
+    Returns
+    -------
+    str
+        The page, self-contained; a name with no file beside it is left as it is (and a browser
+        test finds it broken).
+    """
+    folder = Path(folder)
+
+    def repl(m: re.Match) -> str:
+        src = html.unescape(m.group(2))
+        if src.startswith("data:") or "/" in src or "\\" in src:
+            return m.group(0)
+        path = folder / src
+        if not (src.lower().endswith(".png") and path.is_file()):
+            return m.group(0)
+        data = base64.b64encode(path.read_bytes()).decode("ascii")
+        return f"{m.group(1)}data:image/png;base64,{data}{m.group(3)}"
+
+    return _SRC.sub(repl, page)

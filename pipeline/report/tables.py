@@ -8,15 +8,11 @@ Values are printed to the precision of their standard error, which gets two sign
 
 from __future__ import annotations
 
-import os
 import re
-from pathlib import Path
-
 
 from ..records import DOFS, Fits
-from ._common import (Formatted, Row, check_fits, checked_matrices, coefficient_rows, finite,
-                      format_uncertain, note_labels)
-from .atomic import atomic_write_text
+from .rows import Formatted, Row, check_fits, checked_matrices, coefficient_rows, finite, format_uncertain, note_labels
+from .summary import method_key
 
 GREEK = frozenset({"alpha", "beta", "gamma", "delta", "epsilon", "zeta", "eta", "theta", "kappa",
                    "lambda", "mu", "nu", "xi", "pi", "rho", "sigma", "tau", "phi", "chi", "psi",
@@ -106,63 +102,99 @@ def _marks(row: Row, labels: dict[str, str], fmt) -> str:
 
 
 # --------------------------------------------------------------------------- LaTeX tables
-def latex_coefficient_table(fits: Fits) -> str:
-    """Booktabs table of every coefficient, label ``tab:coefficients``.
+def is_derivative(name: str) -> bool:
+    """True for a hydrodynamic derivative name (``X_u``, ``N_r``, ``Y_v_joint``, ``X_uu``).
+
+    Parameters
+    ----------
+    name : str
+        Coefficient name.
+    """
+    return bool(re.fullmatch(r"[XYKMN]_[uvpqr|]+(_[a-z]+)?", name))
+
+
+def latex_coefficient_table(fits: Fits, which: str = "all", added_mass=None) -> str:
+    """Booktabs table of coefficients, one page: methods and notes as footnotes under it.
 
     Parameters
     ----------
     fits : Fits
         Fit results.
+    which : str
+        ``derivatives`` (label ``tab:derivatives``), ``time_constants`` (time constants, gains,
+        Nomoto; label ``tab:time-constants``) or ``all`` (label ``tab:coefficients``).
+    added_mass : Mapping[str, float], optional
+        The vessel config's ``[added_mass]`` (notes on derivatives of DOFs without one).
 
     Returns
     -------
     str
         A ``table`` environment (needs ``\\usepackage{booktabs}``); the caption states the units
-        and the sign convention (``Fits.convention``), and lettered notes say why a coefficient or
-        an error bar is missing.
+        and the sign convention (``Fits.convention``), lettered notes say why a coefficient or an
+        error bar is missing, numbers name the method.
     """
     check_fits(fits)
-    rows = coefficient_rows(fits)
+    rows = coefficient_rows(fits, added_mass)
+    if which == "derivatives":
+        rows = tuple(r for r in rows if is_derivative(r.name))
+        label, what = "tab:derivatives", "hydrodynamic derivatives"
+    elif which == "time_constants":
+        rows = tuple(r for r in rows if not is_derivative(r.name))
+        label, what = "tab:time-constants", "time constants, gains and Nomoto coefficients"
+    else:
+        label, what = "tab:coefficients", "hydrodynamic coefficients"
     labels = note_labels(rows)
+    methods: dict[str, int] = {}
+    for r in rows:
+        if r.method:
+            methods.setdefault(method_key(r.method), len(methods) + 1)
     sup = lambda a: f"\\textsuperscript{{{a}}}"  # noqa: E731
     lines = [
         r"\begin{table}[htbp]",
         r"\centering",
-        r"\begin{tabular}{llllrp{0.28\linewidth}}",
+        r"\small",
+        r"\begin{tabular}{lllll}",
         r"\toprule",
-        r"Coefficient & Value $\pm$ std.\ error & 95\,\% CI & Unit & Segments & Method \\",
+        r"Coefficient & Value $\pm$ std.\ error & 95\,\% CI & Unit & Segs.\ (method) \\",
         r"\midrule",
     ]
     for row in rows:
         marks = _marks(row, labels, sup)
         sym = latex_symbol(row.name)
         unit = _latex_unit(row.unit)
-        method = latex_escape(row.method) if row.method else "--"
+        meth = f" [{methods[method_key(row.method)]}]" if row.method else ""
         if row.identified:
             num = _latex_number(row.number)
             if row.number.stderr is None:
                 num += r" $\pm$ n/a"
-            lines.append(f"{sym} & {num}{marks} & {_latex_ci(row.number)} & {unit} & {row.n_segments} "
-                         f"& {method} \\\\")
+            lines.append(f"{sym} & {num}{marks} & {_latex_ci(row.number)} & {unit} & {row.n_segments}{meth} \\\\")
         else:
             lines.append(f"{sym} & \\multicolumn{{2}}{{l}}{{not identified{marks}}} & {unit} & "
-                         f"{row.n_segments} & {method} \\\\")
+                         f"{row.n_segments}{meth} \\\\")
     lines += [r"\bottomrule", r"\end{tabular}"]
-    if labels:
+    if labels or methods:
         lines.append(r"\par\smallskip")
-        lines.append(r"{\footnotesize")
+        lines.append(r"\begin{minipage}{\linewidth}\scriptsize")
         for note, a in labels.items():
             end = "" if note.endswith(".") else "."
-            lines.append(f"\\textsuperscript{{{a}}}\\,{latex_escape(note)}{end}\\par")
-        lines.append("}")
+            lines.append(f"\\textsuperscript{{{a}}}\\,{latex_escape(_short(note))}{end}\\par")
+        for text, k in methods.items():
+            lines.append(f"[{k}]\\,{latex_escape(_short(text, 300))}.\\par")
+        lines.append(r"\end{minipage}")
     lines += [
-        r"\caption{Identified hydrodynamic coefficients of " + latex_escape(fits.vessel) +
+        r"\caption{Identified " + what + " of " + latex_escape(fits.vessel) +
         r", in SI units as listed per row, with standard errors and 95\,\% confidence intervals."
         r" Sign convention: " + latex_escape(fits.convention) + "}",
-        r"\label{tab:coefficients}",
+        f"\\label{{{label}}}",
         r"\end{table}",
     ]
     return "\n".join(lines) + "\n"
+
+
+def _short(text: str, limit: int = 200) -> str:
+    from .summary import shorten
+
+    return shorten(text, limit)
 
 
 def _damping_cell(d: float, se: float) -> Formatted | None:
@@ -212,22 +244,26 @@ def latex_damping_table(fits: Fits) -> str:
     return "\n".join(lines) + "\n"
 
 
-def latex_tables(fits: Fits) -> str:
-    """``coefficients.tex``: both tables, ready for ``\\input`` (needs booktabs).
+def latex_tables(fits: Fits, added_mass=None) -> str:
+    """``coefficients.tex``: three tables, each one page, ready for ``\\input`` (needs booktabs).
 
     Parameters
     ----------
     fits : Fits
         Fit results.
+    added_mass : Mapping[str, float], optional
+        The vessel config's ``[added_mass]``.
 
     Returns
     -------
     str
-        A comment header, then :func:`latex_coefficient_table` and :func:`latex_damping_table`.
+        A comment header, then the derivatives (``tab:derivatives``), the time constants and gains
+        (``tab:time-constants``) and the damping matrix (``tab:damping``).
     """
     header = ("% Generated by vesselid report. Requires \\usepackage{booktabs}.\n"
-              "% Tables: tab:coefficients, tab:damping.\n\n")
-    return header + latex_coefficient_table(fits) + "\n" + latex_damping_table(fits)
+              "% Tables: tab:derivatives, tab:time-constants, tab:damping.\n\n")
+    return (header + latex_coefficient_table(fits, "derivatives", added_mass) + "\n"
+            + latex_coefficient_table(fits, "time_constants", added_mass) + "\n" + latex_damping_table(fits))
 
 
 # --------------------------------------------------------------------------- Markdown
@@ -255,13 +291,15 @@ def _plain_ci(f: Formatted | None) -> str:
     return f"[{f.ci[0]}, {f.ci[1]}]{tail}"
 
 
-def markdown_coefficient_table(fits: Fits) -> str:
+def markdown_coefficient_table(fits: Fits, added_mass=None) -> str:
     """GitHub pipe table of every coefficient, with caption line and lettered notes.
 
     Parameters
     ----------
     fits : Fits
         Fit results.
+    added_mass : Mapping[str, float], optional
+        The vessel config's ``[added_mass]``.
 
     Returns
     -------
@@ -269,7 +307,7 @@ def markdown_coefficient_table(fits: Fits) -> str:
         Markdown text.
     """
     check_fits(fits)
-    rows = coefficient_rows(fits)
+    rows = coefficient_rows(fits, added_mass)
     labels = note_labels(rows)
     lines = [
         f"**Table: identified hydrodynamic coefficients of {_md_escape(fits.vessel)}** "
@@ -328,13 +366,15 @@ def markdown_damping_table(fits: Fits) -> str:
     return "\n".join(lines) + "\n"
 
 
-def markdown_tables(fits: Fits) -> str:
+def markdown_tables(fits: Fits, added_mass=None) -> str:
     """``coefficients.md``: title, coefficient table and damping matrix.
 
     Parameters
     ----------
     fits : Fits
         Fit results.
+    added_mass : Mapping[str, float], optional
+        The vessel config's ``[added_mass]``.
 
     Returns
     -------
@@ -342,22 +382,4 @@ def markdown_tables(fits: Fits) -> str:
         Markdown text.
     """
     return (f"# Hydrodynamic coefficients: {_md_escape(fits.vessel)}\n\n"
-            + markdown_coefficient_table(fits) + "\n" + markdown_damping_table(fits))
-
-
-def write_tables(fits: Fits, tex_path: str | os.PathLike, md_path: str | os.PathLike) -> tuple[Path, Path]:
-    """Write ``coefficients.tex`` and ``coefficients.md`` atomically.
-
-    Parameters
-    ----------
-    fits : Fits
-        Fit results.
-    tex_path, md_path : str or os.PathLike
-        Destination files.
-
-    Returns
-    -------
-    tuple[pathlib.Path, pathlib.Path]
-        The files written.
-    """
-    return atomic_write_text(tex_path, latex_tables(fits)), atomic_write_text(md_path, markdown_tables(fits))
+            + markdown_coefficient_table(fits, added_mass) + "\n" + markdown_damping_table(fits))

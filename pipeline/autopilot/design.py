@@ -16,10 +16,11 @@ from typing import Mapping
 from ..errors import AutopilotError
 from ..model.waves import WaveParams
 from .closed_loop import ClosedLoopCheck, closed_loop_check, default_scenarios
-from .config import (ArduPilotExport, AutopilotConfig, NomotoCoefficients, SourceFile, _atomic_write,
+from .config import (ArduPilotExport, AutopilotConfig, NomotoCoefficients, SourceFile,
                      ardupilot_params, build_autopilot_config, write_ardupilot_params, write_autopilot_toml)
 from .kalman import DEFAULT_P0, DEFAULT_Q, observability
-from .pd import DEFAULT_CROSSOVER, DEFAULT_PHASE_MARGIN, margin_table
+from ..atomic import atomic_write_bytes
+from .pd import DEFAULT_PHASE_MARGIN, margin_table
 from .waves_fit import WaveFit
 
 
@@ -87,7 +88,7 @@ def nomoto_from_fits(fits) -> NomotoCoefficients:
 
 def build_autopilot(coefficients: NomotoCoefficients, *, waves: WaveFit | WaveParams | None = None,
                     waves_stderr: Mapping[str, float] | None = None, wave_source: str = "",
-                    vessel=None, ts: float = 0.1, crossover: float = DEFAULT_CROSSOVER,
+                    vessel=None, ts: float = 0.1, crossover: float | None = None,
                     phase_margin: float = DEFAULT_PHASE_MARGIN, r: float | None = None, r_source: str = "",
                     q: tuple[float, float] = DEFAULT_Q, p0: tuple[float, ...] = DEFAULT_P0,
                     sources: tuple[SourceFile, ...] = (), check: bool = True,
@@ -110,8 +111,8 @@ def build_autopilot(coefficients: NomotoCoefficients, *, waves: WaveFit | WavePa
         ``sea`` scenario (so the check also tests the identified model against the truth).
     ts : float
         Sample time [s].
-    crossover : float
-        PD crossover [rad/s].
+    crossover : float, optional
+        PD crossover [rad/s]; default :func:`pipeline.autopilot.pd.default_crossover` of the identified T.
     phase_margin : float
         PD phase margin [rad].
     r : float, optional
@@ -188,7 +189,7 @@ def write_autopilot_outputs(result: AutopilotResult, out_dir: str | Path, toml_n
         File role -> path written.
     """
     from .figures import closed_loop_figure, wave_fit_figure
-    from .section import autopilot_html_section
+    from .report_section import autopilot_html_section
 
     out = Path(out_dir)
     try:
@@ -203,22 +204,22 @@ def write_autopilot_outputs(result: AutopilotResult, out_dir: str | Path, toml_n
                "observability": {k: {**v, "states": list(v["states"])} for k, v in result.observability.items()},
                "margins": [{**m, "phase_margin_deg": math.degrees(m["phase_margin"])} for m in result.margins]}
         p = out / "closed_loop.json"
-        _atomic_write(p, (json.dumps(_clean(doc), indent=2, allow_nan=False) + "\n").encode())
+        atomic_write_bytes(p, (json.dumps(_clean(doc), indent=2, allow_nan=False) + "\n").encode())
         written["closed_loop"] = p
         if figures:
             for s in result.check.scenarios:
                 p = out / f"closed_loop_{s.name}.png"
                 images[p.stem] = closed_loop_figure(result.check, s.name)
-                _atomic_write(p, images[p.stem])
+                atomic_write_bytes(p, images[p.stem])
                 written[f"figure_{s.name}"] = p
     if result.wave_fit is not None and figures:
         p = out / "wave_fit.png"
         images[p.stem] = wave_fit_figure(result.wave_fit)
-        _atomic_write(p, images[p.stem])
+        atomic_write_bytes(p, images[p.stem])
         written["figure_waves"] = p
     title, frag = autopilot_html_section(result, figures=figures, images=images)
     p = out / "autopilot.html"
-    _atomic_write(p, f"<section>\n<h2>{title}</h2>\n{frag}\n</section>\n".encode())
+    atomic_write_bytes(p, f"<section>\n<h2>{title}</h2>\n{frag}\n</section>\n".encode())
     written["html"] = p
     return written
 

@@ -258,8 +258,33 @@ def estimate_notes(est: Estimate | None) -> tuple[str, ...]:
     return tuple(notes)
 
 
-def coefficient_rows(fits: Fits) -> tuple[Row, ...]:
-    """One :class:`Row` per coefficient, standard ones first (see :func:`ordered_names`)."""
+#: Derivative -> DOF whose added mass its time-constant value uses.
+ADDED_MASS_DOF = {"X_u": "surge", "Y_v": "sway", "K_p": "roll", "M_q": "pitch", "N_r": "yaw"}
+
+
+def added_mass_note(dof: str) -> str:
+    """The note on a derivative whose DOF has no added mass in the vessel config.
+
+    Parameters
+    ----------
+    dof : str
+        DOF name (``surge``).
+    """
+    return (f"added mass in {dof} taken as zero (no [added_mass] {dof} in the vessel config): the value "
+            f"from the time constant is then too small by the added-mass share")
+
+
+def coefficient_rows(fits: Fits, added_mass: Mapping[str, float] | None = None) -> tuple[Row, ...]:
+    """One :class:`Row` per coefficient, standard ones first (see :func:`ordered_names`).
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
+    added_mass : Mapping[str, float], optional
+        The vessel config's ``[added_mass]``; a derivative of a DOF without one gets the note of
+        :func:`added_mass_note`. None: not known (no note).
+    """
     rows = []
     for name in ordered_names(fits.estimates):
         est = fits.estimates.get(name)
@@ -268,6 +293,9 @@ def coefficient_rows(fits: Fits) -> tuple[Row, ...]:
             rows.append(Row(name, False, None, default_unit(name), 0, "", notes))
             continue
         ident = is_identified(est)
+        dof = ADDED_MASS_DOF.get(name)
+        if ident and dof and added_mass is not None and not added_mass.get(dof):
+            notes = notes + (added_mass_note(dof),)
         number = format_uncertain(est.value, est.stderr, est.ci95) if ident else None
         rows.append(Row(name, ident, number, est.unit or default_unit(name), int(est.n_segments),
                         est.method or "", notes))

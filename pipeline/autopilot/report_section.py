@@ -12,7 +12,7 @@ import math
 from typing import Mapping
 
 from .closed_loop import CASE_LABELS, CASES
-from .stage import AutopilotResult
+from .design import AutopilotResult
 
 
 def _f(x, fmt: str = ".4g", unit: str = "") -> str:
