@@ -17,12 +17,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.errors import ReportError
+from pipeline.errors import OutputError, ReportError
 from pipeline.records import Estimate, Fits, Gap, Segment, SegmentFit, Segments, Trial
 from pipeline.report import (ReportPaths, damping_from_dict, fits_to_dict, load_coefficients,
                              write_report)
-from pipeline.report import atomic as atomic_mod
-from pipeline.report import coefficients_json, figures, html as html_mod, tables
+from pipeline import atomic as atomic_mod
+from pipeline.report import coefficients_json, figures, html as html_mod, quality, summary, tables
 from pipeline.report.rows import STANDARD_COEFFICIENTS, format_uncertain
 from pipeline.atomic import TEMP_PREFIX, atomic_write_text
 from pipeline.report.coefficients_json import COEFFICIENT_KEYS
@@ -231,9 +231,10 @@ def test_load_coefficients_missing_file(tmp_path):
 # --------------------------------------------------------------------------- tables
 def test_latex_tables(fits, tmp_path):
     tex = write_report(fits, tmp_path).coefficients_tex.read_text()
-    for cmd in (r"\toprule", r"\midrule", r"\bottomrule", r"\label{tab:coefficients}", r"\label{tab:damping}"):
+    for cmd in (r"\toprule", r"\midrule", r"\bottomrule", r"\label{tab:derivatives}",
+                r"\label{tab:time-constants}", r"\label{tab:damping}"):
         assert cmd in tex
-    caption = re.search(r"\\caption\{Identified.*\}\n\\label\{tab:coefficients\}", tex)
+    caption = re.search(r"\\caption\{Identified.*\}\n\\label\{tab:derivatives\}", tex)
     assert caption and latex_escape(fits.convention) in caption.group(0)
     assert "SI units" in caption.group(0)
     for sym in ("$X_{u}$", "$Y_{v}$", "$Y_{p}$", "$Y_{r}$", "$K_{v}$", "$K_{p}$", "$K_{r}$", "$M_{q}$",
@@ -249,10 +250,14 @@ def test_latex_tables(fits, tmp_path):
     assert r"no segment excites sway and yaw together \textless{}coupled\textgreater{}" in tex
     assert "standard error not available: covariance singular" in tex
     assert "chi-square p = 0.003" in tex
-    damping = tex[tex.index(r"\label{tab:coefficients}"):]
+    # Derivatives in one table, time constants and gains in the other.
+    deriv = tex[:tex.index(r"\label{tab:derivatives}")]
+    assert "$X_{u}$ &" in deriv and "(Nomoto)" not in deriv
+    assert "$K$ (Nomoto)" in tex[tex.index(r"\label{tab:derivatives}"):tex.index(r"\label{tab:time-constants}")]
+    damping = tex[tex.index(r"\label{tab:time-constants}"):]
     assert r"$u$ & $2.860 \pm 0.030$ & -- & -- & -- & --" in damping
     assert r"$r$ & -- & $-0.7500$ & --" in damping
-    assert tex.count(r"\begin{table}") == tex.count(r"\end{table}") == 2
+    assert tex.count(r"\begin{table}") == tex.count(r"\end{table}") == 3
     # Balanced braces outside escaped ones: a LaTeX compile would otherwise fail.
     stripped = tex.replace(r"\{", "").replace(r"\}", "")
     assert stripped.count("{") == stripped.count("}")
@@ -291,7 +296,9 @@ def test_number_formatting(value, stderr, expected):
 def test_figures_are_valid_pngs(fits, trial, tmp_path):
     paths = write_report(fits, tmp_path, trial=trial)
     names = [p.name for p in paths.fit_figures]
-    assert names == ["fit_00_coast_down_surge.png", "fit_01_free_decay_roll.png", "fit_02_rudder_step_yaw.png"]
+    # A fit figure per fit, a residual-analysis figure per successful fit.
+    assert names == ["fit_00_coast_down_surge.png", "resid_00_coast_down_surge.png", "fit_01_free_decay_roll.png",
+                     "resid_01_free_decay_roll.png", "fit_02_rudder_step_yaw.png"]
     assert paths.overview_figure.name == "segments.png"
     for p in (*paths.fit_figures, paths.overview_figure):
         data = p.read_bytes()
@@ -319,7 +326,9 @@ def test_figure_labels_show_degrees_and_parameters(fits):
 def test_trial_overview_without_segments_uses_fit_segments(fits, trial, tmp_path):
     paths = write_report(fits, tmp_path, trial=trial)
     page = paths.html.read_text()
-    assert page.count("<tr><td class=\"num\">") == 3  # one segment-table row per fitted segment
+    table = page[page.index('id="segment-table"'):]
+    table = table[:table.index("</table>")]
+    assert table.count("<tr><td class=\"num\">") == 3  # one segment-table row per fitted segment
     assert paths.overview_figure.name == "segments.png"
 
 
@@ -334,16 +343,26 @@ def test_html_report(fits, trial, tmp_path):
     assert 'id="coefficient-table"' in page and 'id="damping-matrix"' in page
     assert "<i>X</i><sub>u</sub>" in page and "-2.860 ± 0.030" in page
     assert html_lib.escape(fits.convention) in page
-    for p in (*paths.fit_figures, paths.overview_figure):
-        assert f'<img src="{p.name}"' in page
-    assert page.count("<figcaption>") == 4
-    # Warnings: the failed estimate, the missing error bar, the failed fit, the inconsistency.
-    warnings = page[page.index('id="warnings"'):page.index('id="segments"')]
-    assert "Y_r: not identified: no segment excites sway and yaw together &lt;coupled&gt;" in warnings
-    assert "N_v: covariance singular" in warnings
-    assert "fit 2 (first_order_step on r" in warnings and "did not converge" in warnings
+    # Self-contained: every figure embedded, none linked.
+    assert page.count('src="data:image/png;base64,') == len(paths.fit_figures) + 1
+    assert not re.search(r'<img [^>]*src="(?!data:)', page)
+    # The summary comes before any other table.
+    assert page.index('id="summary"') < page.index("<table")
+    summary_part = page[page.index('id="summary"'):page.index("</section>")]
+    assert "D_uu = -X_u" in summary_part and "2.860 ± 0.030" in summary_part and "Nomoto T" in summary_part
+    assert "model structure" in summary_part
+    # Warnings (act on them) apart from notes (information).
+    sec = page[page.index('<section id="warnings"'):page.index('<section id="sec-data"')]
+    warnings, notes = sec.split("<details>", 1)
+    assert "Y_r not identified: no segment excites sway and yaw together &lt;coupled&gt;" in warnings
+    assert "fit 2 (rudder_step/yaw) failed: did not converge" in warnings
     assert "chi-square p = 0.003" in warnings
     assert "not estimated by the fit stage: Y_p, K_v, K_r, N_p" in warnings
+    assert "N_v: covariance singular" in notes and "N_v" not in warnings
+    # Each method once, as a numbered footnote.
+    assert page.count('<li id="method-') == 4  # 4 distinct methods among 8 identified rows
+    assert page.count('href="#method-1"') == 3  # X_u, Y_v, N_r
+    assert 'id="quality-table"' in page and "MATLAB <i>compare</i>" in page
     # Segment table, with escaped labels.
     assert "roll release &lt;basin&gt;" in page and "manifest" in page and "<script" not in page
     # Extra sections: title escaped, fragment inserted as HTML.
@@ -380,7 +399,7 @@ def test_atomic_write_failure_removes_temp_file(tmp_path):
     target = tmp_path / "taken"
     target.mkdir()
     (target / "keep").write_text("x")
-    with pytest.raises(ReportError, match="cannot write"):
+    with pytest.raises(OutputError, match="cannot write"):
         atomic_write_text(target, "data")  # replacing a non-empty folder fails
     assert sorted(p.name for p in tmp_path.iterdir()) == ["taken"]
 
@@ -463,3 +482,48 @@ def test_load_coefficients_accepts_added_keys(fits, tmp_path):
     path = tmp_path / "coefficients.json"
     path.write_text(json.dumps(data))
     assert load_coefficients(path)["coefficients"]["X_u"]["value"] == pytest.approx(-2.86)
+
+
+# --------------------------------------------------------------------------- in a real browser
+def test_report_in_headless_chromium(fits, trial, tmp_path):
+    """No broken image, no horizontal overflow at 1280 px, the summary visible without scrolling."""
+    from chromium import chromium_binary, probe
+
+    if chromium_binary() is None:
+        pytest.skip("no chromium binary (Debian: apt-get install chromium)")
+    wide = "<table><tr>" + "".join(f"<td>column_{k}_with_a_long_header</td>" for k in range(30)) + "</tr></table>"
+    paths = write_report(fits, tmp_path / "rep", trial=trial, extra_sections=(("Wide", wide),))
+    got = probe(paths.html)
+    assert got["images"] == len(paths.fit_figures) + 1 and got["broken"] == [], got
+    assert got["scrollWidth"] <= got["innerWidth"], got
+    assert got["firstTableInSummary"] and 0 <= got["summaryTop"] < got["summaryBottom"] <= got["innerHeight"], got
+
+
+# --------------------------------------------------------------------------- LaTeX
+def test_latex_tables_compile_on_one_page_each(fits, tmp_path):
+    """Each table of coefficients.tex compiles with pdflatex (booktabs) and fits on one A4 page."""
+    import shutil
+    import subprocess
+
+    exe = shutil.which("pdflatex")
+    if exe is None:
+        pytest.skip("no pdflatex (Debian: apt-get install texlive-latex-recommended)")
+    est = dict(fits.estimates)
+    long = "a long reason " * 40
+    for k in range(12):  # more rows and longer notes than a real trial, to test the one-page claim
+        est[f"T_extra{k}"] = _est(f"T_extra{k}", 1.0 + k, 0.1, "s", method=f"method {k} " + long)
+    big = Fits(fits.vessel, est, fits.segment_fits, fits.damping_matrix, fits.damping_stderr)
+    tex = tables.latex_tables(big, added_mass={})
+    blocks = re.findall(r"\\begin\{table\}.*?\\end\{table\}", tex, re.S)
+    assert len(blocks) == 3
+    for k, block in enumerate(blocks):
+        doc = tmp_path / f"t{k}.tex"
+        doc.write_text("\\documentclass[a4paper]{article}\n\\usepackage[T1]{fontenc}\n\\usepackage{booktabs}\n"
+                       "\\begin{document}\n" + block + "\n\\end{document}\n")
+        res = subprocess.run([exe, "-interaction=nonstopmode", "-halt-on-error", doc.name], cwd=tmp_path,
+                             capture_output=True, text=True, timeout=120)
+        log = (tmp_path / f"t{k}.log").read_text(errors="replace")
+        assert res.returncode == 0, log[-2000:]
+        assert "Float too large" not in log and "Overfull \\hbox" not in log, log[-2000:]
+        pages = re.search(r"Output written on .*?\((\d+) page", log)
+        assert pages and int(pages.group(1)) == 1, log[-500:]

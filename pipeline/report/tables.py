@@ -152,7 +152,7 @@ def latex_coefficient_table(fits: Fits, which: str = "all", added_mass=None) -> 
     lines = [
         r"\begin{table}[htbp]",
         r"\centering",
-        r"\small",
+        r"\footnotesize\setlength{\tabcolsep}{3pt}",
         r"\begin{tabular}{lllll}",
         r"\toprule",
         r"Coefficient & Value $\pm$ std.\ error & 95\,\% CI & Unit & Segs.\ (method) \\",
@@ -177,9 +177,9 @@ def latex_coefficient_table(fits: Fits, which: str = "all", added_mass=None) -> 
         lines.append(r"\begin{minipage}{\linewidth}\scriptsize")
         for note, a in labels.items():
             end = "" if note.endswith(".") else "."
-            lines.append(f"\\textsuperscript{{{a}}}\\,{latex_escape(_short(note))}{end}\\par")
+            lines.append(f"\\textsuperscript{{{a}}}\\,{latex_escape(_short(note, 120))}{end}\\par")
         for text, k in methods.items():
-            lines.append(f"[{k}]\\,{latex_escape(_short(text, 300))}.\\par")
+            lines.append(f"[{k}]\\,{latex_escape(_short(text, 160))}.\\par")
         lines.append(r"\end{minipage}")
     lines += [
         r"\caption{Identified " + what + " of " + latex_escape(fits.vessel) +
@@ -218,6 +218,7 @@ def latex_damping_table(fits: Fits) -> str:
     lines = [
         r"\begin{table}[htbp]",
         r"\centering",
+        r"\scriptsize\setlength{\tabcolsep}{2pt}",
         r"\begin{tabular}{l" + "c" * len(DOFS) + "}",
         r"\toprule",
         "$D$ & " + " & ".join(f"${d}$" for d in DOFS) + r" \\",
