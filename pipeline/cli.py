@@ -216,7 +216,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     vessel = _vessel(args.vessel)
     segments = segments_from_json(args.segments) if args.segments else None
     result = run_flow(args.logs, vessel, args.out, fs=args.fs, segments=segments,
-                      provenance=make_provenance(_inputs(args)))
+                      provenance=make_provenance(_inputs(args), args.argv))
     _print_run(result)
     return 0
 
@@ -275,7 +275,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         from .atomic import check_output_folder
 
         check_output_folder(args.out)
-    _print_run(run_manifest(args.manifest, args.out))
+    _print_run(run_manifest(args.manifest, args.out, argv=getattr(args, "argv", None)))
     return 0
 
 
@@ -358,7 +358,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         value error (printed as ``error: ...``), 130 when interrupted.
     """
     parser = build_parser()
+    argv = [str(a) for a in (sys.argv[1:] if argv is None else argv)]
     args = parser.parse_args(argv)
+    args.argv = argv  # the command line for the report footer
     try:
         return int(args.func(args) or 0)
     except VesselidError as exc:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -155,3 +156,99 @@ def test_simulate_then_run_end_to_end(capsys, tmp_path):
         assert (rep / name).is_file(), name
     assert list(rep.glob("*.png")), "one figure per fit"
     assert not [p for p in rep.iterdir() if p.name.endswith(".tmp")], "atomic writes leave no temp files"
+
+
+# --------------------------------------------------------------------------- issue 15: a CLI read in one minute
+def test_version_is_what_the_report_footer_prints(capsys):
+    from pipeline import __version__
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.strip() == f"vesselid {__version__}"
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["fit", "--vessel", VESSEL_TOML, "{log}", "--json", "{tmp}"], "--json {tmp}: expected a file name, found a folder"),
+    (["fit", "--vessel", VESSEL_TOML, "{log}", "--json", "{tmp}/no/such/o.json"], "expected an existing folder"),
+    (["report", "--vessel", VESSEL_TOML, "{log}", "--out", "{tmp}/afile"], "expected a report folder, found a file"),
+    (["report", "--vessel", VESSEL_TOML, "{log}", "--out", "{tmp}/other"], "found a folder with other files"),
+    (["run", "{tmp}/m.toml", "--out", "{tmp}/other"], "found a folder with other files"),
+])
+def test_outputs_are_checked_before_any_work(capsys, monkeypatch, surge_log, tmp_path, argv, expected):
+    import pipeline.flow
+
+    def no_work(*a, **k):
+        raise AssertionError("work started before the output path was checked")
+
+    monkeypatch.setattr(pipeline.flow, "load_trial", no_work)
+    monkeypatch.setattr(pipeline.flow, "read_logs", no_work)
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "thesis.tex").write_text("mine")
+    (tmp_path / "m.toml").write_text(f'name = "m"\nvessel = "{VESSEL_TOML}"\nlogs = ["{surge_log}"]\n')
+    fill = lambda a: str(a).format(log=surge_log, tmp=tmp_path)  # noqa: E731
+    code, _, err = run_cli(capsys, *map(fill, argv))
+    assert code == 2 and err.startswith("error: ") and fill(expected) in err, err
+    assert (tmp_path / "other" / "thesis.tex").read_text() == "mine"
+
+
+def test_non_positive_definite_damping_is_an_error(capsys, surge_log, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(VESSEL_TOML.read_text().replace("diagonal = [2.86,", "diagonal = [-2.86,"))
+    code, _, err = run_cli(capsys, "fit", "--vessel", bad, surge_log, "--json", tmp_path / "o.json")
+    assert code == 2 and "positive definite" in err and "bad.toml" in err and "-2.86" in err
+
+
+def test_errors_name_the_input_without_exception_names(capsys, tmp_path):
+    folder = tmp_path / "coef_dir"
+    folder.mkdir()
+    code, _, err = run_cli(capsys, "autopilot", "--coefficients", folder, "--out", tmp_path / "a.toml")
+    assert code == 2 and str(folder) in err and "folder" in err
+    assert not re.search(r"(Value|OS|IsADirectory|FileNotFound|Key|Type)Error", err)
+
+
+def test_fit_prints_a_summary_table_and_short_warnings_once(capsys, surge_log, tmp_path):
+    code, out, err = run_cli(capsys, "fit", "--vessel", VESSEL_TOML, surge_log, "--json", tmp_path / "o.json")
+    assert code == 0, err
+    assert "D_uu = -X_u" in out and "Nomoto K" in out and "model structure" in out
+    assert re.search(r"D_uu = -X_u\s+2\.8\d* \+- ", out), out
+    assert "not identified: not identified" not in out + err
+    assert all(len(line) <= 200 for line in (out + err).splitlines()), "one line per message, detail in JSON"
+    warnings = [line for line in err.splitlines() if line.startswith("warning: ")]
+    assert len(warnings) == len(set(warnings))
+
+
+def test_force_in_kilonewton_is_caught(capsys, surge_log, tmp_path):
+    """tau_x logged in kN parses fine; the gain-vs-mass damping check flags it (factor 1000)."""
+    import pandas as pd
+
+    df = pd.read_csv(surge_log)
+    df["tau_x"] = df["tau_x"] / 1000.0
+    kn = tmp_path / "surge_kN.csv"
+    df.to_csv(kn, index=False)
+    code, out, err = run_cli(capsys, "fit", "--vessel", VESSEL_TOML, kn, "--json", tmp_path / "o.json")
+    assert code == 0, err
+    assert "warning: surge: damping from the step gain" in err and "tau_x (N, not kN)" in err, err
+
+
+def test_report_and_run_write_the_same_report_and_a_rerun_replaces_the_folder(capsys, surge_log, tmp_path):
+    manifest = tmp_path / "trial.toml"
+    manifest.write_text(f'name = "surge"\nvessel = "{VESSEL_TOML}"\nlogs = ["{surge_log}"]\n')
+    a, b = tmp_path / "by_run", tmp_path / "by_report"
+    b.mkdir()
+    (b / "coefficients.json").write_text("{}")          # an earlier report folder ...
+    (b / "fit_99_gone_surge.png").write_bytes(b"old")  # ... with a figure this run does not make
+    code, out, err = run_cli(capsys, "run", manifest, "--out", a)
+    assert code == 0, err
+    assert "D_uu = -X_u" in out
+    code, _, err = run_cli(capsys, "report", "--vessel", VESSEL_TOML, surge_log, "--out", b)
+    assert code == 0, err
+    assert sorted(p.name for p in a.iterdir()) == sorted(p.name for p in b.iterdir())
+    assert not (b / "fit_99_gone_surge.png").exists()
+    assert json.loads((a / "coefficients.json").read_text()) == json.loads((b / "coefficients.json").read_text())
+    strip = lambda p: re.sub(r"<footer>.*</footer>", "", p.read_text(), flags=re.S)  # noqa: E731
+    assert strip(a / "report.html") == strip(b / "report.html")
+    footer = (b / "report.html").read_text().split("<footer>")[1]
+    assert "vesselid report --vessel" in footer and surge_log.name in footer and "created 20" in footer
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".vesselid-")], "no staging folder left"

@@ -527,3 +527,27 @@ def test_latex_tables_compile_on_one_page_each(fits, tmp_path):
         assert "Float too large" not in log and "Overfull \\hbox" not in log, log[-2000:]
         pages = re.search(r"Output written on .*?\((\d+) page", log)
         assert pages and int(pages.group(1)) == 1, log[-500:]
+
+
+# --------------------------------------------------------------------------- the report folder as a whole
+def test_atomic_folder_swaps_in_whole_and_keeps_the_old_one_on_failure(tmp_path):
+    out = tmp_path / "rep"
+    out.mkdir()
+    (out / "coefficients.json").write_text("old")
+    (out / "fit_07_old.png").write_bytes(b"old")
+    with pytest.raises(RuntimeError):
+        with atomic_mod.atomic_folder(out) as stage:
+            (stage / "coefficients.json").write_text("half")
+            raise RuntimeError("interrupted")
+    assert sorted(p.name for p in out.iterdir()) == ["coefficients.json", "fit_07_old.png"]
+    assert (out / "coefficients.json").read_text() == "old"
+    with atomic_mod.atomic_folder(out) as stage:
+        (stage / "coefficients.json").write_text("new")
+    assert [p.name for p in out.iterdir()] == ["coefficients.json"] and (out / "coefficients.json").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rep"], "no staging or old folder left"
+    mine = tmp_path / "thesis"
+    mine.mkdir()
+    (mine / "chapter1.tex").write_text("x")
+    with pytest.raises(OutputError, match="other files"):
+        with atomic_mod.atomic_folder(mine):
+            pass

@@ -429,6 +429,10 @@ def read_coefficients_json(path: str | Path) -> NomotoCoefficients:
         doc = json.loads(p.read_text())
     except FileNotFoundError:
         raise AutopilotError(f"{p}: expected a coefficients.json, found no such file") from None
+    except IsADirectoryError:
+        raise AutopilotError(f"{p}: expected a coefficients.json file, found a folder") from None
+    except OSError as exc:
+        raise AutopilotError(f"{p}: expected a readable coefficients.json, found: {exc.strerror}") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise AutopilotError(f"{p}: expected JSON, found: {exc}") from None
     if not isinstance(doc, Mapping):
@@ -463,6 +467,8 @@ def read_waves_json(path: str | Path) -> tuple[WaveParams, dict[str, float]]:
         doc = json.loads(p.read_text())
     except FileNotFoundError:
         raise AutopilotError(f"{p}: expected a waves JSON, found no such file") from None
+    except IsADirectoryError:
+        raise AutopilotError(f"{p}: expected a wave-fit JSON file, found a folder") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise AutopilotError(f"{p}: expected JSON, found: {exc}") from None
     if not isinstance(doc, Mapping):
