@@ -69,7 +69,12 @@ def cmd_align(args: argparse.Namespace) -> int:
         from .atomic import check_output_file
 
         check_output_file(args.out, "--out")
-    trial = load_trial(args.logs, _vessel(args.vessel), fs=args.fs)
+    from .flow import progress
+
+    with progress(1, "vesselid align") as bar:
+        bar.set_postfix_str("ingest + align")
+        trial = load_trial(args.logs, _vessel(args.vessel), fs=args.fs)
+        bar.update()
     for note in trial.notes:
         print(f"note: {note}")
     if args.out:
@@ -248,9 +253,18 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .sim.sensors import default_sensors
     from .sim.writers import write_log
 
+    from .atomic import check_output_file
+    from .flow import progress
+
+    check_output_file(args.out, "--out") if Path(args.out).suffix else None
     vessel = _vessel(args.vessel)
-    result = simulate(vessel, sea_trial(vessel), Effects(), default_sensors(args.noise), seed=args.seed)
-    out = write_log(result.log, args.out, vessel=vessel)
+    with progress(2, "vesselid simulate") as bar:
+        bar.set_postfix_str("simulate")
+        result = simulate(vessel, sea_trial(vessel), Effects(), default_sensors(args.noise), seed=args.seed)
+        bar.update()
+        bar.set_postfix_str(f"write {Path(args.out).suffix or 'ROS 2 bag'}")
+        out = write_log(result.log, args.out, vessel=vessel)
+        bar.update()
     print(f"wrote {out}: {result.truth['t'].iloc[-1]:.1f} s, {len(result.segments.items)} manoeuvre segments")
     return 0
 

@@ -11,15 +11,17 @@ re-parses logs when it keeps the Trial).
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import hashlib
 import json
 import math
 import os
 import sys
+import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, Sequence
 
 from tqdm import tqdm
 
@@ -40,6 +42,46 @@ if TYPE_CHECKING:  # the later stages are imported where they run: they import t
 def show_progress() -> bool:
     """Progress bars on an interactive terminal only; quiet under CI and when piped."""
     return sys.stderr.isatty() and not os.environ.get("CI")
+
+
+#: A step shorter than this [s] shows no progress line at all.
+PROGRESS_DELAY = 2.0
+
+
+@contextlib.contextmanager
+def progress(total: int, desc: str) -> Iterator[tqdm]:
+    """A step counter on the terminal that appears after ``PROGRESS_DELAY`` s and ticks every 0.5 s.
+
+    The elapsed time keeps moving while one long step (a grey-box fit) runs, so the user sees the
+    command is alive; nothing is printed when not on a terminal (:func:`show_progress`).
+
+    Parameters
+    ----------
+    total : int
+        Number of steps.
+    desc : str
+        Label in front of the counter.
+    """
+    bar = tqdm(total=total, desc=desc, disable=not show_progress(), leave=False, delay=PROGRESS_DELAY,
+               bar_format="{desc}: {n_fmt}/{total_fmt} [{elapsed}] {postfix}")
+    stop = threading.Event()
+
+    def tick() -> None:
+        if stop.wait(PROGRESS_DELAY):
+            return
+        while not stop.wait(0.5):
+            bar.refresh()
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    if not bar.disable:
+        ticker.start()
+    try:
+        yield bar
+    finally:
+        stop.set()
+        if ticker.is_alive():
+            ticker.join()
+        bar.close()
 
 
 def read_logs(paths: Sequence[str | Path], vessel: Vessel | None = None,
@@ -359,47 +401,49 @@ def run_flow(logs: Sequence[str | Path], vessel: Vessel, out: str | Path | None 
     if out is not None:
         check_output_folder(out)
     steps = STEPS if stop_after == "report" else STEPS[:STEPS.index(stop_after) + 1]
-    bar = tqdm(total=len(steps), desc="vesselid", disable=not show_progress(), leave=False,
-               bar_format="{desc}: {n_fmt}/{total_fmt} [{elapsed}] {postfix}")
+    with progress(len(steps), "vesselid") as bar:
+        return _run_steps(bar, steps, logs, vessel, out, name, fs, columns, units, manual_segments,
+                          segments_mode, segments, autopilot_options, provenance, stop_after, trial)
 
+
+def _run_steps(bar, steps, logs, vessel, out, name, fs, columns, units, manual_segments, segments_mode,
+               segments, autopilot_options, provenance, stop_after, trial) -> FlowResult:
+    """The body of :func:`run_flow`, one progress step per stage (parameters as there)."""
     def step(label: str, fn: Callable[[], Any]) -> Any:
         bar.set_postfix_str(label)
         value = fn()
         bar.update()
         return value
 
+    if trial is None:
+        trial = step(steps[0], lambda: load_trial(logs, vessel, name=name, fs=fs, columns=columns, units=units))
+    else:
+        bar.update()
+    if segments is None:
+        segments = step(steps[1], lambda: segment_trial(trial, manual_segments, segments_mode))
+    else:
+        bar.update()
+    fits = step(steps[2], lambda: fit_segments(trial, segments, vessel))
+    if stop_after == "fit":
+        return FlowResult(trial, segments, fits)
+    skipped: dict[str, str] = {}
+    autopilot = diagnosis = None
     try:
-        if trial is None:
-            trial = step(steps[0], lambda: load_trial(logs, vessel, name=name, fs=fs, columns=columns, units=units))
-        else:
-            bar.update()
-        if segments is None:
-            segments = step(steps[1], lambda: segment_trial(trial, manual_segments, segments_mode))
-        else:
-            bar.update()
-        fits = step(steps[2], lambda: fit_segments(trial, segments, vessel))
-        if stop_after == "fit":
-            return FlowResult(trial, segments, fits)
-        skipped: dict[str, str] = {}
-        autopilot = diagnosis = None
-        try:
-            autopilot = step(steps[3], lambda: design_autopilot(fits, vessel, autopilot_options))
-        except AutopilotError as exc:
-            skipped["autopilot"] = str(exc)
-            bar.update()
-        try:
-            diagnosis = step(steps[4], lambda: diagnose_trial(trial, vessel, fits))
-        except DiagnoseError as exc:
-            skipped["diagnose"] = str(exc)
-            bar.update()
-        paths = None
-        if out is not None:
-            prov = provenance or make_provenance(list(logs))
-            paths = step(steps[5], lambda: write_outputs(out, trial, segments, fits, autopilot, diagnosis,
-                                                         skipped, prov))
-        return FlowResult(trial, segments, fits, autopilot, diagnosis, paths, skipped)
-    finally:
-        bar.close()
+        autopilot = step(steps[3], lambda: design_autopilot(fits, vessel, autopilot_options))
+    except AutopilotError as exc:
+        skipped["autopilot"] = str(exc)
+        bar.update()
+    try:
+        diagnosis = step(steps[4], lambda: diagnose_trial(trial, vessel, fits))
+    except DiagnoseError as exc:
+        skipped["diagnose"] = str(exc)
+        bar.update()
+    paths = None
+    if out is not None:
+        prov = provenance or make_provenance(list(logs))
+        paths = step(steps[5], lambda: write_outputs(out, trial, segments, fits, autopilot, diagnosis,
+                                                     skipped, prov))
+    return FlowResult(trial, segments, fits, autopilot, diagnosis, paths, skipped)
 
 
 def write_outputs(out: str | Path, trial: Trial, segments: Segments, fits: Fits,

@@ -15,9 +15,16 @@ from .closed_loop import CASE_LABELS, CASES
 from .design import AutopilotResult
 
 
+#: Below this magnitude a metric (degrees, seconds, fractions) is printed as 0: a value such as
+#: 1.55e-268 is the simulation's round-off, not a measurement.
+ZERO = 1e-9
+
+
 def _f(x, fmt: str = ".4g", unit: str = "") -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "&mdash;"
+    if abs(x) < ZERO:
+        x = 0.0
     return f"{x:{fmt}}{(' ' + unit) if unit else ''}"
 
 
