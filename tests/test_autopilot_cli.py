@@ -42,7 +42,7 @@ def test_help_exits_zero():
 
 
 def test_autopilot_writes_the_seed_design(tmp_path, capsys):
-    assert _run(tmp_path) == 0
+    assert _run(tmp_path, "--crossover", "0.1") == 0  # the seed's omega_c
     doc = tomllib.loads((tmp_path / "autopilot.toml").read_text())
     assert doc["pd"]["tf"] == pytest.approx(8.391, abs=5e-4)
     assert doc["pd"]["kpd"] == pytest.approx(0.836, abs=5e-4)
@@ -136,3 +136,22 @@ def test_still_and_noise_std_are_exclusive(tmp_path):
 def test_handler_signature_is_the_namespace():
     args = _parser().parse_args(["autopilot", "--coefficients", "c.json", "--out", "a.toml"])
     assert args.func is cmd_autopilot and args.phase_margin == 50.0 and args.crossover is None
+
+
+def test_default_crossover_is_the_one_run_uses(tmp_path):
+    """vesselid autopilot and vesselid run share one default: omega_c = CROSSOVER_TIMES_T / T."""
+    from pipeline.autopilot.pd import CROSSOVER_TIMES_T, default_crossover
+    from pipeline.flow import design_autopilot
+    from pipeline.records import Estimate, Fits
+    import numpy as np
+
+    assert _run(tmp_path) == 0
+    doc = tomllib.loads((tmp_path / "autopilot.toml").read_text())
+    assert doc["pd"]["crossover"] == pytest.approx(CROSSOVER_TIMES_T / 72.4385)
+    est = {"K_nomoto": Estimate("K_nomoto", 0.1561, 0.004, (0.148, 0.164), "1/s", 1, "test"),
+           "T_nomoto": Estimate("T_nomoto", 72.4385, 2.5, (67.5, 77.3), "s", 1, "test")}
+    nan = np.full((5, 5), np.nan)
+    flow = design_autopilot(Fits("cargo", est, (), nan, nan))
+    assert flow.config.pd.crossover == pytest.approx(doc["pd"]["crossover"], rel=1e-12)
+    assert flow.config.pd.kpd == pytest.approx(doc["pd"]["kpd"], rel=1e-12)
+    assert default_crossover(72.4385) == pytest.approx(0.1, rel=1e-3)

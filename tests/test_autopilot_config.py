@@ -38,7 +38,7 @@ def _coefficients(tmp_path, k=K_SEED, t=T_SEED, name="coefficients.json", **extr
 
 def test_toml_holds_every_number_a_controller_needs(tmp_path):
     coefs = read_coefficients_json(_coefficients(tmp_path))
-    cfg = build_autopilot_config(coefs.K, coefs.T, K_stderr=coefs.K_stderr, T_stderr=coefs.T_stderr,
+    cfg = build_autopilot_config(coefs.K, coefs.T, crossover=0.1, K_stderr=coefs.K_stderr, T_stderr=coefs.T_stderr,
                                  sources=(coefs.source,))
     out = write_autopilot_toml(cfg, tmp_path / "sub" / "autopilot.toml")
     doc = tomllib.loads(out.read_text())

@@ -68,7 +68,13 @@ def damping_unit(i: int, j: int) -> str:
 
 
 def default_unit(name: str) -> str:
-    """Unit of a standard coefficient that the fit stage did not return (so it has no unit)."""
+    """Unit of a standard coefficient that the fit stage did not return (so it has no unit).
+
+    Parameters
+    ----------
+    name : str
+        Coefficient name.
+    """
     idx = derivative_index(name)
     if idx is not None:
         return damping_unit(*idx)
@@ -77,7 +83,13 @@ def default_unit(name: str) -> str:
 
 # --------------------------------------------------------------------------- numbers
 def finite(x) -> bool:
-    """True for a real, finite number (bools and None are not numbers here)."""
+    """True for a real, finite number (bools and None are not numbers here).
+
+    Parameters
+    ----------
+    x : Any
+        Anything.
+    """
     if x is None or isinstance(x, (bool, np.bool_)):
         return False
     try:
@@ -168,7 +180,15 @@ def format_uncertain(value: float, stderr: float = math.nan,
 
 
 def format_number(x: float, sig: int = 3) -> str:
-    """Plain number with ``sig`` significant digits (``nan`` when not finite), for captions."""
+    """Plain number with ``sig`` significant digits (``nan`` when not finite), for captions.
+
+    Parameters
+    ----------
+    x : float
+        The number.
+    sig : int
+        Significant digits.
+    """
     if not finite(x):
         return "nan"
     return f"{float(x):.{sig}g}"
@@ -207,12 +227,24 @@ class Row:
 
 
 def ordered_names(estimates: Mapping[str, Estimate]) -> tuple[str, ...]:
-    """Standard coefficients in the seed's order, then any others the fit returned, in its order."""
+    """Standard coefficients in the seed's order, then any others the fit returned, in its order.
+
+    Parameters
+    ----------
+    estimates : Mapping[str, Estimate]
+        The fit stage's estimates.
+    """
     return STANDARD_COEFFICIENTS + tuple(k for k in estimates if k not in STANDARD_COEFFICIENTS)
 
 
 def is_identified(est: Estimate | None) -> bool:
-    """True when an estimate succeeded and has a finite value."""
+    """True when an estimate succeeded and has a finite value.
+
+    Parameters
+    ----------
+    est : Estimate or None
+        The estimate.
+    """
     return est is not None and bool(est.success) and finite(est.value)
 
 
@@ -303,7 +335,13 @@ def coefficient_rows(fits: Fits, added_mass: Mapping[str, float] | None = None) 
 
 
 def note_labels(rows: Iterable[Row]) -> dict[str, str]:
-    """Letter (``a``, ``b``, ...) for each distinct note, in order of first use."""
+    """Letter (``a``, ``b``, ...) for each distinct note, in order of first use.
+
+    Parameters
+    ----------
+    rows : Iterable[Row]
+        Table rows, in order.
+    """
     labels: dict[str, str] = {}
     for row in rows:
         for note in row.notes:
@@ -326,6 +364,11 @@ def checked_matrices(fits: Fits) -> tuple[np.ndarray, np.ndarray]:
     """``fits.damping_matrix`` and ``damping_stderr`` as float 5x5 copies, or ReportError.
 
     Copies, so nothing downstream can write into the caller's arrays.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
     """
     out = []
     for label in ("damping_matrix", "damping_stderr"):
@@ -343,7 +386,13 @@ def checked_matrices(fits: Fits) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_fits(fits: Fits) -> None:
-    """Raise ReportError when ``fits`` is not a usable :class:`~pipeline.records.Fits`."""
+    """Raise ReportError when ``fits`` is not a usable :class:`~pipeline.records.Fits`.
+
+    Parameters
+    ----------
+    fits : Fits
+        Anything claimed to be fit results.
+    """
     if not isinstance(fits, Fits):
         raise ReportError(f"expected a pipeline.records.Fits, found {type(fits).__name__}")
     if not isinstance(fits.estimates, Mapping):
@@ -359,7 +408,15 @@ def check_fits(fits: Fits) -> None:
 
 
 def segment_list(fits: Fits, segments: Segments | Sequence[Segment] | None) -> tuple[Segment, ...]:
-    """The segments to report: those given, else the distinct segments the fits used."""
+    """The segments to report: those given, else the distinct segments the fits used.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
+    segments : Segments, sequence of Segment or None
+        The segments given, if any.
+    """
     if segments is None:
         seen: list[Segment] = []
         for sf in fits.segment_fits:
@@ -416,7 +473,13 @@ def report_warnings(fits: Fits) -> tuple[str, ...]:
 
 
 def damping_consistency(fits: Fits) -> tuple[str, ...]:
-    """Entries of D that contradict the derivatives (``D[i, j]`` should be ``-derivative``)."""
+    """Entries of D that contradict the derivatives (``D[i, j]`` should be ``-derivative``).
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
+    """
     D, _ = checked_matrices(fits)
     out = []
     for name in DERIVATIVES:
