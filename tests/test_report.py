@@ -551,3 +551,50 @@ def test_atomic_folder_swaps_in_whole_and_keeps_the_old_one_on_failure(tmp_path)
     with pytest.raises(OutputError, match="other files"):
         with atomic_mod.atomic_folder(mine):
             pass
+
+
+# --------------------------------------------------------------------------- summary, quality, wrong-but-parsing inputs
+def test_fit_percent_is_matlab_compare():
+    y = np.array([0.0, 1.0, 2.0, 3.0])
+    assert quality.fit_percent(y, y) == pytest.approx(100.0)
+    assert quality.fit_percent(y, np.full(4, y.mean())) == pytest.approx(0.0)
+    assert quality.fit_percent(y, y + 0.5) == pytest.approx(100 * (1 - 1.0 / np.sqrt(5.0)))
+    assert math.isnan(quality.fit_percent(np.ones(4), np.ones(4)))
+
+
+def test_summary_flags_not_identified_and_missing_added_mass(fits):
+    est = dict(fits.estimates)
+    est["T_nomoto"] = Estimate("T_nomoto", math.nan, math.nan, (math.nan, math.nan), "s", 0, "", False,
+                               "not identified: not identified: no rudder step")
+    f = Fits(fits.vessel, est, (), fits.damping_matrix, fits.damping_stderr)
+    rows = {r.label: r for r in summary.summary_rows(f, [], added_mass={"sway": 10.0})}
+    assert rows["Nomoto T"].value == "not identified"
+    assert rows["Nomoto T"].flags == ("not identified: no rudder step",)
+    assert "added mass taken as 0" in rows["D_uu = -X_u"].flags
+    assert "added mass taken as 0" not in rows["D_vv = -Y_v"].flags
+    assert rows["D_rr = -N_r"].ci == "[0.451, 0.529]"  # D = -N_r: the interval flips with the sign
+    found = summary.findings(f, [])
+    assert "T_nomoto not identified: no rudder step" in found.warnings
+    tex = tables.latex_tables(f, added_mass={})
+    assert "added mass in surge taken as zero" in tex
+
+
+def test_gain_and_mass_damping_disagreeing_by_a_unit_factor_is_a_warning(fits):
+    est = dict(fits.estimates)
+    est["D_gain_surge"] = _est("D_gain_surge", 0.00286, 1e-5, "kg/s")  # tau_x logged in kN
+    f = Fits(fits.vessel, est, (), fits.damping_matrix, fits.damping_stderr)
+    (w,) = summary.gain_mass_consistency(f)
+    assert "surge" in w and "0.001 x" in w and "tau_x (N, not kN)" in w
+    est["D_gain_surge"] = _est("D_gain_surge", 2.7, 0.05, "kg/s")  # added mass: a few % apart, fine
+    assert summary.gain_mass_consistency(Fits(fits.vessel, est, (), fits.damping_matrix, fits.damping_stderr)) == ()
+
+
+def test_diagnosis_headline_says_what_is_unexplained():
+    from types import SimpleNamespace as NS
+
+    none = NS(gap_before=4.2, gap_after=4.2, verdict=None, places=(NS(share=0.6, dof="yaw", category="speed",
+                                                                        name="fast"),), shrink=0.0)
+    text = summary.diagnosis_headline(none)
+    assert "No candidate effect explains the gap" in text and "4.2 x the sensor noise, unexplained" in text
+    assert "yaw" in text
+    assert summary.diagnosis_headline(None) == ""

@@ -430,48 +430,7 @@ def segment_list(fits: Fits, segments: Segments | Sequence[Segment] | None) -> t
     return tuple(items)
 
 
-# --------------------------------------------------------------------------- warnings
-def report_warnings(fits: Fits) -> tuple[str, ...]:
-    """Plain-text warnings: failed or doubtful estimates and fits, and D that contradicts them.
-
-    Parameters
-    ----------
-    fits : Fits
-        Fit results.
-
-    Returns
-    -------
-    tuple[str, ...]
-        One sentence each; empty when nothing needs attention.
-    """
-    out: list[str] = []
-    missing = [n for n in STANDARD_COEFFICIENTS if n not in fits.estimates]
-    if missing:
-        out.append("not estimated by the fit stage: " + ", ".join(missing))
-    for name, est in fits.estimates.items():
-        msg = (est.message or "").strip()
-        if not est.success:
-            out.append(f"{name}: not identified: {msg or 'no reason given'}")
-            continue
-        if msg:
-            out.append(f"{name}: {msg}")
-        # Doubts the fit stage did not put into words itself.
-        for note in estimate_notes(est):
-            if note != msg and not note.endswith(": " + msg):
-                out.append(f"{name}: {note}")
-    for i, sf in enumerate(fits.segment_fits):
-        seg = sf.segment
-        where = f"fit {i} ({sf.model} on {sf.channel}, {seg.kind}/{seg.dof}, " \
-                f"t = {seg.t_start:.1f}-{seg.t_end:.1f} s)"
-        msg = (sf.message or "").strip()
-        if not sf.success:
-            out.append(f"{where}: failed: {msg or 'no reason given'}")
-        elif msg:
-            out.append(f"{where}: {msg}")
-    out.extend(damping_consistency(fits))
-    return tuple(out)
-
-
+# --------------------------------------------------------------------------- consistency
 def damping_consistency(fits: Fits) -> tuple[str, ...]:
     """Entries of D that contradict the derivatives (``D[i, j]`` should be ``-derivative``).
 

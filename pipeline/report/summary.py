@@ -30,6 +30,18 @@ GAIN_MASS_FACTOR = 3.0
 SHORT = 160
 
 
+def reason(est: Estimate | None) -> str:
+    """Why ``est`` is not identified, without a repeated "not identified:" prefix.
+
+    Parameters
+    ----------
+    est : Estimate or None
+        The estimate.
+    """
+    why = estimate_notes(est)[0] if est is not None else "not estimated by the fit stage"
+    return re.sub(r"^(\s*not identified\s*[:;,-]?\s*)+", "", why, flags=re.I) or why
+
+
 def shorten(text: str, limit: int = SHORT) -> str:
     """``text`` cut at a word boundary to ``limit`` characters, with ``...`` when cut.
 
@@ -157,7 +169,7 @@ def summary_rows(fits: Fits, qualities: Sequence, added_mass: Mapping[str, float
 def _row(est: Estimate | None, label: str, name: str, negate: bool, bad: list[int] | None,
          no_added_mass: bool) -> SummaryRow:
     if not is_identified(est):
-        why = estimate_notes(est)[0] if est is not None else "not estimated"
+        why = reason(est)
         unit = est.unit if est is not None else ""
         return SummaryRow(label, name, "not identified", "", unit, (f"not identified: {shorten(why, 90)}",))
     value, ci = _plain(est, negate)
@@ -236,7 +248,7 @@ def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()
     for name, est in fits.estimates.items():
         msg = " ".join((est.message or "").split())
         if not is_identified(est):
-            text = f"{name} not identified: {shorten(estimate_notes(est)[0])}"
+            text = f"{name} not identified: {shorten(reason(est))}"
             (warn if name in STANDARD_COEFFICIENTS else notes).append(text)
             continue
         if finite(est.consistency_p) and est.consistency_p < CONSISTENCY_ALPHA:
