@@ -442,13 +442,13 @@ def _run_steps(bar, steps, logs, vessel, out, name, fs, columns, units, manual_s
     if out is not None:
         prov = provenance or make_provenance(list(logs))
         paths = step(steps[5], lambda: write_outputs(out, trial, segments, fits, autopilot, diagnosis,
-                                                     skipped, prov))
+                                                     skipped, prov, vessel))
     return FlowResult(trial, segments, fits, autopilot, diagnosis, paths, skipped)
 
 
 def write_outputs(out: str | Path, trial: Trial, segments: Segments, fits: Fits,
                   autopilot: AutopilotResult | None, diagnosis, skipped: Mapping[str, str],
-                  provenance: Provenance | None = None) -> ReportPaths:
+                  provenance: Provenance | None = None, vessel: Vessel | None = None) -> ReportPaths:
     """Write the report folder as a whole: segments, coefficients, autopilot, diagnosis, report.
 
     Everything goes into a staging folder beside ``out`` that replaces ``out`` only once complete
@@ -468,6 +468,8 @@ def write_outputs(out: str | Path, trial: Trial, segments: Segments, fits: Fits,
         Stage -> reason it produced nothing.
     provenance : Provenance, optional
         Footer of the report.
+    vessel : Vessel, optional
+        Its ``[added_mass]`` marks derivatives fitted with the added mass taken as zero.
     """
     import html as _html
 
@@ -493,6 +495,7 @@ def write_outputs(out: str | Path, trial: Trial, segments: Segments, fits: Fits,
         else:
             sections.append(("Sim-to-real gap",
                              f"<p>No diagnosis: {_html.escape(skipped.get('diagnose', ''))}</p>"))
+        added = dict(vessel.added_mass) if vessel is not None and vessel.has_rigid_body else None
         paths = write_report(fits, stage, trial=trial, segments=segments, extra_sections=sections,
-                             diagnosis=diagnosis, provenance=provenance)
+                             diagnosis=diagnosis, provenance=provenance, added_mass=added)
     return paths.moved_to(Path(out))

@@ -38,7 +38,7 @@ def test_other_designs_hit_their_targets():
 
 
 def test_margin_table_covers_confidence_box():
-    g = pd_gains(K_SEED, T_SEED)
+    g = pd_gains(K_SEED, T_SEED, crossover=0.1)
     rows = margin_table(K_SEED, T_SEED, 0.005, 3.0, g)
     assert len(rows) == 5
     assert rows[0]["crossover"] == pytest.approx(0.1, rel=1e-6)

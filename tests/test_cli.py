@@ -156,6 +156,14 @@ def test_simulate_then_run_end_to_end(capsys, tmp_path):
         assert (rep / name).is_file(), name
     assert list(rep.glob("*.png")), "one figure per fit"
     assert not [p for p in rep.iterdir() if p.name.endswith(".tmp")], "atomic writes leave no temp files"
+    # The whole report (autopilot and diagnosis sections included) in a real browser.
+    from chromium import chromium_binary, probe
+
+    if chromium_binary() is not None:
+        got = probe(rep / "report.html")
+        assert got["images"] >= len(list(rep.glob("fit_*.png"))) and got["broken"] == [], got
+        assert got["scrollWidth"] <= got["innerWidth"], got
+        assert got["firstTableInSummary"] and got["summaryBottom"] <= got["innerHeight"], got
 
 
 # --------------------------------------------------------------------------- issue 15: a CLI read in one minute

@@ -169,13 +169,13 @@ def write_report(fits: Fits, out_dir: str | os.PathLike, trial: Trial | None = N
     overview = None
     if trial is not None:
         overview = save_figure(plot_trial_overview(trial, segs), out / OVERVIEW_NAME)
-    found = findings(fits, qualities, problems)
+    found = findings(fits, qualities, problems, added_mass)
 
     json_path = write_coefficients_json(fits, out / JSON_NAME)
     tex_path = atomic_write_text(out / TEX_NAME, latex_tables(fits, added_mass))
     md_path = atomic_write_text(out / MD_NAME, markdown_tables(fits, added_mass))
     page = render_html(fits, segments=segs, warnings=found.warnings, notes=found.notes, trial=trial,
-                       extra_sections=extra, summary=summary_rows(fits, qualities, added_mass),
+                       extra_sections=extra, summary=summary_rows(fits, qualities),
                        headline=diagnosis_headline(diagnosis), qualities=qualities, fit_figures=fig_names,
                        overview=OVERVIEW_NAME if overview else None, added_mass=added_mass,
                        provenance=provenance)

@@ -326,7 +326,7 @@ def coefficient_rows(fits: Fits, added_mass: Mapping[str, float] | None = None) 
             continue
         ident = is_identified(est)
         dof = ADDED_MASS_DOF.get(name)
-        if ident and dof and added_mass is not None and not added_mass.get(dof):
+        if ident and dof and added_mass is not None and dof not in added_mass:
             notes = notes + (added_mass_note(dof),)
         number = format_uncertain(est.value, est.stderr, est.ci95) if ident else None
         rows.append(Row(name, ident, number, est.unit or default_unit(name), int(est.n_segments),

@@ -159,7 +159,7 @@ def summary_rows(fits: Fits, qualities: Sequence, added_mass: Mapping[str, float
     for name, dof in SUMMARY_DAMPING:
         v = name[-1]
         rows.append(_row(fits.estimates.get(name), f"D_{v}{v} = -{name}", name, True, bad.get(dof),
-                         added_mass is not None and not added_mass.get(dof)))
+                         added_mass is not None and dof not in added_mass))
     for name, label in (("K_nomoto", "Nomoto K"), ("T_nomoto", "Nomoto T")):
         rows.append(_row(fits.estimates.get(name), label, name, False, bad.get("nomoto"), False))
     rows.append(SummaryRow("model structure", "", model_structure(fits), "", "", ()))
@@ -228,7 +228,8 @@ class Findings:
     notes: tuple[str, ...]
 
 
-def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()) -> Findings:
+def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = (),
+             added_mass: Mapping[str, float] | None = None) -> Findings:
     """Split what the fit stage said into warnings and notes, each said once and short.
 
     Parameters
@@ -239,6 +240,9 @@ def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()
         One per segment fit.
     extra_warnings : Sequence[str]
         Warnings found elsewhere (figures that cannot be drawn).
+    added_mass : Mapping[str, float], optional
+        The vessel config's ``[added_mass]``; identified derivatives of DOFs without one give one
+        warning. None: not known.
     """
     warn: list[str] = []
     notes: list[str] = []
@@ -269,6 +273,13 @@ def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()
     if dep:
         warn.append(f"residuals correlate with the input (fit {', '.join(map(str, dep))}): part of the response "
                     f"is not in the model (gain, delay or coupling)")
+    if added_mass is not None:
+        zero = [dof for name, dof in SUMMARY_DAMPING
+                if is_identified(fits.estimates.get(name)) and dof not in added_mass]
+        if zero:
+            warn.append(f"added mass taken as zero in {', '.join(zero)} (no [added_mass] in the vessel config): "
+                        f"damping from time constants is low by the added-mass share; give [added_mass] "
+                        f"(docs/your_own_data.md)")
     warn.extend(gain_mass_consistency(fits))
     warn.extend(damping_consistency(fits))
     warn.extend(extra_warnings)
