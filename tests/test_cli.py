@@ -240,6 +240,7 @@ def test_force_in_kilonewton_is_caught(capsys, surge_log, tmp_path):
     assert "warning: surge: damping from the step gain" in err and "tau_x (N, not kN)" in err, err
 
 
+@pytest.mark.slow
 def test_report_and_run_write_the_same_report_and_a_rerun_replaces_the_folder(capsys, surge_log, tmp_path):
     manifest = tmp_path / "trial.toml"
     manifest.write_text(f'name = "surge"\nvessel = "{VESSEL_TOML}"\nlogs = ["{surge_log}"]\n')

@@ -142,7 +142,8 @@ def autopilot_html_section(result: AutopilotResult, figures: bool = True,
         if figures:
             for s in chk.scenarios:
                 png = imgs.get(f"closed_loop_{s.name}") or closed_loop_figure(chk, s.name)
-                parts.append(_img(png, f"closed loop, scenario {s.name}"))
+                parts.append(f"<details><summary>Closed-loop figure, scenario {html.escape(s.name)}</summary>"
+                             + _img(png, f"closed loop, scenario {s.name}") + "</details>")
     if result.wave_fit is not None:
         f = result.wave_fit
         parts.append(
@@ -157,10 +158,13 @@ def autopilot_html_section(result: AutopilotResult, figures: bool = True,
         if figures:
             parts.append(_img(imgs.get("wave_fit") or wave_fit_figure(f), "wave spectrum fit"))
     ap = result.ardupilot
+    parts.append("<details><summary>ArduPilot Rover parameters</summary>")
     parts.append(_table(["ArduPilot parameter", "value"], [[k, f"{v:.4g}"] for k, v in sorted(ap.params.items())],
                         caption="ArduPilot Rover steering equivalent of the PD design (rate loop with pole at "
                                 "1/T_f, angle P = K_pd K)."))
+    parts.append("</details>")
     notes = list(cfg.notes) + list(ap.notes)
     if notes:
-        parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
+        parts.append(f"<details><summary>{len(notes)} design notes</summary><ul>"
+                     + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul></details>")
     return "Heading autopilot and Kalman filter", "\n".join(parts)
