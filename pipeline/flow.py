@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from . import __version__
 from .align import align
-from .atomic import atomic_folder, atomic_path, check_output_file, check_output_folder
+from .atomic import atomic_folder, atomic_path, check_output_folder
 from .errors import AutopilotError, DiagnoseError, SegmentError
 from .ingest import read_log
 from .records import Fits, Provenance, RawLog, Segment, Segments, Trial

@@ -25,7 +25,7 @@ from ..errors import ReportError
 from ..records import DOFS, Fits, Provenance, Segment, Trial
 from .rows import Formatted, check_fits, checked_matrices, coefficient_rows, finite, format_uncertain, \
     note_labels
-from .summary import Findings, SummaryRow, method_key, method_label
+from .summary import SummaryRow, method_key, method_label
 from .tables import GREEK
 
 _CSS = """

@@ -13,7 +13,7 @@ import re
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
-from ..records import Estimate, Fits, SegmentFit
+from ..records import Estimate, Fits
 from .rows import (CONSISTENCY_ALPHA, STANDARD_COEFFICIENTS, damping_consistency, estimate_notes, finite,
                    format_number, format_uncertain, is_identified)
 
