@@ -148,9 +148,13 @@ def cmd_segment(args: argparse.Namespace) -> int:
 
     from .atomic import check_output_file
 
-    for flag, path in (("--json", args.json), ("--plot", args.plot)):
+    for flag, path in (("--json", args.json), ("--plot", args.plot), ("--review", args.review)):
         if path:
             check_output_file(path, flag)
+    if args.review:
+        from .report.review import require_plotly
+
+        require_plotly()  # the optional dependency is checked before any work
     _, trial, segments = _trial_and_segments(args)
     print(segment_table(segments))
     if args.json:
@@ -160,6 +164,12 @@ def cmd_segment(args: argparse.Namespace) -> int:
 
         save_figure(plot_trial_overview(trial, segments.items), args.plot)
         print(f"wrote {args.plot}")
+    if args.review:
+        from .atomic import atomic_write_text
+        from .report.review import segment_review_html
+
+        atomic_write_text(args.review, segment_review_html(trial, segments, segments_json=segments_to_json(segments)))
+        print(f"wrote {args.review} (open it in a browser; it offers the segments.json that --segments reads)")
     return 0
 
 
@@ -321,6 +331,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fs", type=float, help="resample rate [Hz]")
     p.add_argument("--json", metavar="SEGMENTS.json", help="write the segments (for fit --segments)")
     p.add_argument("--plot", metavar="PNG", help="plot the trial with the segments shaded")
+    p.add_argument("--review", metavar="HTML", help="interactive review page (needs plotly: "
+                                                    "pip install 'vesselid[review]')")
     p.set_defaults(func=cmd_segment)
 
     p = sub.add_parser("fit", help="ingest, segment and fit; write coefficients JSON")

@@ -261,3 +261,27 @@ def test_report_and_run_write_the_same_report_and_a_rerun_replaces_the_folder(ca
     footer = (b / "report.html").read_text().split("<footer>")[1]
     assert "vesselid report --vessel" in footer and surge_log.name in footer and "created 20" in footer
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".vesselid-")], "no staging folder left"
+
+
+def test_segment_review_page_offers_the_segments_json_fit_reads(capsys, surge_log, tmp_path):
+    """Optional plotly page: segments shaded with hover text; its download link is a valid --segments file."""
+    pytest.importorskip("plotly")
+    from urllib.parse import unquote
+
+    page = tmp_path / "review.html"
+    code, out, err = run_cli(capsys, "segment", surge_log, "--review", page)
+    assert code == 0, err
+    text = page.read_text()
+    assert "segment 0: step \\u002f surge" in text and "plotly" in text.lower()  # plotly escapes "/"
+    m = re.search(r'download="segments.json" href="data:application/json;charset=utf-8,([^"]+)"', text)
+    seg_file = tmp_path / "from_review.json"
+    seg_file.write_text(unquote(m.group(1)))
+    code, out, err = run_cli(capsys, "fit", "--vessel", VESSEL_TOML, surge_log, "--segments", seg_file,
+                             "--json", tmp_path / "c.json")
+    assert code == 0, err
+    assert json.loads((tmp_path / "c.json").read_text())["coefficients"]["X_u"]["value"] == pytest.approx(-2.86, rel=0.02)
+    from chromium import chromium_binary, probe
+
+    if chromium_binary() is not None:
+        got = probe(page)
+        assert got["broken"] == [] and got["scrollWidth"] <= got["innerWidth"], got
