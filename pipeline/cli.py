@@ -181,7 +181,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     args : argparse.Namespace
         ``logs`` (log paths), ``vessel`` (vessel TOML), ``fs`` (resample rate [Hz] or None),
         ``segments`` (segments JSON to use instead of detecting, or None) and ``json``
-        (coefficients JSON to write).
+        (coefficients JSON to write), ``review`` (interactive segment review HTML, or None).
 
     Returns
     -------
@@ -196,11 +196,23 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from .flow import write_json
 
     check_output_file(args.json, "--json")
+    if args.review:
+        from .report.review import require_plotly
+
+        check_output_file(args.review, "--review")
+        require_plotly()
     vessel = _vessel(args.vessel)
     segments = segments_from_json(args.segments) if args.segments else None
     result = run_flow(args.logs, vessel, None, fs=args.fs, segments=segments, stop_after="fit")
     fits = result.fits
     write_json(fits_to_dict(fits), args.json)
+    if args.review:
+        from .atomic import atomic_write_text
+        from .flow import segments_to_json
+        from .report.review import segment_review_html
+
+        atomic_write_text(args.review, segment_review_html(result.trial, result.segments, fits,
+                                                           segments_to_json(result.segments)))
     ok = sum(e.success for e in fits.estimates.values())
     print(f"fitted {len(fits.segment_fits)} segments; {ok} of {len(fits.estimates)} coefficients identified; "
           f"wrote {args.json} (details and messages there)")
@@ -340,6 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fs", type=float, help="resample rate [Hz]")
     p.add_argument("--segments", metavar="SEGMENTS.json", help="use these segments instead of detecting")
     p.add_argument("--json", required=True, metavar="OUT.json", help="coefficients JSON to write")
+    p.add_argument("--review", metavar="HTML", help="interactive segment review with each fit's fit %% "
+                                                    "(needs plotly: pip install 'vesselid[review]')")
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("report", help="ingest, segment, fit and write the report folder")

@@ -277,8 +277,10 @@ def test_segment_review_page_offers_the_segments_json_fit_reads(capsys, surge_lo
     seg_file = tmp_path / "from_review.json"
     seg_file.write_text(unquote(m.group(1)))
     code, out, err = run_cli(capsys, "fit", "--vessel", VESSEL_TOML, surge_log, "--segments", seg_file,
-                             "--json", tmp_path / "c.json")
+                             "--json", tmp_path / "c.json", "--review", tmp_path / "fit_review.html")
     assert code == 0, err
+    # With fits, the hover text gives each segment's fit % (MATLAB compare).
+    assert re.search(r"on u: fit \d+\.\d %", (tmp_path / "fit_review.html").read_text())
     assert json.loads((tmp_path / "c.json").read_text())["coefficients"]["X_u"]["value"] == pytest.approx(-2.86, rel=0.02)
     from chromium import chromium_binary, probe
 
