@@ -69,7 +69,7 @@ def _vessel_page(cat: Catalog, vessel: str, trials: pd.DataFrame, out_dir: Path)
     rows = []
     for t in trials.itertuples():
         link = html.escape(t.name)
-        if t.report_dir and (Path(t.report_dir) / "report.html").exists():
+        if isinstance(t.report_dir, str) and (Path(t.report_dir) / "report.html").exists():
             rel = os.path.relpath(Path(t.report_dir) / "report.html", out_dir)
             link = f"<a href='{html.escape(rel)}'>{html.escape(t.name)}</a>"
         date = "" if pd.isna(t.started_utc) else pd.Timestamp(t.started_utc).strftime("%Y-%m-%d %H:%M")

@@ -74,7 +74,7 @@ def vessel_doc(variant: VesselVariant, surge_factor: float = 1.0) -> dict:
 
 
 def write_trial(folder: str | Path, name: str, vessel_config: str | Path, truth_doc: dict, seed: int,
-                start: datetime, origin: tuple[float, float], rate: float = 10.0) -> Path:
+                start: datetime, origin: tuple[float, float], rate: float = 10.0, rudder: bool = True) -> Path:
     """Simulate one short trial, write its DataFlash log and its manifest.
 
     Parameters
@@ -95,6 +95,9 @@ def write_trial(folder: str | Path, name: str, vessel_config: str | Path, truth_
         Latitude and longitude of the trial area [deg].
     rate : float
         Highest sensor rate [Hz].
+    rudder : bool
+        Add a rudder step after the surge step and coast-down (Nomoto K and T); False halves
+        the trial (surge only).
 
     Returns
     -------
@@ -116,9 +119,10 @@ def write_trial(folder: str | Path, name: str, vessel_config: str | Path, truth_
     truth = parse_vessel(truth_doc, f"{name} truth")
     d = np.diag(truth.damping)
     tc = np.diag(truth.mass_matrix()) / d
-    schedule = chain(step_and_coast("surge", float(d[0] * 1.5), 6 * tc[0], 6 * tc[0]),
-                     rudder_step(np.radians(10), 8 * tc[4], 8 * tc[4], {"tau_x": float(d[0])}),
-                     rest_s=float(3 * tc[0]))
+    items = [step_and_coast("surge", float(d[0] * 1.5), 6 * tc[0], 6 * tc[0])]
+    if rudder:
+        items.append(rudder_step(np.radians(10), 8 * tc[4], 8 * tc[4], {"tau_x": float(d[0])}))
+    schedule = chain(*items, rest_s=float(3 * tc[0]))
     sensors = tuple(replace(s, rate=min(s.rate, rate)) for s in default_sensors("nominal"))
     result = simulate(truth, schedule, sensors=sensors, seed=seed, dt=0.02, origin=origin)
     write_log(result.log, folder / f"{name}.bin", vessel=truth, gps_start=start)
@@ -130,7 +134,7 @@ def write_trial(folder: str | Path, name: str, vessel_config: str | Path, truth_
 
 def write_fleet(root: str | Path, trials_per_vessel: int = 10, fleet: tuple[VesselVariant, ...] = FLEET,
                 rate: float = 10.0, first: datetime = datetime(2025, 4, 1, 9, 0, tzinfo=timezone.utc),
-                spacing: timedelta = timedelta(days=7)) -> list[Path]:
+                spacing: timedelta = timedelta(days=7), rudder: bool = True) -> list[Path]:
     """Write ``trials_per_vessel`` trials of every vessel under ``root`` (``<vessel>/<trial>/``).
 
     Trial ``k`` of a vessel is recorded ``k * spacing`` after ``first`` with seed ``1000 * i + k``
@@ -151,6 +155,8 @@ def write_fleet(root: str | Path, trials_per_vessel: int = 10, fleet: tuple[Vess
         Date of the first trial (UTC, timezone-aware).
     spacing : timedelta
         Time between a vessel's trials.
+    rudder : bool
+        Include the rudder step (see :func:`write_trial`).
 
     Returns
     -------
@@ -169,5 +175,5 @@ def write_fleet(root: str | Path, trials_per_vessel: int = 10, fleet: tuple[Vess
             name = f"{var.name}-{k + 1:02d}"
             truth = vessel_doc(var, (1 + var.fouling_per_trial) ** k)
             out.append(write_trial(root / var.name / name, name, cfg, truth, 1000 * i + k,
-                                   first + k * spacing, var.origin, rate))
+                                   first + k * spacing, var.origin, rate, rudder))
     return out

@@ -118,6 +118,17 @@ def _size(p: Path) -> int:
     return sum(x.stat().st_size for x in p.rglob("*") if x.is_file()) if p.is_dir() else p.stat().st_size
 
 
+def _fallback_name(path: Path) -> str:
+    """The ``name`` of a manifest that does not load, else its folder's name for ``trial.toml``."""
+    import tomllib
+
+    try:
+        name = tomllib.loads(path.read_text(encoding="utf-8")).get("name")
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        name = None
+    return str(name) if isinstance(name, str) and name else (path.parent.name if path.stem == "trial" else path.stem)
+
+
 def identify_trial(manifest: str | Path, version: str = __version__) -> TrialIdentity:
     """Hash a trial's manifest, vessel config and logs.
 
@@ -145,6 +156,7 @@ def identify_trial(manifest: str | Path, version: str = __version__) -> TrialIde
         entries += [("log", p) for p in man.logs]
     except VesselidError as exc:
         problem = str(exc)
+        name = _fallback_name(path)
     files = []
     for role, p in entries:
         try:
