@@ -207,3 +207,25 @@ def test_cli_errors_are_clear(tmp_path, capsys):
     assert main(["catalog", "export", "--out", str(tmp_path / "x.txt"), "--catalog", str(tmp_path / "c.duckdb")]) == 2
     assert main(["catalog", "list", "--catalog", str(tmp_path / "c.duckdb")]) == 0
     assert "boat: 1 trial(s)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [["batch"], ["catalog"], ["catalog", "list"], ["catalog", "show"], ["catalog", "compare"],
+                                  ["catalog", "trend"], ["catalog", "export"], ["catalog", "html"]])
+def test_every_catalogue_command_has_help(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv + ["--help"])
+    assert exc.value.code == 0 and "usage:" in capsys.readouterr().out
+
+
+def test_html_pages_link_reports_and_show_trends(tmp_path):
+    rng = np.random.default_rng(1)
+    with Catalog(tmp_path / "c.duckdb", create=True) as cat:
+        for k in range(4):
+            cat.write(record(f"f{k}", {"X_u": (-2.9 * 1.05 ** k + rng.normal(0, 0.01), 0.01)}, vessel="fouled", day=7 * k))
+        cat.write(record("bad", {}, vessel="fouled", status="failed"))
+        from pipeline.catalog.html import write_catalog_pages
+
+        pages = write_catalog_pages(cat, tmp_path / "pages")
+    assert [p.name for p in pages] == ["index.html", "vessel-fouled.html"]
+    text = pages[1].read_text()
+    assert "significant drift" in text and "data:image/png;base64," in text and "failed: boom" in text

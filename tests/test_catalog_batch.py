@@ -122,7 +122,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_batch_on_an_existing_dask_scheduler(tree, tmp_path):
+def test_batch_on_an_existing_dask_scheduler(tree, tmp_path, capsys):
     dask = shutil.which("dask", path=str(Path(sys.executable).parent))
     assert dask, "the dask command is installed with dask[distributed]"
     port = _free_port()
@@ -133,10 +133,10 @@ def test_batch_on_an_existing_dask_scheduler(tree, tmp_path):
         procs.append(subprocess.Popen([dask, "worker", addr, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
                                       env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         cat = tmp_path / "sched.duckdb"
-        res = subprocess.run([sys.executable, "-m", "pipeline.cli", "batch", str(tree / "skiff"), "--catalog", str(cat),
-                              "--scheduler", addr, "--quick"], env=env(), capture_output=True, text=True, timeout=300)
-        assert res.returncode == 0, res.stderr
-        assert "1 processed" in res.stdout
+        code = main(["batch", str(tree / "skiff"), "--catalog", str(cat), "--scheduler", addr, "--quick"])
+        out = capsys.readouterr()
+        assert code == 0, out.err
+        assert "1 processed" in out.out and "on 1 worker(s)" in out.out
         with Catalog(cat) as c:
             t = c.resolve("skiff-01")
             assert t["status"] == "ok" and "--scheduler" in t["command"]

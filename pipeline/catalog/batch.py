@@ -91,11 +91,13 @@ def _client(workers: int, scheduler: str | None):
 
     if scheduler:
         try:
-            return Client(scheduler, timeout="20s"), None
+            return Client(scheduler, timeout="10s"), None
         except (OSError, TimeoutError) as exc:
             raise CatalogError(f"--scheduler: expected a dask.distributed scheduler at {scheduler}, "
                                f"found none answering ({exc})") from None
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+    # One worker runs as a thread of this process: no worker process to start and import the
+    # pipeline into, and nothing to gain from a process of its own.
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=workers > 1, dashboard_address=None,
                            silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
@@ -120,7 +122,8 @@ def run_batch(root: str | Path, catalog: str | Path, reports: str | Path | None 
     reports : str or Path, optional
         Root of the per-trial report folders; default ``reports`` beside the catalogue.
     workers : int
-        Worker processes of the local cluster (ignored with ``scheduler``).
+        Worker processes of the local cluster (ignored with ``scheduler``); 1 runs the trials in
+        one worker thread of this process.
     scheduler : str, optional
         Address of an existing ``dask.distributed`` scheduler (``tcp://host:8786``); its workers
         must see the same file paths (a shared file system) and have vesselid installed.
