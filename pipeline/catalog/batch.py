@@ -174,7 +174,7 @@ def run_batch(root: str | Path, catalog: str | Path, reports: str | Path | None 
                 record = fut.result()
             except Exception as exc:  # noqa: BLE001 - a lost worker fails this trial only
                 record = _failed_record(ident, f"worker failed: {type(exc).__name__}: {exc}", command)
-            with Catalog(catalog, create=True) as cat:
+            with Catalog(catalog, create=True, wait_s=120.0) as cat:
                 cat.write(record)
             (ok if record.ok else failed).append(ident.name)
             if not record.ok:

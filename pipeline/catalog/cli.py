@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import math
 import shlex
-import sys
 from pathlib import Path
 
 import pandas as pd
@@ -72,8 +71,11 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from .batch import run_batch
     from .html import write_catalog_pages
 
-    command = "vesselid " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["batch"] else \
-        f"vesselid batch {shlex.quote(args.trials_dir)}"
+    parts = ["vesselid", "batch", args.trials_dir, "--catalog", args.catalog]
+    parts += ["--scheduler", args.scheduler] if args.scheduler else ["--workers", str(args.workers)]
+    parts += [flag for flag, on in (("--force", args.force), ("--quick", args.quick)) if on]
+    parts += ["--reports", args.reports] if args.reports else []
+    command = " ".join(shlex.quote(str(a)) for a in parts)
 
     def said(record) -> None:
         t = record.trial

@@ -226,8 +226,8 @@ def coefficient_trend(cat: Catalog, coefficient: str, vessel: str | None = None,
                            f"{coefficient!r}; coefficients: {', '.join(known) or 'none'}")
     out = []
     for vname, g in hist.groupby("vessel_name", sort=True, dropna=False):
-        # One point per trial name: the newest processing (an old version's rows stay catalogued).
-        g = g.sort_values("processed_at").groupby("name", as_index=False).tail(1)
+        # One point per trial (same files): the newest processing; an old version's rows stay catalogued.
+        g = g.sort_values("processed_at").groupby("files_hash", as_index=False).tail(1)
         ok = g[g["success"].astype(bool) & g["value"].notna() & (g["stderr"] > 0)].copy()
         dated = ok["started_utc"].notna().all() and len(ok) > 0
         if dated:

@@ -49,9 +49,13 @@ class Catalog:
         The DuckDB file; created (and its schema migrated) when ``create`` is True.
     create : bool
         Create the file when missing. False: a missing file is an error naming it.
+    wait_s : float
+        How long to wait [s] for another process that holds the file to release it.
     """
 
-    def __init__(self, path: str | Path = DEFAULT_CATALOG, create: bool = False) -> None:
+    def __init__(self, path: str | Path = DEFAULT_CATALOG, create: bool = False, wait_s: float = 0.0) -> None:
+        import time
+
         import duckdb
 
         self.path = Path(path)
@@ -61,16 +65,25 @@ class Catalog:
         if self.path.is_dir():
             raise CatalogError(f"catalogue: expected a file at {self.path}, found a folder")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            self.con = duckdb.connect(str(self.path))
-        except duckdb.IOException as exc:
-            text = str(exc)
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                self.con = duckdb.connect(str(self.path))
+                break
+            except duckdb.IOException as exc:
+                # Another process holds the file (DuckDB allows one writer): wait for it if asked.
+                if "lock" not in str(exc).lower() or time.monotonic() >= deadline:
+                    error = exc
+                    break
+                time.sleep(0.5)
+            except duckdb.Error as exc:
+                raise CatalogError(f"catalogue {self.path}: expected a DuckDB file, found: {exc}") from None
+        if not hasattr(self, "con"):
+            text = str(error)
             if "lock" in text.lower():
                 raise CatalogError(f"catalogue {self.path}: in use by another process; try again when it is done "
                                    f"({text.splitlines()[0]})") from None
             raise CatalogError(f"catalogue {self.path}: expected a DuckDB file, found one DuckDB cannot open: {text}") from None
-        except duckdb.Error as exc:
-            raise CatalogError(f"catalogue {self.path}: expected a DuckDB file, found: {exc}") from None
         try:
             self.con.execute("SET TimeZone = 'UTC'")
             self.version = migrate(self.con, str(self.path))
@@ -226,7 +239,7 @@ class Catalog:
         """
         where = "AND t.vessel_name = ?" if vessel else ""
         return self.query(
-            "SELECT t.trial_id, t.name, t.vessel_name, t.started_utc, t.report_dir, t.package_version, t.processed_at, "
+            "SELECT t.trial_id, t.name, t.files_hash, t.vessel_name, t.started_utc, t.report_dir, t.package_version, t.processed_at, "
             "c.value, c.stderr, c.ci_low, c.ci_high, c.unit, c.success, c.message FROM coefficients c "
             f"JOIN trials t USING (trial_id) WHERE c.name = ? AND t.status = 'ok' {where} "
             "ORDER BY t.vessel_name, t.started_utc NULLS LAST, t.name, t.processed_at",
