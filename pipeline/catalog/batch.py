@@ -96,8 +96,9 @@ def _client(workers: int, scheduler: str | None):
             raise CatalogError(f"--scheduler: expected a dask.distributed scheduler at {scheduler}, "
                                f"found none answering ({exc})") from None
     # One worker runs as a thread of this process: no worker process to start and import the
-    # pipeline into, and nothing to gain from a process of its own.
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=workers > 1, dashboard_address=None,
+    # pipeline into, and nothing to gain from a process of its own. The scheduler's HTTP server
+    # always starts; ":0" puts it on a free port instead of warning that 8787 is taken.
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=workers > 1, dashboard_address=":0",
                            silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
