@@ -136,7 +136,7 @@ def test_batch_on_an_existing_dask_scheduler(tree, tmp_path, capsys):
         code = main(["batch", str(tree / "skiff"), "--catalog", str(cat), "--scheduler", addr, "--quick"])
         out = capsys.readouterr()
         assert code == 0, out.err
-        assert "1 processed" in out.out and "on 1 worker(s)" in out.out
+        assert "1 processed" in out.out
         with Catalog(cat) as c:
             t = c.resolve("skiff-01")
             assert t["status"] == "ok" and "--scheduler" in t["command"]

@@ -162,8 +162,13 @@ def run_batch(root: str | Path, catalog: str | Path, reports: str | Path | None 
     if not todo:
         return BatchSummary(len(identities), skipped, wall_s=time.perf_counter() - t0, workers=0)
     client, cluster = _client(workers, scheduler)
-    n_workers = len(client.scheduler_info().get("workers", {})) or workers
     try:
+        try:
+            client.wait_for_workers(1, timeout=120)
+        except TimeoutError:
+            raise CatalogError(f"--scheduler {scheduler}: expected at least one worker, found none after 120 s "
+                               f"(start one with 'dask worker {scheduler}')") from None
+        n_workers = len(client.scheduler_info().get("workers", {})) or workers
         from distributed import as_completed
 
         futures = {client.submit(process_trial, ident, reports, quick, command, pure=False, key=f"trial-{ident.trial_id}"):
