@@ -238,7 +238,7 @@ def _diagnosis_rows(doc: Mapping[str, Any] | None, quick: bool) -> tuple[dict, t
                 "gap_after": None, "shrink": None, "message": why}, ()
     verdict = doc.get("verdict") or {}
     effect = verdict.get("effect")
-    row = {"status": "explained" if effect else "unexplained or none", "effect": effect, "dof": verdict.get("dof"),
+    row = {"status": "effect found" if effect else "no effect found", "effect": effect, "dof": verdict.get("dof"),
            "gap_before": _num(doc.get("gap_before")), "gap_after": _num(doc.get("gap_after")),
            "shrink": _num(doc.get("shrink")), "message": "; ".join(str(n) for n in doc.get("notes", []))[:2000]}
     gaps = tuple({"dof": d.get("dof"), "gap": _num(d.get("gap")), "noise_floor": _num(d.get("noise_floor")),
