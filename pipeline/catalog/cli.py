@@ -259,8 +259,8 @@ def cmd_catalog_trend(args: argparse.Namespace) -> int:
             print(f"  {p.name:<20} x = {_f(p.x, 4):>7}  {_f(p.value)} ± {_f(p.stderr, 2)} {tr.unit}")
         if math.isfinite(tr.slope):
             verdict = "SIGNIFICANT drift" if tr.significant else "no significant drift"
-            print(f"  drift {_f(tr.slope, 4)} ± {_f(tr.slope_se, 2)} {tr.unit} per x ({100 * tr.rel_slope:+.3g} ± "
-                  f"{100 * tr.rel_slope_se:.2g} % per x), t-test p = {_f(tr.p_value, 3)}: {verdict} at "
+            print(f"  drift {_f(tr.slope, 4)} ± {_f(tr.slope_se, 2)} {tr.unit} per {tr.x_unit} ({100 * tr.rel_slope:+.3g} ± "
+                  f"{100 * tr.rel_slope_se:.2g} % per {tr.x_unit}), t-test p = {_f(tr.p_value, 3)}: {verdict} at "
                   f"{args.alpha:g}; {tr.note}")
         else:
             print(f"  {tr.note}")

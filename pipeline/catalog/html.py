@@ -86,8 +86,8 @@ def _vessel_page(cat: Catalog, vessel: str, trials: pd.DataFrame, out_dir: Path)
     plots = []
     for c in [n for n in counts.index if counts[n] >= 3][:MAX_TRENDS]:
         for tr in coefficient_trend(cat, c, vessel):
-            text = (f"drift {tr.slope:.4g} ± {tr.slope_se:.2g} {tr.unit} per x ({100 * tr.rel_slope:+.3g} ± "
-                    f"{100 * tr.rel_slope_se:.2g} % per x), p = {tr.p_value:.3g}; x = {tr.x_label}; {tr.note}"
+            text = (f"drift {tr.slope:.4g} ± {tr.slope_se:.2g} {tr.unit} per {tr.x_unit} ({100 * tr.rel_slope:+.3g} ± "
+                    f"{100 * tr.rel_slope_se:.2g} % per {tr.x_unit}), p = {tr.p_value:.3g}; x = {tr.x_label}; {tr.note}"
                     if math.isfinite(tr.slope) else tr.note)
             cls = " class='sig'" if tr.significant else ""
             plots.append(f"<h3>{html.escape(c)}</h3><p{cls}>{'significant drift: ' if tr.significant else ''}"

@@ -128,6 +128,8 @@ class Trend:
         What was fitted.
     x_label : str
         What ``x`` is (``days since the first trial`` or ``trial number in name order``).
+    x_unit : str
+        Unit of ``x`` for the drift (``day`` or ``trial``).
     points : pandas.DataFrame
         The trials: ``name``, ``trial_id``, ``x``, ``value``, ``stderr``, ``report_dir``.
     intercept, slope : float
@@ -150,6 +152,7 @@ class Trend:
     vessel: str
     unit: str
     x_label: str
+    x_unit: str
     points: pd.DataFrame
     intercept: float = math.nan
     slope: float = math.nan
@@ -234,14 +237,14 @@ def coefficient_trend(cat: Catalog, coefficient: str, vessel: str | None = None,
             t = pd.to_datetime(ok["started_utc"], utc=True)
             ok["x"] = (t - t.min()).dt.total_seconds() / 86400.0
             ok = ok.sort_values(["x", "name"])
-            label = "days since the first trial (log clock)"
+            label, x_unit = "days since the first trial (log clock)", "day"
         else:
             ok = ok.sort_values("name", key=lambda s: s.map(_natural_key))
             ok["x"] = np.arange(len(ok), dtype=float)
-            label = "trial number in name order (not every trial has a log date)"
+            label, x_unit = "trial number in name order (not every trial has a log date)", "trial"
         pts = ok[["name", "trial_id", "x", "value", "stderr", "report_dir"]].reset_index(drop=True)
         unit = str(g["unit"].iloc[0])
-        base = dict(coefficient=coefficient, vessel=str(vname), unit=unit, x_label=label, points=pts)
+        base = dict(coefficient=coefficient, vessel=str(vname), unit=unit, x_label=label, x_unit=x_unit, points=pts)
         if len(pts) < 3 or pts["x"].nunique() < 3:
             out.append(Trend(**base, note=f"no drift fitted: {len(pts)} trial(s) with the coefficient identified, "
                                           f"need 3 or more at 3 distinct x"))
@@ -288,7 +291,8 @@ def plot_trend(trend: Trend, path=None):
     if math.isfinite(trend.slope):
         xs = np.linspace(pts["x"].min(), pts["x"].max(), 50)
         ax.plot(xs, trend.intercept + trend.slope * xs, "-", color="C3",
-                label=f"drift {trend.slope:.3g} ± {trend.slope_se:.2g} {trend.unit}/x (p = {trend.p_value:.2g})")
+                label=f"drift {trend.slope:.3g} ± {trend.slope_se:.2g} {trend.unit} per {trend.x_unit} "
+                      f"(p = {trend.p_value:.2g})")
         # 95% band of the slope only, pivoting about the weighted centre, as a visual of the drift error.
         w = 1 / pts["stderr"].to_numpy() ** 2
         xc = float(np.sum(w * pts["x"]) / np.sum(w))
