@@ -42,7 +42,10 @@ from pipeline.catalog.batch import run_batch  # noqa: E402
 from pipeline.catalog.stats import coefficient_trend  # noqa: E402
 from pipeline.catalog.synthetic import FLEET, write_fleet  # noqa: E402
 
-REALDATA = ROOT.parent / "shared" / "realdata" / "ce6-boat-limfjord-2022"
+# ../shared beside the checkout (or beside the worktrees' folder when run from a git worktree).
+REALDATA = next((p / "shared" / "realdata" / "ce6-boat-limfjord-2022" for p in (ROOT.parent, ROOT.parents[1])
+                 if (p / "shared" / "realdata" / "ce6-boat-limfjord-2022").is_dir()),
+                ROOT.parent / "shared" / "realdata" / "ce6-boat-limfjord-2022")
 SPACING_DAYS = 7.0
 
 
@@ -121,11 +124,16 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="also write the measured numbers as JSON")
     ap.add_argument("--realdata-max", type=int, default=12, help="at most this many CE6 logs")
     ap.add_argument("--reuse", action="store_true", help="reuse the trials already written under --out/trials")
+    ap.add_argument("--only-realdata", action="store_true", help="run only the CE6 real-log part")
     args = ap.parse_args(argv)
     os.environ.setdefault("CI", "1")
     quick = not args.full
     work = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="vesselid-batch-bench-"))
     work.mkdir(parents=True, exist_ok=True)
+    if args.only_realdata:
+        real = realdata_part(work, 2, quick, args.realdata_max)
+        print(json.dumps(real, indent=2, default=str) if real else f"no real data at {REALDATA}")
+        return 0
     t0 = time.perf_counter()
     from pipeline.catalog.batch import find_trials
 
