@@ -367,6 +367,14 @@ def build_parser() -> argparse.ArgumentParser:
     add_autopilot_parser(sub)
     add_diagnose_parser(sub)
 
+    try:
+        from .catalog.cli import add_batch_parser, add_catalog_parser
+    except ImportError:  # duckdb / dask not installed
+        pass
+    else:
+        add_batch_parser(sub)
+        add_catalog_parser(sub)
+
     p = sub.add_parser("simulate", help="simulate a sea trial of a vessel and write it as a log file")
     p.add_argument("--vessel", required=True, metavar="VESSEL.toml", help="vessel config with [damping] or [nomoto]")
     p.add_argument("--out", required=True, metavar="LOG",
