@@ -35,7 +35,8 @@ def run_manifest(manifest_path: str | Path, out: str | Path | None = None) -> Pa
     bar = tqdm(steps, desc=f"vesselid run {man.name}", disable=not show_progress(), leave=False)
     bar.set_postfix_str(steps[0])
     vessel = load_vessel(man.vessel)
-    trial = load_trial(man.logs, vessel, name=man.name, fs=man.fs, columns=man.columns, units=man.units)
+    trial = load_trial(man.logs, vessel, name=man.name, fs=man.fs, columns=man.columns, units=man.units,
+                       runs=man.run_sources, run_names=man.run_names, input_kinds=man.inputs or None)
     bar.update()
     bar.set_postfix_str(steps[1])
     segments = segment_trial(trial, man.segments, man.segments_mode)

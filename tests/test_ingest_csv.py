@@ -154,8 +154,9 @@ def test_header_only(tmp_path):
 
 
 def test_no_time_column(tmp_path):
-    with pytest.raises(IngestError, match=r"expected a time column 't', found columns \['time', 'u'\]"):
-        read_csv_log(_write(tmp_path, "time,u\n0,1\n0.1,2\n"))
+    with pytest.raises(IngestError, match=r"expected a time column 't' \(or a column map entry naming one, e.g. "
+                                         r"\[columns\] t_s = \"t\"\), found columns \['clock', 'u'\]"):
+        read_csv_log(_write(tmp_path, "clock,u\n0,1\n0.1,2\n"))
 
 
 def test_non_numeric_cell(tmp_path):

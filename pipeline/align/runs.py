@@ -337,8 +337,8 @@ def grouping_text(groups: Sequence[RunGroup]) -> str:
     groups : Sequence[RunGroup]
         Output of :func:`group_runs`.
     """
-    lines = [f"{len(groups)} run(s):"]
-    for k, g in enumerate(groups, 1):
+    lines = [f"{len(groups)} run(s) (numbered as Segment.run):"]
+    for k, g in enumerate(groups):
         lines.append(f"  run {k} {g.name!r}: " + ", ".join(Path(s).name for s in g.sources))
         for s in g.sources:
             off = g.offsets.get(s)
