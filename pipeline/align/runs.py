@@ -10,8 +10,12 @@ run when
    their turn rates or accelerations (:func:`pipeline.align.clock.estimate_offsets`).
 
 Logs whose absolute times do not overlap are never merged, whatever a correlation says. A log
-without absolute time that carries the same channels as a log of a run is a second recording of
-the same sensors, not another sensor of that run: it is not correlated against it. A log that
+without absolute time whose measured quantities (state channels, ``@sensor`` suffixes ignored) are
+all in a log of a run, or that holds all of that log's, adds no sensor to the run: it is taken as
+another recording of the same sensors and is not correlated against it. Two surge coast-downs of
+one boat on different days correlate as well as two sensors of one coast-down, so a correlation
+alone cannot tell them apart; a redundant second logger of one recording is therefore kept as a
+run of its own unless the manifest states the runs. A log that
 can be placed nowhere becomes a run of its own. A manifest can state the runs instead
 (``explicit``); their clocks are still estimated, and a stated run whose files do not overlap in
 absolute time is refused.
@@ -110,7 +114,13 @@ def _timed(log: RawLog) -> _Timed:
 
 
 def _channel_set(log: RawLog) -> frozenset[str]:
-    return frozenset(log.channels)
+    """Measured quantities of a log: base names of its state channels."""
+    return frozenset(n.split("@")[0] for n, c in log.channels.items() if n.split("@")[0] not in INPUT_UNITS and len(c.t))
+
+
+def _same_sensors(a: RawLog, b: RawLog) -> bool:
+    sa, sb = _channel_set(a), _channel_set(b)
+    return bool(sa) and bool(sb) and (sa <= sb or sb <= sa)
 
 
 def _has_states(log: RawLog) -> bool:
@@ -255,9 +265,10 @@ def group_runs(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | None 
         tried: list[str] = []
         placed = False
         for k, g in enumerate(groups):
-            same = [m for m in g if _channel_set(by_source[m]) == _channel_set(log)]
+            same = [m for m in g if _same_sensors(by_source[m], log)]
             if same:
-                tried.append(f"same channels as {Path(same[0]).name} (a second recording of the same sensors)")
+                tried.append(f"same channels as {Path(same[0]).name} (taken as another recording of the same "
+                             f"sensors; state [[runs]] in a manifest if they are one recording)")
                 continue
             try:
                 offs = run_offsets([by_source[m] for m in g] + [log])
