@@ -134,10 +134,10 @@ def _parse_time(p: Path, col: pd.Series, raw: str, unit: str | None) -> tuple[np
     if stamps.dt.tz is None:
         notes.append(f"time: ISO timestamps in {raw!r} have no time zone; taken as UTC")
         stamps = stamps.dt.tz_localize("UTC")
-    ns = stamps.dt.tz_convert("UTC").astype("int64").to_numpy()
-    first = ns[0]
-    notes.append(f"time: ISO timestamps in {raw!r}; t = 0 is {stamps.iloc[0].isoformat()}")
-    return (ns - first).astype(float) * 1e-9, float(first) * 1e-9, notes
+    stamps = stamps.dt.tz_convert("UTC")
+    first = stamps.iloc[0]
+    notes.append(f"time: ISO timestamps in {raw!r}; t = 0 is {first.isoformat()}")
+    return (stamps - first).dt.total_seconds().to_numpy(float), float(first.timestamp()), notes
 
 
 def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
@@ -229,13 +229,15 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
             continue
         name = columns.get(raw, raw)
         unit = units.get(raw)
-        if unit is None and (raw in columns or _base(name) not in CHANNEL_UNITS):
-            split = _split_suffix(raw, SUFFIX_UNITS)
-            if split and (raw in columns or _base(split[0]) in CHANNEL_UNITS):
-                if raw not in columns:
-                    name = split[0]
+        split = _split_suffix(raw, SUFFIX_UNITS)
+        if split and raw not in columns and _base(name) not in CHANNEL_UNITS and _base(split[0]) in CHANNEL_UNITS:
+            name = split[0]
+            if unit is None:
                 unit = split[1]
-                notes.append(f"unit from suffix: {raw!r} read as {name} in {unit}")
+            notes.append(f"unit from suffix: {raw!r} read as {name} in {unit}")
+        elif split and raw in columns and unit is None:
+            unit = split[1]
+            notes.append(f"unit from suffix: {raw!r} read as {name} in {unit}")
         if _base(name) not in CHANNEL_UNITS:
             skipped[raw] = int(df[raw].notna().sum())
             warnings.append(f"column {raw!r} is not a canonical channel and has no column map entry; "
