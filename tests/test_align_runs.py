@@ -227,3 +227,15 @@ def test_a_folder_of_separate_runs_fits_like_the_runs_one_by_one(day):
         assert est.success, est.message
         assert abs(est.value - combined) < 0.2 * est.stderr, (name, est.value, combined, est.stderr)
     assert len([p for f in alone for p in [f.estimates.get("X_u")] if p is not None and p.success]) >= 2
+
+
+def test_cli_ingest_and_align_print_the_grouping_and_why(day, capsys):
+    from pipeline.cli import main
+
+    folder, _ = day
+    assert main(["ingest", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert "3 run(s)" in out and "why:" in out and "never merged" in out
+    assert main(["align", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert "3 run(s):" in out and "run 2 'a_morning'" in out and "clock offset" in out
