@@ -239,3 +239,13 @@ def test_cli_ingest_and_align_print_the_grouping_and_why(day, capsys):
     assert main(["align", str(folder)]) == 0
     out = capsys.readouterr().out
     assert "3 run(s):" in out and "run 2 'a_morning'" in out and "clock offset" in out
+
+
+def test_writers_hold_commands_and_interpolate_measured_inputs():
+    from pipeline.sim.writers._sampling import hold_channel
+
+    t = np.array([0.0, 1.0])
+    cmd = Channel("delta", t, np.array([0.0, 1.0]))
+    measured = Channel("delta", t, np.array([0.0, 1.0]), input_kind="measured")
+    np.testing.assert_allclose(hold_channel(cmd, np.array([0.5, 1.0])), [0.0, 1.0])
+    np.testing.assert_allclose(hold_channel(measured, np.array([0.5, 1.0])), [0.5, 1.0])
