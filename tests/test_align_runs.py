@@ -249,3 +249,12 @@ def test_writers_hold_commands_and_interpolate_measured_inputs():
     measured = Channel("delta", t, np.array([0.0, 1.0]), input_kind="measured")
     np.testing.assert_allclose(hold_channel(cmd, np.array([0.5, 1.0])), [0.0, 1.0])
     np.testing.assert_allclose(hold_channel(measured, np.array([0.5, 1.0])), [0.5, 1.0])
+
+
+def test_a_grid_coarser_than_the_command_log_is_warned():
+    t = np.arange(0.0, 10.0, 0.02)
+    log = RawLog("a", "sim", {"delta": Channel("delta", t, (t > 5.01).astype(float)),
+                              "r": Channel("r", t, np.zeros(t.size))}, IngestSummary("a", "sim"))
+    assert not any(n.startswith("warning") for n in align([log]).notes)
+    notes = align([log], fs=10.0).notes
+    assert any("10 Hz is coarser than the logged rate of the commands delta (up to 50 Hz)" in n for n in notes)

@@ -219,6 +219,13 @@ def _align_run(logs: Sequence[RawLog], group: RunGroup, fs: float, gap_threshold
         data[key] = resample_channel(ch, grid, g)
         if key.split("@")[0] in INPUT_UNITS:
             kinds[key] = "command" if ch.held else "measured"
+    coarse = sorted(k for k, c in chans.items() if c.held and _native_rate(c) > 1.001 * fs)
+    if coarse:
+        # A command change between two grid points is held until the next one: up to one grid
+        # step late, which a fit at this rate reads as a longer time constant or a delay.
+        notes.append(f"warning: {fs:g} Hz is coarser than the logged rate of the commands {', '.join(coarse)} "
+                     f"(up to {max(_native_rate(chans[k]) for k in coarse):g} Hz): their changes move to the next "
+                     f"grid point, up to {1 / fs:g} s late; align at their own rate for unbiased fits")
     if kinds:
         notes.append("inputs: " + ", ".join(f"{k} {'held (command)' if v == 'command' else 'interpolated (measured)'}"
                                             for k, v in sorted(kinds.items())))
