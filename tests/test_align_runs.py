@@ -227,6 +227,11 @@ def test_a_folder_of_separate_runs_fits_like_the_runs_one_by_one(day):
         assert est.success, est.message
         assert abs(est.value - combined) < 0.2 * est.stderr, (name, est.value, combined, est.stderr)
     assert len([p for f in alone for p in [f.estimates.get("X_u")] if p is not None and p.success]) >= 2
+    # The diagnosis runs on the multi-run trial without error (its verdict is the diagnose tests' business).
+    from pipeline.diagnose import diagnose
+
+    report = diagnose(trial, VESSEL, segments=segs, fits=fits)
+    assert report.gap_before >= 0
 
 
 def test_cli_ingest_and_align_print_the_grouping_and_why(day, capsys):
