@@ -38,12 +38,19 @@ def cmd_ingest(args: argparse.Namespace) -> int:
     int
         0 (errors are raised and turned into an exit code by :func:`main`).
     """
+    from .align import group_runs, grouping_text
+    from .errors import AlignError
     from .flow import read_logs
 
-    for log in read_logs(args.logs, _vessel(args.vessel)):
+    logs = read_logs(args.logs, _vessel(args.vessel))
+    for log in logs:
         print(log.summary.text())
         for name, ch in sorted(log.channels.items()):
             print(f"  {name:<12} {len(ch.t):>8} samples  {ch.t[0]:10.3f} .. {ch.t[-1]:10.3f} s  [{ch.unit}]  from {ch.source}")
+    try:
+        print(grouping_text(group_runs(logs)))
+    except AlignError as exc:
+        print(f"runs: the logs cannot be grouped: {exc}")
     return 0
 
 
@@ -61,7 +68,7 @@ def cmd_align(args: argparse.Namespace) -> int:
     int
         0 (errors are raised and turned into an exit code by :func:`main`).
     """
-    from .flow import load_trial
+    from .flow import load_trial, runs_text
     from .records import Channel, IngestSummary, RawLog
     from .sim.writers.csv_writer import write_csv_log
 
@@ -75,6 +82,7 @@ def cmd_align(args: argparse.Namespace) -> int:
         bar.set_postfix_str("ingest + align")
         trial = load_trial(args.logs, _vessel(args.vessel), fs=args.fs)
         bar.update()
+    print(runs_text(trial))
     for note in trial.notes:
         print(f"note: {note}")
     if args.out:

@@ -19,7 +19,7 @@ import math
 import os
 import sys
 import threading
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, Sequence
 
@@ -30,6 +30,7 @@ from .align import align
 from .atomic import atomic_folder, atomic_path, check_output_folder
 from .errors import AutopilotError, DiagnoseError, SegmentError
 from .ingest import read_log
+from .manifest import expand_logs
 from .records import Fits, Provenance, RawLog, Segment, Segments, Trial
 from .segment import apply_manifest_segments, detect_segments
 from .vessel import Vessel
@@ -91,7 +92,9 @@ def read_logs(paths: Sequence[str | Path], vessel: Vessel | None = None,
     Parameters
     ----------
     paths : Sequence[str or Path]
-        Log files (or ROS 2 bag folders), each read by :func:`pipeline.ingest.read_log`.
+        Log files, ROS 2 bag folders, or folders of logs (every log in the folder, sorted by
+        name: :func:`pipeline.manifest.expand_logs`), each file read by
+        :func:`pipeline.ingest.read_log`.
     vessel : Vessel, optional
         Passed to the readers that map actuator channels (MAVLink, DataFlash) or ROS topics.
     columns : Mapping[str, str], optional
@@ -102,20 +105,29 @@ def read_logs(paths: Sequence[str | Path], vessel: Vessel | None = None,
     Returns
     -------
     list[RawLog]
-        One per path, in the order given.
+        One per file, in the order given (a folder's files in name order).
+
+    Raises
+    ------
+    ConfigError
+        A folder with no log in it.
+    IngestError
+        As the readers.
     """
-    return [read_log(p, vessel=vessel, columns=columns, units=units) for p in paths]
+    return [read_log(p, vessel=vessel, columns=columns, units=units) for p in expand_logs(paths)]
 
 
 def load_trial(paths: Sequence[str | Path], vessel: Vessel | None = None, name: str | None = None,
                fs: float | None = None, columns: Mapping[str, str] | None = None,
-               units: Mapping[str, str] | None = None) -> Trial:
-    """Ingest and align log files into one Trial.
+               units: Mapping[str, str] | None = None, runs: Sequence[Sequence[str | Path]] | None = None,
+               run_names: Sequence[str] | None = None, input_kinds: Mapping[str, str] | None = None) -> Trial:
+    """Ingest and align log files into one Trial of one or more runs.
 
     Parameters
     ----------
     paths : Sequence[str or Path]
-        Log files of the same trial (at least one).
+        Log files (or folders of logs) of the same trial (at least one); separate recordings
+        become separate runs (:func:`pipeline.align.runs.group_runs`).
     vessel : Vessel, optional
         Passed to the log readers (see :func:`read_logs`) and to :func:`pipeline.align.align`
         (GPS lever arms and dual-antenna headings from its ``[sensors]``).
@@ -127,13 +139,63 @@ def load_trial(paths: Sequence[str | Path], vessel: Vessel | None = None, name: 
         CSV only: raw column name -> canonical channel.
     units : Mapping[str, str], optional
         CSV only: raw column name -> unit of its values (converted to SI).
+    runs : Sequence[Sequence[str or Path]], optional
+        Stated runs (a manifest's ``[[runs]]``): the files (or folders) of each; default: align
+        groups the logs itself.
+    run_names : Sequence[str], optional
+        Names of the stated runs.
+    input_kinds : Mapping[str, str], optional
+        Input channel -> ``command`` (held) or ``measured`` (interpolated); see
+        :func:`pipeline.align.align`.
+
+    Returns
+    -------
+    Trial
+        ``Trial.runs`` lists the runs with their files, clock offsets, spans and why they were
+        grouped so.
     """
-    logs = read_logs(paths, vessel, columns, units)
-    return align(logs, name=name or Path(paths[0]).stem, fs=fs, vessel=vessel)
+    files = expand_logs(paths)
+    logs = read_logs(files, vessel, columns, units)
+    stated = None if runs is None else [[str(f) for f in expand_logs(r)] for r in runs]
+    return align(logs, name=name or Path(paths[0]).stem, fs=fs, vessel=vessel, runs=stated, run_names=run_names,
+                 input_kinds=input_kinds)
+
+
+def runs_text(trial: Trial) -> str:
+    """The runs of a trial and why they were grouped so, for the terminal and the report.
+
+    Parameters
+    ----------
+    trial : Trial
+        An aligned trial.
+
+    Returns
+    -------
+    str
+        One block per run: name, files with clock offsets, span on the trial clock, absolute
+        start where known, and the reason for the grouping.
+    """
+    from .ingest._gpstime import unix_text
+
+    runs = trial.run_list()
+    lines = [f"{len(runs)} run(s):"]
+    for k, run in enumerate(runs):
+        when = (f", starts {unix_text(run.start_time)} UTC" if run.start_time == run.start_time else "")
+        lines.append(f"  run {k} {run.name!r}: t = {run.t_start:.2f} .. {run.t_end:.2f} s ({run.duration:.1f} s){when}")
+        for src in run.sources:
+            off = run.offsets.get(src, 0.0)
+            se = run.offset_stderr.get(src, 0.0)
+            lines.append(f"    {src}: clock offset {off:+.3f} s +- {se:.2g} s")
+        if run.reason:
+            lines.append(f"    why: {run.reason}")
+    return "\n".join(lines)
 
 
 def segment_trial(trial: Trial, manual: Sequence[Mapping[str, Any]] = (), mode: str = "replace") -> Segments:
-    """Detect segments, then apply hand-named ones from a manifest.
+    """Detect segments, then apply hand-named ones from a manifest; each is tagged with its run.
+
+    ``Segment.run`` is the index of the run (``Trial.run_list()``) the segment starts in; no
+    segment spans a run boundary (the NaN gap between runs cuts every detector).
 
     Parameters
     ----------
@@ -145,7 +207,8 @@ def segment_trial(trial: Trial, manual: Sequence[Mapping[str, Any]] = (), mode: 
         ``replace`` (only the manifest's segments) or ``add`` (manifest segments plus detected
         ones that do not overlap them); see :func:`pipeline.segment.apply_manifest_segments`.
     """
-    return apply_manifest_segments(trial, detect_segments(trial), manual, mode)
+    segs = apply_manifest_segments(trial, detect_segments(trial), manual, mode)
+    return Segments(segs.trial, tuple(replace(s, run=trial.run_index(s.t_start)) for s in segs.items))
 
 
 def segments_to_json(segments: Segments) -> dict:
@@ -367,7 +430,9 @@ def run_flow(logs: Sequence[str | Path], vessel: Vessel, out: str | Path | None 
              units: Mapping[str, str] | None = None, manual_segments: Sequence[Mapping[str, Any]] = (),
              segments_mode: str = "replace", segments: Segments | None = None,
              autopilot_options: Mapping[str, Any] | None = None, provenance: Provenance | None = None,
-             stop_after: str = "report", trial: Trial | None = None) -> FlowResult:
+             stop_after: str = "report", trial: Trial | None = None,
+             runs: Sequence[Sequence[str | Path]] | None = None, run_names: Sequence[str] | None = None,
+             input_kinds: Mapping[str, str] | None = None) -> FlowResult:
     """Every stage, in flow order: ingest -> align -> segment -> fit -> autopilot -> diagnose -> report.
 
     Parameters
@@ -393,6 +458,9 @@ def run_flow(logs: Sequence[str | Path], vessel: Vessel, out: str | Path | None 
         Last stage to run: ``fit`` or ``report`` (everything).
     trial : Trial, optional
         An aligned trial to start from instead of reading ``logs``.
+    runs, run_names, input_kinds
+        Stated runs, their names and input kinds (a manifest's ``[[runs]]`` and ``[inputs]``;
+        see :func:`load_trial`).
 
     Returns
     -------
@@ -402,11 +470,13 @@ def run_flow(logs: Sequence[str | Path], vessel: Vessel, out: str | Path | None 
         check_output_folder(out)
     steps = STEPS if stop_after == "report" else STEPS[:STEPS.index(stop_after) + 1]
     with progress(len(steps), "vesselid") as bar:
-        return _run_steps(bar, steps, logs, vessel, out, name, fs, columns, units, manual_segments,
+        load = dict(name=name, fs=fs, columns=columns, units=units, runs=runs, run_names=run_names,
+                    input_kinds=input_kinds)
+        return _run_steps(bar, steps, logs, vessel, out, load, manual_segments,
                           segments_mode, segments, autopilot_options, provenance, stop_after, trial)
 
 
-def _run_steps(bar, steps, logs, vessel, out, name, fs, columns, units, manual_segments, segments_mode,
+def _run_steps(bar, steps, logs, vessel, out, load, manual_segments, segments_mode,
                segments, autopilot_options, provenance, stop_after, trial) -> FlowResult:
     """The body of :func:`run_flow`, one progress step per stage (parameters as there)."""
     def step(label: str, fn: Callable[[], Any]) -> Any:
@@ -416,7 +486,7 @@ def _run_steps(bar, steps, logs, vessel, out, name, fs, columns, units, manual_s
         return value
 
     if trial is None:
-        trial = step(steps[0], lambda: load_trial(logs, vessel, name=name, fs=fs, columns=columns, units=units))
+        trial = step(steps[0], lambda: load_trial(logs, vessel, **load))
     else:
         bar.update()
     if segments is None:

@@ -3,13 +3,18 @@
 ```toml
 name = "sample"
 vessel = "../../vessel_configs/aauship.toml"   # relative to this file
-logs = ["sample.csv"]                          # relative to this file
+logs = ["sample.csv"]                          # relative to this file; a folder means every log in it
 fs = 100.0                                     # optional resample rate [Hz]
 segments_mode = "replace"                      # how [[segments]] combine with detection: replace | add
 [columns]                                      # optional CSV column map: raw name -> canonical
 heading_deg = "psi"
 [units]                                        # optional raw units: raw name -> deg, deg/s, km/h, knots, ...
 heading_deg = "deg"
+[inputs]                                       # optional: input channel -> command (held, default) | measured
+delta = "measured"                             # a rudder-angle sensor: interpolated like a state
+[[runs]]                                       # optional: state the runs (recordings) instead of
+name = "rudder steps"                          # letting align group the logs; each log (or folder)
+logs = ["steps.bin"]                           # in exactly one run; then top-level logs may be left out
 [[segments]]                                   # optional hand-named segments (override detection)
 kind = "coast_down"
 dof = "surge"
@@ -29,7 +34,9 @@ from typing import Any, Mapping
 
 from .errors import ConfigError
 
-_KEYS = {"name", "vessel", "logs", "fs", "segments_mode", "segments", "columns", "units", "autopilot", "waves"}
+_KEYS = {"name", "vessel", "logs", "fs", "segments_mode", "segments", "columns", "units", "autopilot", "waves",
+         "runs", "inputs"}
+_RUN_KEYS = {"name", "logs"}
 
 
 @dataclass(frozen=True)
@@ -43,7 +50,8 @@ class Manifest:
     vessel : Path
         Vessel TOML.
     logs : tuple[Path, ...]
-        Log files.
+        Log files (and ROS 2 bag folders); folders named in the manifest are expanded to the logs
+        in them (:func:`expand_logs`). With ``[[runs]]``, every run's logs in run order.
     fs : float or None
         Resample rate [Hz].
     segments : tuple[Mapping, ...]
@@ -56,6 +64,10 @@ class Manifest:
         Stage options (``autopilot``, ``waves`` tables).
     path : Path
         The manifest file.
+    runs : tuple[tuple[str, tuple[Path, ...]], ...] or None
+        Stated runs ``(name, logs)``; None lets align group the logs.
+    inputs : Mapping[str, str]
+        Input channel -> ``command`` or ``measured`` (``[inputs]``).
     """
 
     name: str
@@ -68,6 +80,78 @@ class Manifest:
     units: Mapping[str, str] = field(default_factory=dict)
     options: Mapping[str, Any] = field(default_factory=dict)
     path: Path = Path(".")
+    runs: tuple[tuple[str, tuple[Path, ...]], ...] | None = None
+    inputs: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def run_sources(self) -> list[list[str]] | None:
+        """Stated runs as lists of source strings (``RawLog.source``), for :func:`pipeline.align.align`."""
+        return None if self.runs is None else [[str(p) for p in logs] for _, logs in self.runs]
+
+    @property
+    def run_names(self) -> list[str] | None:
+        """Names of the stated runs, or None."""
+        return None if self.runs is None else [n for n, _ in self.runs]
+
+
+#: File extensions :func:`expand_logs` takes from a folder (the formats the ingest reads).
+LOG_EXTENSIONS = (".csv", ".tlog", ".bin", ".ubx", ".nmea", ".bag", ".db3", ".mcap", ".txt", ".log", ".ulg")
+
+
+def expand_logs(paths) -> list[Path]:
+    """Log files from files and folders: a folder gives every log in it, sorted by name.
+
+    A ROS 2 bag folder (it holds ``metadata.yaml``) is one log, not a folder of logs; ``.txt``
+    and ``.log`` files are taken only when they hold NMEA sentences; subfolders that are bags
+    are taken, other subfolders are not searched.
+
+    Parameters
+    ----------
+    paths : Iterable[str or Path]
+        Files and folders.
+
+    Returns
+    -------
+    list[Path]
+        Files (and bag folders) in the order given, each folder's content sorted by name.
+
+    Raises
+    ------
+    ConfigError
+        A folder with no log in it.
+    """
+    out: list[Path] = []
+    for raw in paths:
+        p = Path(raw)
+        if not p.is_dir() or (p / "metadata.yaml").is_file():
+            out.append(p)
+            continue
+        found = []
+        for child in sorted(p.iterdir()):
+            if child.is_dir():
+                if (child / "metadata.yaml").is_file():
+                    found.append(child)
+                continue
+            ext = child.suffix.lower()
+            if ext in (".txt", ".log"):
+                if _holds_nmea(child):
+                    found.append(child)
+            elif ext in LOG_EXTENSIONS:
+                found.append(child)
+        if not found:
+            raise ConfigError(f"{p}: expected log files ({', '.join(LOG_EXTENSIONS)}) in the folder, found "
+                              f"{sorted(c.name for c in p.iterdir())[:10]}")
+        out += found
+    return out
+
+
+def _holds_nmea(p: Path) -> bool:
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    return b"$GP" in head or b"$GN" in head or b"$II" in head or b"$HE" in head
 
 
 def load_manifest(path: str | Path) -> Manifest:
@@ -94,16 +178,31 @@ def load_manifest(path: str | Path) -> Manifest:
     if unknown:
         raise ConfigError(f"{p}: unknown key(s) {unknown}; allowed: {sorted(_KEYS)}")
     for req in ("vessel", "logs"):
-        if req not in doc:
+        if req not in doc and not (req == "logs" and "runs" in doc):
             raise ConfigError(f"{p}: expected key {req!r}, found keys {sorted(doc)}")
-    logs = doc["logs"]
-    if not isinstance(logs, list) or not logs or not all(isinstance(x, str) for x in logs):
-        raise ConfigError(f"{p}: 'logs' expected a non-empty list of file names, found {logs!r}")
     base = p.parent
-    log_paths = tuple((base / x).resolve() for x in logs)
-    missing = [str(x) for x in log_paths if not x.is_file()]
-    if missing:
-        raise ConfigError(f"{p}: expected log files, found none at {missing}")
+    runs = None
+    if "runs" in doc:
+        runs = _runs(p, doc["runs"], base)
+    if "logs" in doc or runs is None:
+        logs = doc.get("logs")
+        if not isinstance(logs, list) or not logs or not all(isinstance(x, str) for x in logs):
+            raise ConfigError(f"{p}: 'logs' expected a non-empty list of file names, found {logs!r}")
+        log_paths = tuple(_existing(p, base, logs))
+    else:
+        log_paths = ()
+    if runs is not None:
+        in_runs = [x for _, r in runs for x in r]
+        outside = [str(x) for x in log_paths if x not in in_runs]
+        if outside:
+            raise ConfigError(f"{p}: expected every log in one of the [[runs]], found {outside} in 'logs' only")
+        twice = sorted({str(x) for x in in_runs if in_runs.count(x) > 1})
+        if twice:
+            raise ConfigError(f"{p}: expected each log in one run only, found {twice} in more than one")
+        log_paths = tuple(in_runs)
+    inputs = doc.get("inputs", {})
+    if not isinstance(inputs, dict) or not all(v in ("command", "measured") for v in inputs.values()):
+        raise ConfigError(f"{p}: 'inputs' expected a table of channel = \"command\" or \"measured\", found {inputs!r}")
     fs = doc.get("fs")
     # bool is an int to Python (fs = true would be 1 Hz), and nan passes "not <= 0".
     if fs is not None and (isinstance(fs, bool) or not isinstance(fs, (int, float)) or not math.isfinite(fs)
@@ -117,4 +216,33 @@ def load_manifest(path: str | Path) -> Manifest:
                     fs=float(fs) if fs is not None else None, segments=tuple(doc.get("segments", [])),
                     segments_mode=str(doc.get("segments_mode", "replace")), columns=dict(doc.get("columns", {})),
                     units=dict(doc.get("units", {})),
-                    options={k: doc[k] for k in ("autopilot", "waves") if k in doc}, path=p.resolve())
+                    options={k: doc[k] for k in ("autopilot", "waves") if k in doc}, path=p.resolve(),
+                    runs=runs, inputs=dict(inputs))
+
+
+def _existing(p: Path, base: Path, names) -> list[Path]:
+    paths = [(base / x).resolve() for x in names]
+    missing = [str(x) for x in paths if not x.exists()]
+    if missing:
+        raise ConfigError(f"{p}: expected log files, found none at {missing}")
+    return expand_logs(paths)
+
+
+def _runs(p: Path, runs: Any, base: Path) -> tuple[tuple[str, tuple[Path, ...]], ...]:
+    if not isinstance(runs, list) or not runs or not all(isinstance(r, dict) for r in runs):
+        raise ConfigError(f"{p}: 'runs' expected [[runs]] tables with logs = [...], found {runs!r}")
+    out = []
+    for i, r in enumerate(runs, 1):
+        unknown = sorted(set(r) - _RUN_KEYS)
+        if unknown:
+            raise ConfigError(f"{p}: run {i}: unknown key(s) {unknown}; allowed: {sorted(_RUN_KEYS)}")
+        logs = r.get("logs")
+        if not isinstance(logs, list) or not logs or not all(isinstance(x, str) for x in logs):
+            raise ConfigError(f"{p}: run {i}: 'logs' expected a non-empty list of file names, found {logs!r}")
+        files = tuple(_existing(p, base, logs))
+        out.append((str(r.get("name", files[0].stem)), files))
+    names = [n for n, _ in out]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ConfigError(f"{p}: expected distinct run names, found {dup} more than once")
+    return tuple(out)

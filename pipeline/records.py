@@ -33,6 +33,11 @@ INPUT_UNITS: Mapping[str, str] = {
     "tau_k": "N m", "tau_m": "N m", "tau_n": "N m",
 }
 CHANNEL_UNITS: Mapping[str, str] = {**STATE_UNITS, **INPUT_UNITS}
+#: How an input channel was logged: ``command`` (what a controller ordered; the actuator holds it
+#: until the next one, so it is resampled by zero-order hold) or ``measured`` (an actuator state
+#: from a sensor, a rudder-angle transducer or shaft rpm: a continuous signal, interpolated like
+#: the states). An input without a stated kind is a ``command`` (the default of every reader).
+INPUT_KINDS = ("command", "measured")
 #: Channels that are angles and wrap at +-pi.
 ANGLE_CHANNELS = frozenset({"phi", "theta", "psi", "cog"})
 
@@ -63,12 +68,21 @@ class Channel:
         Samples in the canonical SI unit of ``name``.
     source : str
         Where the samples came from (message type, topic or CSV column).
+    input_kind : str
+        Inputs only: ``command`` (held until the next sample) or ``measured`` (interpolated),
+        see ``INPUT_KINDS``; empty means the default, ``command``. Ignored for states.
     """
 
     name: str
     t: np.ndarray
     values: np.ndarray
     source: str = ""
+    input_kind: str = ""
+
+    @property
+    def held(self) -> bool:
+        """True for an input command, resampled by zero-order hold (False for states and measured inputs)."""
+        return self.name.split("@", 1)[0] in INPUT_UNITS and self.input_kind != "measured"
 
     @property
     def unit(self) -> str:
@@ -134,6 +148,10 @@ class RawLog:
         time]; NaN when the source has no absolute clock. Readers set it where the format gives
         it (GPS week and time of week, an NMEA date, MAVLink SYSTEM_TIME, wall-clock ROS stamps),
         so :func:`pipeline.align.clock.estimate_offsets` can put several files on one clock.
+    time_of_day : float
+        UTC time of day of ``t = 0`` [s after midnight] when the source gives the time but not
+        the date (NMEA GGA/VTG without RMC); NaN otherwise. Two such logs of one day are compared
+        by it, so recordings that do not overlap are never merged into one run.
     """
 
     source: str
@@ -142,6 +160,7 @@ class RawLog:
     summary: IngestSummary
     time_reference: str = "trial"
     start_time: float = math.nan
+    time_of_day: float = math.nan
 
     def channel(self, name: str) -> Channel:
         """Return channel ``name`` or raise ``KeyError`` naming the channels present.
@@ -176,6 +195,62 @@ class Gap:
 
 
 @dataclass(frozen=True)
+class Run:
+    """One recording of a trial: the sensor logs that share one clock.
+
+    A trial day is many recordings (a new ArduPilot .bin at every arming, a pool roll-decay test
+    in its own file). :func:`pipeline.align.align` groups logs into runs: logs that overlap in
+    absolute time, or whose clocks a cross-correlation ties together, are sensors of one run;
+    logs whose absolute times do not overlap are never merged. In ``Trial.data`` the runs are
+    laid one after another on the trial clock, each followed by a NaN gap (a :class:`Gap` with
+    channel ``RUN_BOUNDARY``), so no segment spans two runs. Anything that integrates the model
+    over time (replay, simulation error, an initial state) must restart at each run's ``t_start``
+    and never cross a run boundary.
+
+    Attributes
+    ----------
+    name : str
+        Run name (the manifest's, or the stem of its first file).
+    sources : tuple[str, ...]
+        Files of the run.
+    offsets : Mapping[str, float]
+        Clock offset added to each file's times [s] to put it on the run's clock.
+    offset_stderr : Mapping[str, float]
+        Standard error of each offset [s].
+    start_time : float
+        Absolute UTC of the run's first sample [s, Unix]; NaN when no file has an absolute clock.
+    t_start, t_end : float
+        First and last sample of the run [s, trial clock].
+    reason : str
+        Why these files form one run (and why it is separate from the others).
+    input_kinds : Mapping[str, str]
+        Input channel -> ``command`` (held) or ``measured`` (interpolated), as resampled.
+    time_of_day : float
+        UTC time of day of the first sample [s after midnight] when only that is known; NaN otherwise.
+    """
+
+    name: str
+    sources: tuple[str, ...]
+    offsets: Mapping[str, float] = field(default_factory=dict)
+    offset_stderr: Mapping[str, float] = field(default_factory=dict)
+    start_time: float = math.nan
+    t_start: float = 0.0
+    t_end: float = 0.0
+    reason: str = ""
+    input_kinds: Mapping[str, str] = field(default_factory=dict)
+    time_of_day: float = math.nan
+
+    @property
+    def duration(self) -> float:
+        """Run length [s]."""
+        return self.t_end - self.t_start
+
+
+#: ``Gap.channel`` of the NaN stretch that separates two runs in ``Trial.data``.
+RUN_BOUNDARY = "(run boundary)"
+
+
+@dataclass(frozen=True)
 class Trial:
     """All logs of one trial on one uniform clock, in SI units and Fossen's body frame.
 
@@ -196,6 +271,10 @@ class Trial:
         What the aligner derived or estimated (clock offsets, derived body velocities, ...).
     summaries : tuple[IngestSummary, ...]
         Reader summaries of the source files.
+    runs : tuple[Run, ...]
+        The recordings, in trial-clock order (see :class:`Run`); each is followed in ``data`` by
+        a NaN gap. Empty for a Trial built by hand: then the whole of ``data`` is one run
+        (:meth:`run_list` says so).
     """
 
     name: str
@@ -205,6 +284,41 @@ class Trial:
     sources: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     summaries: tuple[IngestSummary, ...] = ()
+    runs: tuple[Run, ...] = ()
+
+    def run_list(self) -> tuple[Run, ...]:
+        """The runs; a Trial without ``runs`` is one run spanning all of ``data``."""
+        if self.runs:
+            return self.runs
+        t = self.t
+        return (Run(self.name, tuple(self.sources), t_start=float(t[0]) if len(t) else 0.0,
+                    t_end=float(t[-1]) if len(t) else 0.0, reason="one run (no grouping recorded)"),)
+
+    def run_index(self, t: float) -> int:
+        """Index of the run whose span holds ``t`` [s, trial clock]; the nearest run before a gap.
+
+        Parameters
+        ----------
+        t : float
+            Time on the trial clock [s].
+        """
+        runs = self.run_list()
+        k = 0
+        for i, run in enumerate(runs):
+            if t >= run.t_start - 0.5 / max(self.fs, 1e-9):
+                k = i
+        return k
+
+    def run_data(self, index: int) -> pd.DataFrame:
+        """Rows of one run (its own span, without the NaN gap after it).
+
+        Parameters
+        ----------
+        index : int
+            Position in :meth:`run_list`.
+        """
+        run = self.run_list()[index]
+        return self.window(run.t_start, run.t_end)
 
     @property
     def t(self) -> np.ndarray:
@@ -262,6 +376,8 @@ class Segment:
         ``detected`` or ``manifest``.
     label : str
         Free text (manifest name, detector note).
+    run : int
+        Index of the run (``Trial.run_list()``) the segment lies in; 0 for a single-run trial.
     """
 
     kind: str
@@ -274,6 +390,7 @@ class Segment:
     quality: float = 1.0
     origin: str = "detected"
     label: str = ""
+    run: int = 0
 
     @property
     def duration(self) -> float:

@@ -34,4 +34,5 @@ def run_manifest(manifest_path: str | Path, out: str | Path | None = None,
     prov = make_provenance([man.path, man.vessel, *man.logs], argv)
     return run_flow(man.logs, vessel, out_dir, name=man.name, fs=man.fs, columns=man.columns, units=man.units,
                     manual_segments=man.segments, segments_mode=man.segments_mode,
-                    autopilot_options=man.options.get("autopilot"), provenance=prov)
+                    autopilot_options=man.options.get("autopilot"), provenance=prov,
+                    runs=man.run_sources, run_names=man.run_names, input_kinds=man.inputs or None)

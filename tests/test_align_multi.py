@@ -216,7 +216,12 @@ def test_auto_offsets_are_the_default_and_noted():
     autopilot, gps1, gps3 = _yaw_logs(1)
     shifted = RawLog("gps3", "sim", {n: Channel(n, c.t + 250.0, c.values) for n, c in gps3.items()},
                      IngestSummary("gps3", "sim"))
-    trial = align([autopilot, gps1, shifted])
+    # gps3 has no absolute time and the same sensors as gps1: left alone it is taken as another
+    # recording (a correlation cannot tell a second receiver from a second run of the same
+    # manoeuvre), so the user states the run; its offset is still found by cross-correlation.
+    alone = align([autopilot, gps1, shifted])
+    assert len(alone.runs) == 2 and "same channels as gps1" in alone.runs[1].reason
+    trial = align([autopilot, gps1, shifted], runs=[["autopilot", "gps1", "gps3"]])
     note = next(n for n in trial.notes if n.startswith("clock: gps3"))
     assert "cross-correlation" in note and "peak" in note
     # On one clock the third receiver's course agrees with the first's.

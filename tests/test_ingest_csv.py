@@ -5,13 +5,16 @@ Every file is written into ``tmp_path``, by the real writer or by hand for the m
 
 from __future__ import annotations
 
+import math
 import os
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pipeline.errors import IngestError
+from pipeline.flow import load_trial
 from pipeline.ingest import read_csv_log, read_log
 from pipeline.records import ANGLE_CHANNELS, Channel, IngestSummary, RawLog
 from pipeline.sim import chain, rudder_step, simulate, step_and_coast
@@ -154,8 +157,9 @@ def test_header_only(tmp_path):
 
 
 def test_no_time_column(tmp_path):
-    with pytest.raises(IngestError, match=r"expected a time column 't', found columns \['time', 'u'\]"):
-        read_csv_log(_write(tmp_path, "time,u\n0,1\n0.1,2\n"))
+    with pytest.raises(IngestError, match=r"expected a time column 't' \(or a column map entry naming one, e.g. "
+                                         r"\[columns\] t_s = \"t\"\), found columns \['clock', 'u'\]"):
+        read_csv_log(_write(tmp_path, "clock,u\n0,1\n0.1,2\n"))
 
 
 def test_non_numeric_cell(tmp_path):
@@ -258,3 +262,92 @@ def test_infinite_cells_are_counted_not_mistaken_for_units(tmp_path):
     assert log.summary.skipped == {"u": 2, "x_n": 1}
     assert "column 'u': 2 infinite values not used" in log.summary.warnings
     assert "column 'x_n': 1 infinite values not used" in log.summary.warnings
+
+
+# --------------------------------------------------------------------------- CSV as people write it
+def test_column_map_renames_the_time_column(tmp_path):
+    log = read_csv_log(_write(tmp_path, "t_s,u\n0,1\n0.1,2\n0.2,3\n"), columns={"t_s": "t"})
+    np.testing.assert_allclose(log.channels["u"].t, [0, 0.1, 0.2])
+    assert "time: column 't_s' is the time column" in log.summary.warnings
+
+
+@pytest.mark.parametrize("header, scale, unit", [("t_ms", 1e3, None), ("time_us", 1e6, None), ("t_ns", 1e9, None),
+                                                 ("stamp", 1e3, "ms")])
+def test_time_in_ms_us_ns_by_suffix_or_unit(tmp_path, header, scale, unit):
+    rows = "".join(f"{int(round(k * 0.1 * scale))},{k}\n" for k in range(5))
+    p = _write(tmp_path, f"{header},u\n{rows}")
+    log = read_csv_log(p, columns={"stamp": "t"} if unit else None, units={"stamp": unit} if unit else None)
+    np.testing.assert_allclose(log.channels["u"].t, np.arange(5) * 0.1, atol=1e-12)
+    assert math.isnan(log.start_time)
+
+
+def test_time_in_ms_through_align(tmp_path):
+    """Milliseconds once ended in 'ValueError: v cannot be empty'; now a 10 Hz trial."""
+    rows = "".join(f"{k * 100},{0.01 * k},{0.5}\n" for k in range(50))
+    trial = load_trial([_write(tmp_path, "t_ms,r,u\n" + rows)])
+    assert trial.fs == pytest.approx(10.0) and trial.t[-1] == pytest.approx(4.9)
+
+
+def test_iso_timestamps_give_absolute_time(tmp_path):
+    p = _write(tmp_path, "timestamp,u\n2022-05-18T09:47:01.10Z,1\n2022-05-18T09:47:01.20Z,2\n"
+                         "2022-05-18T09:47:01.30Z,3\n")
+    log = read_csv_log(p)
+    np.testing.assert_allclose(log.channels["u"].t, [0, 0.1, 0.2], atol=1e-9)
+    assert log.start_time == pytest.approx(datetime(2022, 5, 18, 9, 47, 1, 100000, tzinfo=timezone.utc).timestamp())
+    assert log.time_reference == "unix"
+    naive = read_csv_log(_write(tmp_path, "time,u\n2022-05-18 09:47:01.1,1\n2022-05-18 09:47:01.2,2\n", "n.csv"))
+    assert naive.start_time == pytest.approx(log.start_time)
+    assert any("no time zone; taken as UTC" in w for w in naive.summary.warnings)
+    with pytest.raises(IngestError, match=r"expected an ISO 8601 timestamp in 'time' on every row, found 'soon' on "
+                                          r"data row 2|expected numbers or ISO 8601 timestamps in time column 'time'"):
+        read_csv_log(_write(tmp_path, "time,u\n2022-05-18T09:47:01Z,1\nsoon,2\n", "bad.csv"))
+
+
+def test_unix_epoch_seconds_give_absolute_time(tmp_path):
+    log = read_csv_log(_write(tmp_path, "t,u\n1652867221.1,1\n1652867221.2,2\n"))
+    assert log.start_time == pytest.approx(1652867221.1)
+    np.testing.assert_allclose(log.channels["u"].t, [0.0, 0.1], atol=1e-6)
+
+
+def test_semicolons_and_decimal_commas(tmp_path):
+    log = read_csv_log(_write(tmp_path, "t;u;psi_deg\n0,0;1,5;10\n0,1;1,6;20,5\n"))
+    np.testing.assert_allclose(log.channels["u"].values, [1.5, 1.6])
+    np.testing.assert_allclose(log.channels["psi"].values, np.radians([10, 20.5]))
+    assert "format: separator ';', decimal ','" in log.summary.warnings
+    plain = read_csv_log(_write(tmp_path, "t;u\n0.0;1.5\n0.1;1.6\n", "dot.csv"))
+    np.testing.assert_allclose(plain.channels["u"].values, [1.5, 1.6])
+
+
+def test_units_by_suffix_are_converted_and_named(tmp_path):
+    p = _write(tmp_path, "t,psi_deg,r_degs,sog_kn,u_ms,phi_rad,heading_deg\n0,90,10,2,1.5,0.1,45\n0.1,91,10,2,1.5,0.1,46\n")
+    log = read_csv_log(p, columns={"heading_deg": "psi@compass"})
+    assert log.channels["psi"].values[0] == pytest.approx(np.pi / 2)
+    assert log.channels["r"].values[0] == pytest.approx(np.radians(10))
+    assert log.channels["sog"].values[0] == pytest.approx(2 * 1852 / 3600)
+    assert log.channels["u"].values[0] == pytest.approx(1.5)
+    assert log.channels["psi@compass"].values[0] == pytest.approx(np.radians(45))
+    for text in ("'psi_deg' read as psi in deg", "'r_degs' read as r in deg/s", "'sog_kn' read as sog in knots",
+                 "'u_ms' read as u in m/s", "'heading_deg' read as psi@compass in deg"):
+        assert any(text in w for w in log.summary.warnings), text
+    # A declared unit wins over the suffix (and 90 rad is then refused as implausible).
+    with pytest.raises(IngestError, match=r"column 'psi_deg' \(psi\) expected in rad"):
+        read_csv_log(p, units={"psi_deg": "rad"}, columns={"heading_deg": "psi@c"})
+
+
+def test_two_columns_for_one_channel_and_bad_time_unit(tmp_path):
+    with pytest.raises(IngestError, match=r"two columns give channel 'psi' \(one of them 'psi_deg'\)"):
+        read_csv_log(_write(tmp_path, "t,psi,psi_deg\n0,0.1,5\n0.1,0.1,5\n"))
+    with pytest.raises(IngestError, match=r"unit of time column 't': expected one of \['s', 'ms', 'us', 'ns'\], "
+                                          r"found 'deg'"):
+        read_csv_log(_write(tmp_path, "t,u\n0,1\n1,1\n", "b.csv"), units={"t": "deg"})
+
+
+def test_input_kinds(tmp_path):
+    p = _write(tmp_path, "t,delta,tau_x,r\n0,0,0,0\n1,0.2,4,0\n2,0.2,4,0\n")
+    log = read_csv_log(p, input_kinds={"delta": "measured"})
+    assert log.channels["delta"].input_kind == "measured" and not log.channels["delta"].held
+    assert log.channels["tau_x"].held  # the documented default: a command
+    with pytest.raises(IngestError, match=r"input kind of 'delta': expected one of \['command', 'measured'\], found 'x'"):
+        read_csv_log(p, input_kinds={"delta": "x"})
+    with pytest.raises(IngestError, match=r"input kind given for 'r' \(r\), but it is a state"):
+        read_csv_log(p, input_kinds={"r": "measured"})

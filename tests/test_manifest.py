@@ -126,3 +126,49 @@ def test_bad_fs(folder, fs):
 def test_column_map_and_units_must_be_tables_of_names(folder, key, value):
     with pytest.raises(ConfigError, match=rf"'{key}' expected a table of .*, found"):
         load_manifest(_manifest(folder, f'vessel = "v.toml"\nlogs = ["logs/a.csv"]\n{key} = {value}\n'))
+
+
+# --------------------------------------------------------------------------- runs, inputs, folders
+def test_a_folder_gives_every_log_in_it(folder):
+    (folder / "logs" / "notes.md").write_text("not a log")
+    (folder / "logs" / "gps.txt").write_text("$GPGGA,094701.10,5703.49,N,00952.33,E,2,6,1.8,0,M,40,M,2.6,0123*5C\n")
+    (folder / "logs" / "readme.txt").write_text("hello")
+    m = load_manifest(_manifest(folder, 'vessel = "v.toml"\nlogs = ["logs"]\n'))
+    assert [p.name for p in m.logs] == ["a.csv", "b.csv", "gps.txt"]
+    assert m.runs is None and m.run_sources is None
+
+
+def test_empty_folder_is_named(folder):
+    (folder / "empty").mkdir()
+    with pytest.raises(ConfigError, match=r"empty: expected log files \(.csv, .tlog, .*\) in the folder, found \[\]"):
+        load_manifest(_manifest(folder, 'vessel = "v.toml"\nlogs = ["empty"]\n'))
+
+
+def test_runs_and_inputs(folder):
+    body = ('vessel = "v.toml"\n[inputs]\ndelta = "measured"\n[[runs]]\nname = "steps"\nlogs = ["logs/a.csv"]\n'
+            '[[runs]]\nlogs = ["logs/b.csv"]\n')
+    m = load_manifest(_manifest(folder, body))
+    assert m.run_names == ["steps", "b"]
+    assert m.run_sources == [[str((folder / "logs" / "a.csv").resolve())], [str((folder / "logs" / "b.csv").resolve())]]
+    assert [p.name for p in m.logs] == ["a.csv", "b.csv"]
+    assert m.inputs == {"delta": "measured"}
+
+
+@pytest.mark.parametrize("body, message", [
+    ('[[runs]]\nlogs = []\n', r"run 1: 'logs' expected a non-empty list of file names, found \[\]"),
+    ('[[runs]]\nlogs = ["logs/a.csv"]\nfs = 3\n', r"run 1: unknown key\(s\) \['fs'\]; allowed: \['logs', 'name'\]"),
+    ('runs = 3\n', r"'runs' expected \[\[runs\]\] tables with logs = \[...\], found 3"),
+    ('[[runs]]\nlogs = ["logs/a.csv"]\n[[runs]]\nlogs = ["logs/a.csv"]\n',
+     r"expected distinct run names, found \['a'\] more than once"),
+    ('[[runs]]\nname = "x"\nlogs = ["logs/a.csv"]\n[[runs]]\nname = "y"\nlogs = ["logs/a.csv"]\n',
+     r"expected each log in one run only, found \[.*a.csv'\] in more than one"),
+    ('logs = ["logs/a.csv", "logs/b.csv"]\n[[runs]]\nlogs = ["logs/a.csv"]\n',
+     r"expected every log in one of the \[\[runs\]\], found \[.*b.csv'\] in 'logs' only"),
+    ('[inputs]\ndelta = "servo"\nlogs = ["logs/a.csv"]\n', r"'inputs' expected a table of channel = \"command\" or "
+                                                           r"\"measured\", found"),
+])
+def test_bad_runs_and_inputs_are_named(folder, body, message):
+    if body.startswith("[inputs]"):
+        body = 'logs = ["logs/a.csv"]\n[inputs]\ndelta = "servo"\n'
+    with pytest.raises(ConfigError, match=message):
+        load_manifest(_manifest(folder, 'vessel = "v.toml"\n' + body))

@@ -6,5 +6,6 @@ cross-correlated rates); :mod:`.antenna` applies GPS lever arms and dual-antenna
 
 from .align import align
 from .clock import ClockOffset, estimate_offsets
+from .runs import RunGroup, group_runs, grouping_text
 
-__all__ = ["align", "estimate_offsets", "ClockOffset"]
+__all__ = ["align", "estimate_offsets", "ClockOffset", "RunGroup", "group_runs", "grouping_text"]

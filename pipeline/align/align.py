@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -10,10 +12,12 @@ import pandas as pd
 
 from ..errors import AlignError
 from ..geo import latlon_to_ned, wrap_pi
-from ..records import CHANNEL_UNITS, INPUT_UNITS, Channel, RawLog, Trial
+from ..records import CHANNEL_UNITS, INPUT_KINDS, INPUT_UNITS, RUN_BOUNDARY, Channel, Gap, RawLog, Run, Trial
 from ..vessel import Vessel
 from .antenna import apply_sensors
-from .clock import estimate_offsets
+from .clock import ClockOffset
+from .gnss import collapse_held_fixes
+from .runs import RunGroup, group_runs
 from .resample import find_gaps, resample_channel
 
 #: Highest rate the aligner resamples to by default [Hz]; faster sensors are decimated by
@@ -28,68 +32,168 @@ def _native_rate(ch: Channel) -> float:
 
 def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
           offsets: Mapping[str, float] | str | None = "auto", gap_threshold: float | None = None,
-          vessel: Vessel | None = None) -> Trial:
-    """Put the channels of one or more raw logs on one uniform clock.
+          vessel: Vessel | None = None, runs: Sequence[Sequence[str]] | None = None,
+          run_names: Sequence[str] | None = None, input_kinds: Mapping[str, str] | None = None) -> Trial:
+    """Put the channels of one or more raw logs on one uniform clock, run by run.
 
     Parameters
     ----------
     logs : Sequence[RawLog]
-        Logs of the same trial.
+        Logs of the same trial: sensors of one recording, or several recordings (runs).
     name : str
         Trial name.
     fs : float, optional
         Output rate [Hz]; default the fastest state channel, at most ``MAX_DEFAULT_RATE``.
     offsets : Mapping[str, float] or "auto" or None
-        ``"auto"`` (the default; None means the same): with more than one log, estimate the
-        offsets with :func:`pipeline.align.clock.estimate_offsets` (absolute time where a log
-        has ``start_time``, else cross-correlated rates) and record each offset, its standard
-        error and method in ``Trial.notes``. A mapping gives the clock offset [s] to add to each
-        log (keyed by ``RawLog.source``); logs it does not name share the first log's clock, so
-        ``{}`` means "the logs already share one clock".
+        ``"auto"`` (the default; None means the same): group the logs into runs with
+        :func:`pipeline.align.runs.group_runs` (overlapping absolute time, or a clock shared by
+        cross-correlation; non-overlapping absolute times are never merged) and estimate each
+        log's offset within its run (:func:`pipeline.align.clock.estimate_offsets`); offsets,
+        their standard errors and methods, and the grouping with its reasons, go to
+        ``Trial.notes`` and ``Trial.runs``. A mapping declares all logs one run and gives the
+        clock offset [s] to add to each log (keyed by ``RawLog.source``); logs it does not name
+        share the first log's clock, so ``{}`` means "the logs already share one clock".
     gap_threshold : float, optional
         Dropout threshold [s] (default: :func:`pipeline.align.resample.find_gaps`).
     vessel : Vessel, optional
         Its ``[sensors]`` table (:mod:`pipeline.align.antenna`): dual-antenna headings
         ``psi@<baseline>`` and GPS lever-arm corrections to the body origin, applied on the
         uniform grid before body velocities are derived.
+    runs : Sequence[Sequence[str]], optional
+        Runs stated by the user (a manifest's ``[[runs]]``): the sources of each run; the
+        offsets inside each are still estimated. Overrides the automatic grouping.
+    run_names : Sequence[str], optional
+        Names of the stated ``runs``.
+    input_kinds : Mapping[str, str], optional
+        Input channel (canonical name, any ``@sensor`` suffix matches the base name) ->
+        ``command`` (zero-order hold) or ``measured`` (interpolated); overrides what the
+        reader said (``Channel.input_kind``; default ``command``).
 
     Returns
     -------
     Trial
-        Column ``t`` from 0 at the earliest sample, canonical channels, derived ``x_n``, ``y_e``
-        (from lat/lon) and ``u``, ``v`` (from speed and course over ground and heading) where they
-        were not logged.
+        Column ``t`` on one uniform grid; run after run, each followed by a NaN gap (a
+        :class:`pipeline.records.Gap` on channel ``RUN_BOUNDARY``); canonical channels, derived
+        ``x_n``, ``y_e`` (from lat/lon, about each run's first fix) and ``u``, ``v`` (from speed
+        and course over ground and heading) where they were not logged. Held GNSS fixes
+        (:mod:`pipeline.align.gnss`) count once.
 
     Raises
     ------
     AlignError
-        No logs, no channels, a channel with non-increasing time, logs that share no time, or
-        (``offsets="auto"``) a log that can be put on the common clock neither by absolute time
+        No logs, no channels, a channel with non-increasing time, an unknown input kind, a stated
+        run whose files do not overlap in time, a log with only inputs and no clock shared with
+        any other log, or (stated runs) a log whose offset can be found neither by absolute time
         nor by a significant cross-correlation.
     ConfigError
         A malformed ``[sensors]`` table in the vessel config.
     """
     if not logs:
         raise AlignError("align: expected at least one log, found none")
-    notes: list[str] = []
-    if offsets is None or isinstance(offsets, str):
-        if offsets not in (None, "auto"):
-            raise AlignError(f"align: offsets expected 'auto' or a mapping source -> seconds, found {offsets!r}")
-        offsets = {}
-        if len(logs) > 1:
-            for src, est in estimate_offsets(logs).items():
-                offsets[src] = est.offset_s
-                notes.append(f"clock: {src} offset {est.offset_s:+.6f} s +- {est.stderr_s:.3g} s ({est.method})")
-    offsets = dict(offsets)
-    chans: dict[str, Channel] = {}
+    for k, v in (input_kinds or {}).items():
+        if v not in INPUT_KINDS:
+            raise AlignError(f"align: input kind of {k!r}: expected one of {list(INPUT_KINDS)}, found {v!r}")
     for log in logs:
-        off = float(offsets.get(log.source, 0.0))
-        if off:
-            notes.append(f"{log.source}: clock offset {off:+.3f} s applied")
         for ch in log.channels.values():
             if len(ch.t) and np.any(np.diff(ch.t) <= 0):
                 raise AlignError(f"{log.source}: channel {ch.name!r}: expected strictly increasing time, "
                                  f"found a step back at t = {ch.t[np.flatnonzero(np.diff(ch.t) <= 0)[0] + 1]:.6f} s")
+    if not any(len(c.t) for log in logs for c in log.channels.values()):
+        raise AlignError(f"align: expected channels with samples, found none in {[l.source for l in logs]}")
+    notes: list[str] = []
+    collapsed = []
+    for log in logs:
+        chans, held = collapse_held_fixes(log.channels)
+        notes += [f"{log.source}: {h}" for h in held]
+        collapsed.append(replace(log, channels=chans) if held else log)
+    logs = collapsed
+    by_source = {l.source: l for l in logs}
+    if offsets is None or isinstance(offsets, str):
+        if offsets not in (None, "auto"):
+            raise AlignError(f"align: offsets expected 'auto' or a mapping source -> seconds, found {offsets!r}")
+        groups = group_runs(logs, explicit=runs, names=run_names)
+    else:
+        given = {src: ClockOffset(float(off), 0.0, "given") for src, off in dict(offsets).items()}
+        groups = [RunGroup(name, tuple(l.source for l in logs),
+                           {l.source: given.get(l.source, ClockOffset(0.0, 0.0, "given")) for l in logs},
+                           "one run: clock offsets given by the caller")]
+    if len(groups) > 1 or runs is not None:
+        notes.append(f"runs: {len(groups)} - " + " | ".join(
+            f"{g.name} ({', '.join(Path(s).name for s in g.sources)}): {g.reason}" for g in groups))
+    if fs is None:
+        rates = [_native_rate(c) for l in logs for k, c in l.channels.items()
+                 if k.split("@")[0] not in INPUT_UNITS and len(c.t) > 1]
+        rates = rates or [_native_rate(c) for l in logs for c in l.channels.values() if len(c.t) > 1]
+        fs = min(max(rates), MAX_DEFAULT_RATE) if rates else 0.0
+    if not fs > 0:
+        raise AlignError(f"align: expected a positive sample rate [Hz], found {fs}")
+    fs = float(fs)
+    frames, gaps, run_records = [], [], []
+    index = 0
+    gap_rows = max(int(np.ceil(RUN_GAP_S * fs)), 2)
+    for k, g in enumerate(groups):
+        multi = len(groups) > 1
+        tag = f"run {g.name}: " if multi else ""
+        frame, run_gaps, run_notes, kinds, t_first = _align_run([by_source[s] for s in g.sources], g, fs,
+                                                               gap_threshold, vessel, input_kinds or {})
+        shift = index / fs
+        frame["t"] = frame["t"].to_numpy() + shift
+        gaps += [Gap(x.channel, x.t_start + shift, x.t_end + shift) for x in run_gaps]
+        notes += [tag + n for n in run_notes]
+        t_end = shift + (len(frame) - 1) / fs
+        abs_start = _run_abs_start([by_source[s] for s in g.sources], g, t_first)
+        tod = _run_tod([by_source[s] for s in g.sources], g, t_first)
+        run_records.append(Run(g.name, g.sources, {s: o.offset_s for s, o in g.offsets.items()},
+                               {s: o.stderr_s for s, o in g.offsets.items()}, abs_start, float(shift), float(t_end),
+                               g.reason, kinds, tod))
+        frames.append(frame)
+        index += len(frame)
+        if k < len(groups) - 1:
+            t_gap = (index + np.arange(gap_rows)) / fs
+            frames.append(pd.DataFrame({"t": t_gap}))
+            gaps.append(Gap(RUN_BOUNDARY, float(t_end), float((index + gap_rows) / fs)))
+            index += gap_rows
+    data = pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
+    data = data[_ordered(data.columns)]
+    return Trial(name=name, data=data, fs=fs, gaps=tuple(gaps), sources=tuple(l.source for l in logs),
+                 notes=tuple(notes), summaries=tuple(l.summary for l in logs), runs=tuple(run_records))
+
+
+#: NaN stretch between two runs in ``Trial.data`` [s] (at least two samples).
+RUN_GAP_S = 1.0
+
+
+def _run_abs_start(logs: Sequence[RawLog], group: RunGroup, t_first: float) -> float:
+    """UTC of the run's first sample [s, Unix]; NaN without an absolute clock."""
+    for log in logs:
+        if math.isfinite(log.start_time):
+            # t_run = t_log + offset, so the run clock's zero is start_time - offset.
+            return float(log.start_time - group.offsets[log.source].offset_s + t_first)
+    return math.nan
+
+
+def _run_tod(logs: Sequence[RawLog], group: RunGroup, t_first: float) -> float:
+    for log in logs:
+        if math.isfinite(log.time_of_day) and not math.isfinite(log.start_time):
+            return float((log.time_of_day - group.offsets[log.source].offset_s + t_first) % 86400.0)
+    return math.nan
+
+
+def _align_run(logs: Sequence[RawLog], group: RunGroup, fs: float, gap_threshold: float | None,
+               vessel: Vessel | None, input_kinds: Mapping[str, str]
+               ) -> tuple[pd.DataFrame, list[Gap], list[str], dict[str, str], float]:
+    """One run on its own uniform grid from its first sample: frame, gaps, notes, input kinds, t0."""
+    notes: list[str] = []
+    if len(logs) > 1:
+        for src in group.sources:
+            est = group.offsets[src]
+            notes.append(f"clock: {src} offset {est.offset_s:+.6f} s +- {est.stderr_s:.3g} s ({est.method})")
+    chans: dict[str, Channel] = {}
+    for log in logs:
+        off = float(group.offsets[log.source].offset_s)
+        if off:
+            notes.append(f"{log.source}: clock offset {off:+.3f} s applied")
+        for ch in log.channels.values():
             key = ch.name
             if key in chans:
                 # Same channel from two files: keep both, the second under a file-specific name.
@@ -97,26 +201,34 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
                 while key in chans:
                     key += "_"
                 notes.append(f"{log.source}: channel {ch.name} also in another log; kept as {key}")
-            chans[key] = Channel(key, ch.t + off, ch.values, ch.source)
+            kind = input_kinds.get(key, input_kinds.get(ch.name.split("@")[0], ch.input_kind))
+            chans[key] = Channel(key, ch.t + off, ch.values, ch.source, kind)
     chans = {k: c for k, c in chans.items() if len(c.t)}
     if not chans:
         raise AlignError(f"align: expected channels with samples, found none in {[l.source for l in logs]}")
     t0 = min(float(c.t[0]) for c in chans.values())
     t1 = max(float(c.t[-1]) for c in chans.values())
-    states = [c for k, c in chans.items() if k.split("@")[0] not in INPUT_UNITS]
-    if fs is None:
-        rates = [_native_rate(c) for c in (states or chans.values())]
-        fs = min(max(rates), MAX_DEFAULT_RATE)
-    if not fs > 0:
-        raise AlignError(f"align: expected a positive sample rate [Hz], found {fs}")
     n = int(np.floor((t1 - t0) * fs + 1e-9)) + 1
     grid = t0 + np.arange(n) / fs
     data = {"t": grid - t0}
-    gaps = []
+    gaps: list[Gap] = []
+    kinds: dict[str, str] = {}
     for key, ch in chans.items():
         g = find_gaps(ch, gap_threshold)
         gaps += g
         data[key] = resample_channel(ch, grid, g)
+        if key.split("@")[0] in INPUT_UNITS:
+            kinds[key] = "command" if ch.held else "measured"
+    coarse = sorted(k for k, c in chans.items() if c.held and _native_rate(c) > 1.001 * fs)
+    if coarse:
+        # A command change between two grid points is held until the next one: up to one grid
+        # step late, which a fit at this rate reads as a longer time constant or a delay.
+        notes.append(f"warning: {fs:g} Hz is coarser than the logged rate of the commands {', '.join(coarse)} "
+                     f"(up to {max(_native_rate(chans[k]) for k in coarse):g} Hz): their changes move to the next "
+                     f"grid point, up to {1 / fs:g} s late; align at their own rate for unbiased fits")
+    if kinds:
+        notes.append("inputs: " + ", ".join(f"{k} {'held (command)' if v == 'command' else 'interpolated (measured)'}"
+                                            for k, v in sorted(kinds.items())))
     if gaps:
         notes.append(f"{len(gaps)} dropout(s): " + ", ".join(f"{g.channel} {g.t_start - t0:.2f}-{g.t_end - t0:.2f} s"
                                                               for g in gaps[:10]))
@@ -126,9 +238,13 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
         notes += sensor_notes
     frame, derived = _derive(frame, {k: _native_rate(c) for k, c in chans.items()})
     notes += derived
-    shifted = tuple(type(g)(g.channel, g.t_start - t0, g.t_end - t0) for g in gaps)
-    return Trial(name=name, data=frame, fs=float(fs), gaps=shifted, sources=tuple(l.source for l in logs),
-                 notes=tuple(notes), summaries=tuple(l.summary for l in logs))
+    shifted = [Gap(g.channel, g.t_start - t0, g.t_end - t0) for g in gaps]
+    return frame, shifted, notes, kinds, t0
+
+
+def _ordered(columns) -> list[str]:
+    cols = [c for c in columns if c != "t"]
+    return ["t"] + [c for c in CHANNEL_UNITS if c in cols] + sorted(c for c in cols if c not in CHANNEL_UNITS)
 
 
 def _first_present(frame: pd.DataFrame, base: str) -> str | None:

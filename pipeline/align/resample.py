@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..records import ANGLE_CHANNELS, INPUT_UNITS, Channel, Gap
+from ..records import ANGLE_CHANNELS, Channel, Gap
 
 
 def _base(name: str) -> str:
@@ -41,15 +41,18 @@ def find_gaps(channel: Channel, threshold: float | None = None) -> tuple[Gap, ..
 def resample_channel(channel: Channel, grid: np.ndarray, gaps: tuple[Gap, ...]) -> np.ndarray:
     """Channel values on ``grid`` [s]; NaN outside its span and inside its gaps.
 
-    States are interpolated linearly (angles after unwrapping, then wrapped back to (-pi, pi]);
-    inputs are held from the last command (zero-order hold), because an actuator command is
-    piecewise constant and linear interpolation would smear every step into a ramp.
+    States and measured inputs (``Channel.input_kind == "measured"``: a rudder-angle sensor,
+    shaft rpm) are interpolated linearly (angles after unwrapping, then wrapped back to
+    (-pi, pi]); commanded inputs (the default) are held from the last command (zero-order
+    hold), because an actuator keeps a command until the next one and linear interpolation
+    would smear every step into a ramp.
 
     Parameters
     ----------
     channel : Channel
         Raw channel with increasing sample times ``t`` [s] on the common clock; its base name
-        (before ``@``) decides state, angle or input treatment.
+        (before ``@``) decides state, angle or input treatment, and ``input_kind`` hold or
+        interpolation of an input.
     grid : numpy.ndarray
         Uniform output times [s].
     gaps : tuple[Gap, ...]
@@ -64,7 +67,7 @@ def resample_channel(channel: Channel, grid: np.ndarray, gaps: tuple[Gap, ...]) 
     base = _base(channel.name)
     if len(t) == 0:
         return np.full(len(grid), np.nan)
-    if base in INPUT_UNITS:
+    if channel.held:
         idx = np.searchsorted(t, grid + 1e-9, side="right") - 1
         out = np.where(idx >= 0, v[np.clip(idx, 0, len(v) - 1)], np.nan)
         out[grid > t[-1] + 1e-9] = np.nan

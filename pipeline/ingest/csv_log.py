@@ -4,6 +4,22 @@ Canonical: header row, one row per sample, column ``t`` [s] strictly increasing,
 as in :data:`pipeline.records.CHANNEL_UNITS` in SI units and radians. A second sensor of the same
 quantity is ``name@sensor``. Empty cells mean "not sampled at this time" (sensors at different
 rates share one file); they are not samples and are not counted as drops.
+
+CSV as people write it is read too, and every guess is named in the summary:
+
+- the column map renames any column, the time column included (``{"t_s": "t"}``);
+- without ``t`` and without a map, a column named ``time``, ``timestamp`` or ``t``/``time`` with a
+  unit suffix (``t_ms``, ``time_us``) is the time column;
+- time in s, ms, us or ns (a ``units`` entry or the suffix of its name); ISO 8601 timestamps
+  (``2022-05-18T09:47:01.10Z``; without a zone they are taken as UTC) and Unix epoch seconds set
+  ``RawLog.start_time``, so separate recordings are told apart by their absolute times;
+- semicolon separators (with a decimal comma when the numbers use one);
+- units by suffix of a canonical name: ``psi_deg``, ``r_degs``/``r_dps`` [deg/s], ``sog_kn``/``sog_kts``
+  [knots], ``sog_kmh``, ``u_ms``/``u_mps`` [m/s], ``phi_rad``; a ``units`` entry overrides it.
+
+Inputs (``delta``, ``tau_*``) are commands by default, held until the next sample; a rudder-angle
+sensor or other measured actuator state is declared ``measured`` (``input_kinds``, or a
+manifest's ``[inputs]`` table) and is then interpolated like a state.
 """
 
 from __future__ import annotations
@@ -15,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import IngestError
-from ..records import ANGLE_CHANNELS, CHANNEL_UNITS, Channel, IngestSummary, RawLog
+from ..records import ANGLE_CHANNELS, CHANNEL_UNITS, INPUT_KINDS, INPUT_UNITS, Channel, IngestSummary, RawLog
 from ._common import check_file
 
 #: Unit conversions to SI accepted in a column map: unit -> factor (value_SI = factor * value).
@@ -31,12 +47,102 @@ _PLAUSIBLE: Mapping[str, float] = {"phi": 3.2, "theta": 3.2, "psi": 6.3 + 0.2, "
                                    "u": 60.0, "v": 60.0, "w": 60.0}
 
 
+#: Name suffix -> unit of a channel column (``psi_deg``); the stem must be a canonical channel.
+SUFFIX_UNITS: Mapping[str, str] = {
+    "deg": "deg", "degs": "deg/s", "dps": "deg/s", "rad": "rad", "rads": "rad/s", "kn": "knots",
+    "kts": "knots", "knots": "knots", "kmh": "km/h", "ms": "m/s", "mps": "m/s", "cms": "cm/s", "m": "m",
+}
+#: Name suffix -> unit of the time column (``t_ms``).
+TIME_SUFFIX_UNITS: Mapping[str, str] = {"s": "s", "ms": "ms", "us": "us", "ns": "ns"}
+#: Time column names recognised when there is no ``t`` and no column map entry for it.
+TIME_NAMES = ("time", "timestamp", "datetime", "date_time", "utc")
+#: Times above this [s] are Unix epoch seconds (a trial is never 3 years long).
+EPOCH_MIN_S = 1e8
+
+
 def _base(name: str) -> str:
     return name.split("@", 1)[0]
 
 
+def _split_suffix(raw: str, table: Mapping[str, str]) -> tuple[str, str] | None:
+    """(stem, unit) when ``raw`` is ``stem_suffix`` with a known suffix, else None."""
+    stem, sep, suffix = raw.rpartition("_")
+    if sep and stem and suffix.lower() in table:
+        return stem, table[suffix.lower()]
+    return None
+
+
+def _sniff_format(p: Path) -> tuple[str, str]:
+    """(separator, decimal) from the first lines: semicolons, and a decimal comma with them."""
+    with open(p, "r", encoding="utf-8", errors="replace") as fh:
+        head = [fh.readline() for _ in range(6)]
+    header = head[0]
+    if header.count(";") > header.count(","):
+        body = "".join(head[1:])
+        # With ';' as separator a ',' between digits can only be a decimal comma.
+        import re
+
+        return ";", ("," if re.search(r"\d,\d", body) else ".")
+    return ",", "."
+
+
+def _time_column(df: pd.DataFrame, columns: Mapping[str, str], time_column: str) -> str | None:
+    mapped = [raw for raw, name in columns.items() if name == "t" and raw in df.columns]
+    if mapped:
+        return mapped[0]
+    if time_column in df.columns:
+        return time_column
+    if time_column != "t":
+        return None
+    lower = {c.lower(): c for c in df.columns}
+    for n in TIME_NAMES:
+        if n in lower:
+            return lower[n]
+    for c in df.columns:
+        split = _split_suffix(c, TIME_SUFFIX_UNITS)
+        if split and split[0].lower() in ("t", "time", "timestamp") and c not in columns:
+            return c
+    return None
+
+
+def _parse_time(p: Path, col: pd.Series, raw: str, unit: str | None) -> tuple[np.ndarray, float, list[str]]:
+    """Times [s from the first row], the Unix time of the first row (NaN if unknown), and notes."""
+    notes: list[str] = []
+    numeric = pd.to_numeric(col, errors="coerce")
+    if numeric.notna().all():
+        factor_unit = unit or "s"
+        t = numeric.to_numpy(float) * UNIT_FACTORS[factor_unit]
+        if unit and unit != "s":
+            notes.append(f"time: column {raw!r} in {unit}, converted to s")
+        if t[0] > EPOCH_MIN_S:
+            notes.append(f"time: column {raw!r} holds Unix epoch times; t = 0 is the first row")
+            return t - t[0], float(t[0]), notes
+        return t, np.nan, notes
+    if numeric.notna().any():
+        bad = int(np.flatnonzero(numeric.isna().to_numpy())[0])
+        raise IngestError(f"{p}: expected a number in {raw!r} on every row, found {col.iloc[bad]!r} on data row "
+                          f"{bad + 1}")
+    try:
+        stamps = pd.to_datetime(col.astype(str).str.strip(), format="ISO8601")
+    except (ValueError, TypeError):
+        raise IngestError(f"{p}: expected numbers or ISO 8601 timestamps in time column {raw!r}, found "
+                          f"{col.iloc[0]!r} on data row 1") from None
+    if stamps.isna().any():
+        bad = int(np.flatnonzero(stamps.isna().to_numpy())[0])
+        raise IngestError(f"{p}: expected an ISO 8601 timestamp in {raw!r} on every row, found {col.iloc[bad]!r} on "
+                          f"data row {bad + 1}")
+    if stamps.dt.tz is None:
+        notes.append(f"time: ISO timestamps in {raw!r} have no time zone; taken as UTC")
+        stamps = stamps.dt.tz_localize("UTC")
+    stamps = stamps.dt.tz_convert("UTC")
+    first = stamps.iloc[0]
+    notes.append(f"time: ISO timestamps in {raw!r}; t = 0 is {first.isoformat()}")
+    return (stamps - first).dt.total_seconds().to_numpy(float), float(first.timestamp()), notes
+
+
 def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
-                 units: Mapping[str, str] | None = None, time_column: str = "t") -> RawLog:
+                 units: Mapping[str, str] | None = None, time_column: str = "t",
+                 input_kinds: Mapping[str, str] | None = None) -> RawLog:
     """Read a canonical CSV log, or any CSV with a column map and units.
 
     Parameters
@@ -44,24 +150,31 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
     path : str or Path
         The CSV file.
     columns : Mapping[str, str], optional
-        Raw column name -> canonical channel (``{"heading_deg": "psi"}``); canonical names are
-        used as they are.
+        Raw column name -> canonical channel (``{"heading_deg": "psi"}``, ``{"t_s": "t"}`` for
+        the time column); canonical names are used as they are.
     units : Mapping[str, str], optional
         Raw column name (or time column) -> unit of the raw values (``UNIT_FACTORS`` keys:
-        deg, deg/s, km/h, knots, ms, ...); converted to SI.
+        deg, deg/s, km/h, knots, ms, ...); converted to SI. Without an entry, a unit suffix of
+        the raw name (``SUFFIX_UNITS``, ``TIME_SUFFIX_UNITS``) gives the unit.
     time_column : str
-        Raw name of the time column.
+        Raw name of the time column (default ``t``; see the module notes for what else is
+        recognised).
+    input_kinds : Mapping[str, str], optional
+        Canonical input channel or raw column -> ``command`` (held, the default) or
+        ``measured`` (interpolated); stored in ``Channel.input_kind``.
 
     Returns
     -------
     RawLog
-        ``format='csv'``, ``time_reference='trial'``.
+        ``format='csv'``; ``time_reference='unix'`` with ``start_time`` when the time column
+        holds ISO timestamps or Unix epoch seconds, else ``'trial'``.
 
     Raises
     ------
     IngestError
         Missing or empty file, no time column, non-numeric data, non-monotonic time, values
-        implausible for the declared unit (degrees in a radian column).
+        implausible for the declared unit (degrees in a radian column), an unknown unit or
+        input kind.
     """
     p = check_file(path, "CSV log")
     columns = dict(columns or {})
@@ -69,28 +182,44 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
     for raw, unit in units.items():
         if unit not in UNIT_FACTORS:
             raise IngestError(f"{p}: unit of column {raw!r}: expected one of {sorted(UNIT_FACTORS)}, found {unit!r}")
+    input_kinds = dict(input_kinds or {})
+    for raw, kind in input_kinds.items():
+        if kind not in INPUT_KINDS:
+            raise IngestError(f"{p}: input kind of {raw!r}: expected one of {list(INPUT_KINDS)}, found {kind!r}")
     try:
-        df = pd.read_csv(p, skipinitialspace=True)
+        sep, decimal = _sniff_format(p)
+        df = pd.read_csv(p, skipinitialspace=True, sep=sep, decimal=decimal)
     except pd.errors.EmptyDataError:
         raise IngestError(f"{p}: expected a header row and data rows, found no columns") from None
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
         raise IngestError(f"{p}: expected comma-separated values, found unparsable content ({exc})") from None
     df.columns = [str(c).strip() for c in df.columns]
-    if time_column not in df.columns:
-        raise IngestError(f"{p}: expected a time column {time_column!r}, found columns {list(df.columns)}")
+    time_raw = _time_column(df, columns, time_column)
+    if time_raw is None:
+        raise IngestError(f"{p}: expected a time column {time_column!r} (or a column map entry naming one, "
+                          f"e.g. [columns] t_s = \"t\"), found columns {list(df.columns)}")
     if len(df) == 0:
         raise IngestError(f"{p}: expected data rows after the header, found none")
-    t_raw = pd.to_numeric(df[time_column], errors="coerce").to_numpy(float)
-    bad = np.flatnonzero(~np.isfinite(t_raw))
-    if len(bad):
-        raise IngestError(f"{p}: expected a number in {time_column!r} on every row, found "
-                          f"{df[time_column].iloc[bad[0]]!r} on data row {bad[0] + 1}")
-    t = t_raw * UNIT_FACTORS[units.get(time_column, "s")]
+    notes: list[str] = [] if sep == "," else [f"format: separator {sep!r}, decimal {decimal!r}"]
+    if time_raw != "t":
+        notes.append(f"time: column {time_raw!r} is the time column")
+    time_unit = units.get(time_raw)
+    if time_unit is None:
+        split = _split_suffix(time_raw, TIME_SUFFIX_UNITS)
+        time_unit = split[1] if split else None
+        if split and split[1] != "s":
+            notes.append(f"unit from suffix: {time_raw!r} in {split[1]}")
+    if time_unit is not None and time_unit not in ("s", "ms", "us", "ns"):
+        raise IngestError(f"{p}: unit of time column {time_raw!r}: expected one of ['s', 'ms', 'us', 'ns'], found "
+                          f"{time_unit!r}")
+    t, start_time, time_notes = _parse_time(p, df[time_raw], time_raw, time_unit)
+    notes += time_notes
+    time_column = time_raw
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         i = int(back[0])
-        raise IngestError(f"{p}: expected strictly increasing time in {time_column!r}, found {float(t[i + 1])!r} "
-                          f"after {float(t[i])!r} on data row {i + 2} ({len(back)} such rows)")
+        raise IngestError(f"{p}: expected strictly increasing time in {time_column!r}, found {str(df[time_column].iloc[i + 1])} "
+                          f"after {str(df[time_column].iloc[i])} on data row {i + 2} ({len(back)} such rows)")
     chans: dict[str, Channel] = {}
     read: dict[str, int] = {}
     skipped: dict[str, int] = {}
@@ -99,6 +228,16 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
         if raw == time_column:
             continue
         name = columns.get(raw, raw)
+        unit = units.get(raw)
+        split = _split_suffix(raw, SUFFIX_UNITS)
+        if split and raw not in columns and _base(name) not in CHANNEL_UNITS and _base(split[0]) in CHANNEL_UNITS:
+            name = split[0]
+            if unit is None:
+                unit = split[1]
+            notes.append(f"unit from suffix: {raw!r} read as {name} in {unit}")
+        elif split and raw in columns and unit is None:
+            unit = split[1]
+            notes.append(f"unit from suffix: {raw!r} read as {name} in {unit}")
         if _base(name) not in CHANNEL_UNITS:
             skipped[raw] = int(df[raw].notna().sum())
             warnings.append(f"column {raw!r} is not a canonical channel and has no column map entry; "
@@ -114,7 +253,7 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
                 first = df[raw][col.isna() & df[raw].notna()].iloc[0]
                 raise IngestError(f"{p}: expected numbers in column {raw!r}, found {first!r} ({nonnum} non-numeric "
                                   f"cells)")
-        factor = UNIT_FACTORS[units.get(raw, "")]
+        factor = UNIT_FACTORS[unit or ""]
         values = col.to_numpy(float) * factor if factor != 1.0 else col.to_numpy(float)
         ok = np.isfinite(values)
         n_inf = int(np.isinf(values).sum())
@@ -137,10 +276,19 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
                               f"with a unit in the manifest's column map")
         if _base(name) in ANGLE_CHANNELS and not ((vc > -np.pi) & (vc <= np.pi)).all():
             vc = np.angle(np.exp(1j * vc))
-        chans[name] = Channel(name, tc, vc, source=f"csv:{raw}")
+        kind = input_kinds.get(raw, input_kinds.get(name, input_kinds.get(_base(name), "")))
+        if kind and _base(name) not in INPUT_UNITS:
+            raise IngestError(f"{p}: input kind given for {raw!r} ({name}), but it is a state; expected one of "
+                              f"{sorted(INPUT_UNITS)}")
+        if name in chans:
+            raise IngestError(f"{p}: two columns give channel {name!r} (one of them {raw!r}); expected one column "
+                              f"per channel, or a second sensor as {name}@sensor")
+        chans[name] = Channel(name, tc, vc, source=f"csv:{raw}", input_kind=kind)
         read[raw] = len(tc)
     if not chans:
         raise IngestError(f"{p}: expected at least one canonical channel ({', '.join(CHANNEL_UNITS)}), "
                           f"found only {list(df.columns)}")
-    summary = IngestSummary(path=str(p), format="csv", read=read, skipped=skipped, warnings=tuple(warnings))
-    return RawLog(source=str(p), format="csv", channels=chans, summary=summary, time_reference="trial")
+    summary = IngestSummary(path=str(p), format="csv", read=read, skipped=skipped, warnings=tuple(notes + warnings))
+    absolute = bool(np.isfinite(start_time))
+    return RawLog(source=str(p), format="csv", channels=chans, summary=summary,
+                  time_reference="unix" if absolute else "trial", start_time=start_time)

@@ -474,5 +474,5 @@ def read_nmea(path: str | Path, sensor: str = "", progress: bool | None = None) 
     summary = IngestSummary(path=str(p), format="nmea", read=dict(read),
                             skipped={k: v for k, v in skipped.items() if v}, warnings=tuple(warnings))
     return RawLog(source=str(p), format="nmea", channels=chans, summary=summary, time_reference="gps",
-                  start_time=clock.unix(t0))
+                  start_time=clock.unix(t0), time_of_day=float(t0 % 86400.0))
 

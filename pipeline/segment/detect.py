@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..records import DOF_CHANNELS, INPUT_UNITS, Segment, Segments, Trial
+from .decays import equilibrium, release_decays, release_index
 from .inputs import Level, split_levels
 from .speed_events import coast_down_segments
 
@@ -210,7 +211,7 @@ def _decay_segments(trial: Trial, busy: list[tuple[float, float]]) -> list[Segme
             continue
         y = trial.data[ang].to_numpy()
         noise = noise_std(y)
-        base = float(np.nanmedian(y))
+        base = equilibrium(y, fs, noise)
         dev = np.abs(np.nan_to_num(y - base))
         # 10 sigma never happens by chance, and at the high regression noise (attitude 0.006 rad)
         # still finds a 6 deg pitch release, which 20 sigma (6.9 deg) missed.
@@ -222,9 +223,9 @@ def _decay_segments(trial: Trial, busy: list[tuple[float, float]]) -> list[Segme
             if len(hits) == 0:
                 break
             j = i + int(hits[0])
-            # The release is the largest excursion within the next half second.
-            win = slice(j, min(j + int(0.5 * fs) + 1, n))
-            k0 = j + int(np.argmax(dev[win]))
+            # The release is the end of the hold (the peak itself for an instantaneous release),
+            # not where a hand or a heeling moment began to heel the hull.
+            k0 = release_index(y - base, j, noise)
             # Decay ends when the deviation stays below the threshold for a second.
             below = dev[k0:] < max(3 * noise, 0.05 * dev[k0])
             run = np.convolve(below.astype(int), np.ones(int(fs)), mode="valid") if len(below) >= fs else np.array([])
@@ -271,12 +272,14 @@ def detect_segments(trial: Trial) -> Segments:
     Segments
         In time order, ``origin='detected'``.
     """
-    segs = _input_segments(trial)
+    # A released heeling moment (tau_k/tau_m back to zero) starts a free decay at the release.
+    segs = release_decays(trial, _input_segments(trial))
     if not _has_input_for(trial, "surge"):
         segs += coast_down_segments(trial)
-    # Roll/pitch excursions during input-driven manoeuvres are forced responses, not free decays.
-    busy = [(s.t_start, s.t_end) for s in segs if s.kind in ("step", "zigzag", "sinusoid")
-            and s.dof in ("roll", "pitch")]
+    # Roll/pitch excursions during input-driven manoeuvres are forced responses, not free decays;
+    # a heeling test's hold is one, and its decay is already found from the release.
+    busy = [(s.t_start, s.t_end) for s in segs
+            if s.kind in ("step", "zigzag", "sinusoid", "free_decay") and s.dof in ("roll", "pitch")]
     segs += _decay_segments(trial, busy)
     segs.sort(key=lambda s: (s.t_start, s.dof))
     return Segments(trial.name, tuple(segs))

@@ -19,6 +19,12 @@ def interp_channel(ch: Channel, t: np.ndarray) -> np.ndarray:
 
 
 def hold_channel(ch: Channel, t: np.ndarray) -> np.ndarray:
-    """Zero-order hold of an input onto ``t`` [s]: an actuator keeps its last command."""
+    """Zero-order hold of an input command onto ``t`` [s]: an actuator keeps its last command.
+
+    A measured actuator state (``Channel.input_kind == "measured"``: a rudder-angle sensor) is a
+    continuous signal and is interpolated instead, as align reads it back.
+    """
+    if ch.input_kind == "measured":
+        return interp_channel(ch, t)
     idx = np.clip(np.searchsorted(ch.t, t, side="right") - 1, 0, len(ch.t) - 1)
     return np.asarray(ch.values, float)[idx]

@@ -141,7 +141,7 @@ def _on(log: RawLog, name: str, times: np.ndarray, hold: bool = False) -> np.nda
     t, v = np.asarray(ch.t, float), np.asarray(ch.values, float)
     if len(t) == len(times) and np.array_equal(t, times):
         return v.copy()
-    if hold:
+    if hold and ch.input_kind != "measured":
         i = np.searchsorted(t, times + 1e-12, side="right") - 1
         out = v[np.clip(i, 0, len(v) - 1)]
         return np.where(i >= 0, out, np.nan)

@@ -1,0 +1,335 @@
+"""Trial shapes: the same manoeuvres logged the way real boats log them, through the whole pipeline.
+
+One AAUSHIP identification day (surge, sway and yaw steps and coast-downs; roll and pitch free
+decays; rudder steps and a zig-zag), simulated once per sensor suite and logged at 1, 2, 5, 10
+and 50 Hz, is written in every combination of
+
+- layout: ``one file`` (the whole day in one CSV) or ``file per run`` (the day split into its three
+  recordings, one CSV each);
+- sensor suite: ``body velocities`` (IMU, attitude, a DVL-like u and v, GNSS) or ``GNSS only``
+  (IMU and attitude at the logging rate, GNSS lat/lon/sog/cog at min(rate, 5) Hz with no body
+  velocity: u and v are derived from GNSS and heading. In one file the logger holds the last
+  fix in every IMU row; per run the GNSS is in its own file next to the IMU file, each stamped
+  with ISO UTC times);
+
+and read back with ``load_trial`` -> ``segment_trial`` -> ``fit_trial`` -> ``diagnose``. For every
+shape it reports the runs found, each identified coefficient's error in standard errors against
+the simulator's truth (target: within 2), which coefficients were not identified and why, and
+the diagnosis verdict (target on clean data: none).
+
+Independent data: Fossen's PythonVehicleSimulator frigate (Norrbin model with rudder dynamics,
+``PVS_PATH``, default ``/work/pvs/src``; skipped with a message when absent) is driven by rudder
+steps and a zig-zag, written to CSV by this script (not by vesselid's writers) at the same rates,
+one file and one file per run, and fitted; K and T at each rate are compared with the 50 Hz
+estimate (its peer in the same run) and with the frigate's own K and T.
+
+Usage::
+
+    .venv/bin/python benchmarks/trial_shapes.py [--rates 1 2 5 10 50] [--no-diagnose] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline.errors import VesselidError  # noqa: E402
+from pipeline.fit import fit_trial  # noqa: E402
+from pipeline.flow import load_trial, segment_trial  # noqa: E402
+from pipeline.sim import sea_trial, simulate  # noqa: E402
+from pipeline.sim.sensors import SensorSpec  # noqa: E402
+from pipeline.sim.writers import write_log  # noqa: E402
+from pipeline.vessel import load_vessel, parse_vessel  # noqa: E402
+
+VESSEL = load_vessel(ROOT / "vessel_configs" / "aauship.toml")
+D = np.diag(VESSEL.damping)
+TRUTH = {"X_u": -D[0], "Y_v": -D[1], "K_p": -D[2], "M_q": -D[3], "N_r": -D[4],
+         "K_nomoto": VESSEL.rudder["yaw_moment"] / D[4], "T_nomoto": VESSEL.inertia[2] / D[4]}
+RATES = (1, 2, 5, 10, 50)
+GNSS_MAX_HZ = 5.0
+T0_UTC = pd.Timestamp("2024-05-05T09:00:00Z")
+PVS_PATH = os.environ.get("PVS_PATH", "/work/pvs/src")
+
+
+# --------------------------------------------------------------------------- sensor suites
+def sensors(rate: float, body_velocities: bool) -> tuple[SensorSpec, ...]:
+    """Nominal-noise sensors logged at ``rate`` [Hz]; GNSS at most ``GNSS_MAX_HZ``."""
+    gnss_rate = min(rate, GNSS_MAX_HZ)
+    suite = [SensorSpec("imu", ("p", "q", "r", "ax", "ay", "az"), rate,
+                        noise={"p": 0.002, "q": 0.002, "r": 0.002, "ax": 0.05, "ay": 0.05, "az": 0.05}),
+             SensorSpec("attitude", ("phi", "theta", "psi"), rate, noise={"phi": 0.002, "theta": 0.002, "psi": 0.002}),
+             SensorSpec("gnss", ("lat", "lon", "sog", "cog"), gnss_rate,
+                        noise={"lat": 0.3, "lon": 0.3, "sog": 0.02, "cog": 0.01})]
+    if body_velocities:
+        suite.append(SensorSpec("dvl", ("u", "v"), rate, noise={"u": 0.005, "v": 0.005}))
+    return tuple(suite)
+
+
+def _split_times(res) -> list[float]:
+    """Split instants between the day's three recordings: mid-rest before roll decays and rudder steps."""
+    segs = res.segments.items
+    first_decay = min(s.t_start for s in segs if s.kind == "free_decay")
+    first_rudder = min(s.t_start for s in segs if s.input_channel == "delta")
+    last_before = lambda t: max(s.t_end for s in segs if s.t_end <= t + 1e-9)  # noqa: E731
+    return [0.5 * (last_before(first_decay) + first_decay), 0.5 * (last_before(first_rudder) + first_rudder)]
+
+
+def _piece(log, a: float, b: float, name: str):
+    """Channels of ``log`` with a <= t < b, on a clock starting at the piece's first sample."""
+    chans = {}
+    for n, c in log.channels.items():
+        keep = (c.t >= a) & (c.t < b)
+        chans[n] = replace(c, t=c.t[keep] - a, values=c.values[keep])
+    return replace(log, source=name, channels={n: c for n, c in chans.items() if len(c.t)})
+
+
+GNSS = ("lat", "lon", "sog", "cog")
+
+
+def _held_csv(log, path: Path) -> Path:
+    """One IMU-rate CSV in which the logger repeats the last GNSS fix in every row."""
+    imu_t = log.channels["r"].t
+    cols = {"t": imu_t}
+    for n, c in log.channels.items():
+        if n in GNSS:
+            idx = np.searchsorted(c.t, imu_t + 1e-9, side="right") - 1
+            cols[n] = np.where(idx >= 0, c.values[np.clip(idx, 0, None)], np.nan)
+        else:
+            cols[n] = np.interp(imu_t, c.t, c.values) if not n.startswith(("delta", "tau")) else \
+                c.values[np.clip(np.searchsorted(c.t, imu_t + 1e-9, side="right") - 1, 0, None)]
+    pd.DataFrame(cols).to_csv(path, index=False, float_format="%.10g")
+    return path
+
+
+def _iso_csv(log, names, path: Path, start: pd.Timestamp) -> Path:
+    """Channels ``names`` of ``log`` in one CSV stamped with ISO UTC times (a logger's wall clock)."""
+    t = np.unique(np.concatenate([log.channels[n].t for n in names if n in log.channels]))
+    cols = {"time": [(start + pd.Timedelta(seconds=float(x))).isoformat() for x in t]}
+    for n in names:
+        if n in log.channels:
+            c = log.channels[n]
+            col = np.full(len(t), np.nan)
+            col[np.searchsorted(t, c.t)] = c.values
+            cols[n] = col
+    pd.DataFrame(cols).to_csv(path, index=False, float_format="%.10g")
+    return path
+
+
+def write_shape(res, layout: str, body_velocities: bool, folder: Path) -> list[Path]:
+    """Write one simulated day in one shape; returns the files."""
+    folder.mkdir(parents=True, exist_ok=True)
+    log = res.log
+    if layout == "one file":
+        if body_velocities:
+            return [write_log(log, folder / "day.csv")]
+        return [_held_csv(log, folder / "day.csv")]
+    cuts = [0.0] + _split_times(res) + [math.inf]
+    out = []
+    for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+        piece = _piece(log, a, b, f"run{k}")
+        if body_velocities:
+            out.append(write_log(piece, folder / f"run{k}.csv"))
+        else:
+            start = T0_UTC + pd.Timedelta(seconds=a + 3600 * k)
+            imu = [n for n in piece.channels if n not in GNSS]
+            out.append(_iso_csv(piece, imu, folder / f"run{k}_imu.csv", start))
+            out.append(_iso_csv(piece, GNSS, folder / f"run{k}_gnss.csv", start))
+    return out
+
+
+# --------------------------------------------------------------------------- one shape
+def run_shape(files, diagnose_it: bool, vessel=VESSEL, truth=TRUTH) -> dict:
+    t0 = time.perf_counter()
+    out: dict = {"error": ""}
+    try:
+        trial = load_trial(files, vessel)
+        segs = segment_trial(trial)
+        fits = fit_trial(trial, segs, vessel, extend=False)
+    except VesselidError as exc:
+        out["error"] = str(exc)
+        return out
+    out["runs"] = len(trial.runs)
+    out["segments"] = len(segs.items)
+    z, missing = {}, {}
+    for name, true in truth.items():
+        est = fits.estimates.get(name)
+        if est is None or not est.success or not est.stderr > 0:
+            missing[name] = (est.message if est is not None else "no segment")[:90]
+            continue
+        z[name] = ((est.value - true) / est.stderr, est.value, est.stderr)
+    out["z"], out["missing"] = z, missing
+    out["effect"] = "-"
+    if diagnose_it:
+        from pipeline.diagnose import diagnose
+
+        try:
+            rep = diagnose(trial, vessel, fits=fits)
+            out["effect"] = rep.effect or "none"
+        except VesselidError as exc:
+            out["effect"] = f"error: {str(exc)[:80]}"
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+# --------------------------------------------------------------------------- PVS frigate
+def pvs_frigate_day(dt: float = 0.02):
+    """Drive PVS's frigate with rudder steps and a zig-zag; truth on a fine grid (None when absent)."""
+    if not Path(PVS_PATH).is_dir():
+        return None
+    sys.path.insert(0, PVS_PATH)
+    try:
+        from python_vehicle_simulator.vehicles.frigate import frigate
+    except ImportError:
+        return None
+    ship = frigate("stepInput", U=6.0)
+    # Run 1: rudder steps +-10 deg held 150 s (7 T); run 2: a 10/10 zig-zag.
+    t_run = np.arange(0.0, 420.0, dt)
+    records = []
+    for run in range(2):
+        nu = np.array([6.0, 0, 0, 0, 0, 0], float)
+        u_act = np.array([0.0])
+        psi = 0.0
+        rows = []
+        cmd = 0.0
+        for t in t_run:
+            if run == 0:
+                cmd = math.radians(10) if 30 <= t < 180 else (math.radians(-10) if 240 <= t < 390 else 0.0)
+            else:
+                if t < 30:
+                    cmd = 0.0
+                elif cmd == 0.0:
+                    cmd = math.radians(10)
+                elif cmd > 0 and psi > math.radians(10):
+                    cmd = math.radians(-10)
+                elif cmd < 0 and psi < math.radians(-10):
+                    cmd = math.radians(10)
+            rows.append((t, nu[5], psi, cmd, u_act[0]))
+            nu, u_act = ship.dynamics(np.zeros(6), nu, u_act, np.array([cmd]), dt)
+            psi += dt * nu[5]
+        records.append(pd.DataFrame(rows, columns=["t", "r", "psi", "delta_cmd", "delta_actual"]))
+    return ship, records
+
+
+def write_pvs(records, rate: float, layout: str, folder: Path, rng: np.random.Generator) -> list[Path]:
+    """The frigate's runs as a user's logger writes them: r and heading with noise, the rudder command."""
+    folder.mkdir(parents=True, exist_ok=True)
+    frames = []
+    for k, rec in enumerate(records):
+        step = max(int(round(1.0 / (rate * 0.02))), 1)
+        s = rec.iloc[::step].reset_index(drop=True)
+        f = pd.DataFrame({"t": s["t"], "r": s["r"] + rng.normal(0, 2e-4, len(s)),
+                          "psi_deg": np.degrees(np.angle(np.exp(1j * (s["psi"] + rng.normal(0, 1e-3, len(s)))))),
+                          "delta": s["delta_cmd"]})
+        frames.append(f)
+    if layout == "file per run":
+        paths = []
+        for k, f in enumerate(frames):
+            p = folder / f"frigate_run{k}.csv"
+            f.to_csv(p, index=False, sep=";", float_format="%.8g")
+            paths.append(p)
+        return paths
+    shift = frames[0]["t"].iloc[-1] + 60.0
+    both = pd.concat([frames[0], frames[1].assign(t=frames[1]["t"] + shift)], ignore_index=True)
+    p = folder / "frigate_day.csv"
+    both.to_csv(p, index=False, sep=";", float_format="%.8g")
+    return [p]
+
+
+# --------------------------------------------------------------------------- main
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rates", type=float, nargs="+", default=list(RATES))
+    ap.add_argument("--no-diagnose", action="store_true")
+    ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--out", type=Path, default=None, help="folder for the written logs (default: temporary)")
+    args = ap.parse_args(argv)
+    tmp = tempfile.TemporaryDirectory()
+    base = args.out or Path(tmp.name)
+    schedule = sea_trial(VESSEL)
+    rows = []
+    print("| rate Hz | layout | sensors | runs | segs | within 2 SE | within 3 SE | worst (z) | not identified | "
+          "diagnosis | s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for bv in (True, False):
+        for rate in args.rates:
+            res = simulate(VESSEL, schedule, sensors=sensors(rate, bv), seed=args.seed, actuator_rate=rate)
+            for layout in ("one file", "file per run"):
+                files = write_shape(res, layout, bv, base / f"{'bv' if bv else 'gnss'}_{rate:g}_{layout[:3]}")
+                r = run_shape(files, not args.no_diagnose)
+                r.update(rate=rate, layout=layout, sensors="body velocities" if bv else "GNSS only")
+                rows.append(r)
+                print(_row(r), flush=True)
+    pvs = pvs_frigate_day()
+    if pvs is None:
+        print(f"\nPVS frigate: skipped (PythonVehicleSimulator not found at PVS_PATH={PVS_PATH})")
+    else:
+        ship, records = pvs
+        vessel = parse_vessel({"name": "frigate"})
+        truth = {"K_nomoto": float(ship.K), "T_nomoto": float(ship.T)}
+        print(f"\nPVS frigate (Norrbin, K = {ship.K:.4g} 1/s, T = {ship.T:.4g} s, n3 = {ship.n3:.3g}, rudder rate "
+              f"limit {ship.DdeltaMax} deg/s), written by this script as semicolon CSV with psi in degrees:\n")
+        print("| rate Hz | layout | runs | K (1/s) | T (s) | K vs 50 Hz (z) | T vs 50 Hz (z) | K vs truth (z) | "
+              "T vs truth (z) |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        rng = np.random.default_rng(args.seed)
+        peer: dict = {}
+        results = []
+        for layout in ("one file", "file per run"):
+            for rate in sorted(args.rates, reverse=True):
+                files = write_pvs(records, rate, layout, base / f"pvs_{rate:g}_{layout[:3]}", rng)
+                r = run_shape(files, False, vessel, truth)
+                r.update(rate=rate, layout=layout)
+                if layout == "one file" and rate == max(args.rates):
+                    peer = r.get("z", {})
+                results.append(r)
+        for r in results:
+            print(_pvs_row(r, peer, truth), flush=True)
+    tmp.cleanup()
+    return 0
+
+
+def _row(r: dict) -> str:
+    if r.get("error"):
+        return f"| {r['rate']:g} | {r['layout']} | {r['sensors']} | error: {r['error'][:120]} |||||||"
+    z = r["z"]
+    n2 = sum(abs(v[0]) < 2 for v in z.values())
+    n3 = sum(abs(v[0]) < 3 for v in z.values())
+    worst = max(z.items(), key=lambda kv: abs(kv[1][0]), default=None)
+    worst_s = f"{worst[0]} {worst[1][0]:+.1f}" if worst else "-"
+    miss = ", ".join(sorted(r["missing"])) or "-"
+    return (f"| {r['rate']:g} | {r['layout']} | {r['sensors']} | {r['runs']} | {r['segments']} | {n2}/{len(z)} | "
+            f"{n3}/{len(z)} | {worst_s} | {miss} | {r['effect']} | {r['seconds']:.0f} |")
+
+
+def _pvs_row(r: dict, peer: dict, truth: dict) -> str:
+    if r.get("error"):
+        return f"| {r['rate']:g} | {r['layout']} | error: {r['error'][:120]} ||||||||"
+    z = r.get("z", {})
+    cells = []
+    for name in ("K_nomoto", "T_nomoto"):
+        cells.append(f"{z[name][1]:.4g} ± {z[name][2]:.2g}" if name in z else "not identified")
+    vs_peer = []
+    for name in ("K_nomoto", "T_nomoto"):
+        if name in z and name in peer:
+            d = (z[name][1] - peer[name][1]) / math.hypot(z[name][2], peer[name][2]) if r is not None else math.nan
+            vs_peer.append(f"{d:+.1f}")
+        else:
+            vs_peer.append("-")
+    vs_truth = [f"{z[n][0]:+.1f}" if n in z else "-" for n in ("K_nomoto", "T_nomoto")]
+    return f"| {r['rate']:g} | {r['layout']} | {r.get('runs', '-')} | " + " | ".join(cells + vs_peer + vs_truth) + " |"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
