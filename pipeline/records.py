@@ -392,6 +392,113 @@ class Estimate:
 
 
 @dataclass(frozen=True)
+class DampingFit:
+    """The joint fit of one DOF with one damping structure (:mod:`pipeline.fit.quadratic`).
+
+    Attributes
+    ----------
+    dof, structure : str
+        DOF name and ``linear`` or ``quadratic``.
+    names : tuple[str, ...]
+        Shared parameters (``a``, ``b``, ``c``, ``g_<input>``), in covariance order.
+    values, stderr : numpy.ndarray
+        Their estimates and standard errors.
+    covariance : numpy.ndarray
+        Covariance of the shared parameters (the per-segment initial states profiled out).
+    terms : dict
+        Fossen derivative -> (value, stderr, unit), e.g. ``X_u``, ``X_|u|u`` (empty without a mass).
+    term_covariance : numpy.ndarray
+        Covariance of ``terms`` in their order [products of their units].
+    rmse : float
+        RMS of the noise-weighted residuals [-] (1 when only white sensor noise is left).
+    lag1 : float
+        Lag-1 autocorrelation of the residuals.
+    n, dof_resid : int
+        Residual rows and degrees of freedom.
+    y_fit : tuple[numpy.ndarray, ...]
+        Model output per record (for figures).
+    success : bool
+        Solver converged and the covariance is finite.
+    message : str
+        Solver status and notes.
+    initial_states : numpy.ndarray
+        Fitted per-segment initial states, flattened (segment-major).
+    """
+
+    dof: str
+    structure: str
+    names: tuple[str, ...]
+    values: np.ndarray
+    stderr: np.ndarray
+    covariance: np.ndarray
+    terms: dict
+    term_covariance: np.ndarray
+    rmse: float
+    lag1: float
+    n: int
+    dof_resid: int
+    y_fit: tuple = ()
+    success: bool = True
+    message: str = ""
+    initial_states: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+
+    def param(self, name: str) -> float:
+        """Value of shared parameter ``name`` (NaN when the structure lacks it).
+
+        Parameters
+        ----------
+        name : str
+            ``a``, ``b``, ``c`` or ``g_<input>``.
+        """
+        return float(self.values[self.names.index(name)]) if name in self.names else math.nan
+
+
+@dataclass(frozen=True)
+class StructureChoice:
+    """Which damping structure the data chose for one DOF, and by how much (:mod:`pipeline.fit.structure`).
+
+    Attributes
+    ----------
+    dof : str
+        DOF name.
+    selected : str
+        ``linear`` or ``quadratic``.
+    fits : Mapping[str, DampingFit]
+        Each structure fitted to all of the DOF's segments (the loser is kept for the report).
+    heldout_rmse : Mapping[str, float]
+        Held-out RMS simulation error per structure [SI unit of the output channel].
+    p_value, p_robust : float
+        Held-out F test of the quadratic term (Bonferroni-corrected; with the most favourable fold
+        left out), :mod:`pipeline.fit.heldout_test`.
+    shrink : float
+        Held-out gap reduction of the quadratic structure [%].
+    explained : float
+        Scale-normalised RMS error the quadratic term explains [-].
+    significant : bool
+        The shared significance rule's verdict.
+    folds : str
+        How the data were split (leave-one-segment-out or time quarters).
+    requested : str
+        ``auto`` (held-out choice) or the structure the user forced (``--model linear``).
+    message : str
+        Why the choice was made, or why no choice was possible.
+    """
+
+    dof: str
+    selected: str
+    fits: Mapping[str, DampingFit]
+    heldout_rmse: Mapping[str, float]
+    p_value: float
+    p_robust: float
+    shrink: float
+    explained: float
+    significant: bool
+    folds: str
+    requested: str = "auto"
+    message: str = ""
+
+
+@dataclass(frozen=True)
 class Fits:
     """Everything the fit stage identified for one vessel.
 
@@ -408,6 +515,9 @@ class Fits:
         identified.
     convention : str
         Sign convention stated in every table.
+    structures : Mapping[str, StructureChoice]
+        Per DOF, the damping structure the held-out test chose and both fits (empty when the
+        structure selection did not run).
     """
 
     vessel: str
@@ -419,3 +529,4 @@ class Fits:
         "M nu_dot + D nu = tau with D positive definite; hydrodynamic derivatives follow Fossen "
         "(X_u = -D[0,0] < 0); DOF order u, v, p, q, r; Nomoto psi/delta = K/(s(Ts+1))."
     )
+    structures: Mapping[str, StructureChoice] = field(default_factory=dict)
