@@ -133,7 +133,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from .report import fits_to_dict
 
     vessel, trial, segments = _trial_and_segments(args)
-    fits = fit_trial(trial, segments, vessel)
+    fits = fit_trial(trial, segments, vessel, model=getattr(args, "model", "auto"))
     write_json(fits_to_dict(fits), args.json)
     ok = sum(e.success for e in fits.estimates.values())
     print(f"fitted {len(fits.segment_fits)} segments; {ok} of {len(fits.estimates)} coefficients identified; wrote {args.json}")
@@ -250,6 +250,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fs", type=float, help="resample rate [Hz]")
     p.add_argument("--segments", metavar="SEGMENTS.json", help="use these segments instead of detecting")
     p.add_argument("--json", required=True, metavar="OUT.json", help="coefficients JSON to write")
+    p.add_argument("--model", default="auto", choices=["auto", "linear", "quadratic"],
+                   help="damping structure per DOF: chosen by held-out error (auto), or forced")
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("report", help="ingest, segment, fit and write the report folder")
@@ -266,6 +268,13 @@ def build_parser() -> argparse.ArgumentParser:
     else:
         add_waves_parser(sub)
         add_autopilot_parser(sub)
+
+    try:
+        from .export.cli import add_export_parser
+    except ImportError:
+        pass
+    else:
+        add_export_parser(sub)
 
     try:
         from .diagnose.cli import add_diagnose_parser

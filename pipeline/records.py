@@ -423,6 +423,8 @@ class DampingFit:
         Solver status and notes.
     initial_states : numpy.ndarray
         Fitted per-segment initial states, flattened (segment-major).
+    inertia : float
+        ``M_ii`` the force inputs were divided by (vessel config) [kg or kg m^2]; NaN when unknown.
     """
 
     dof: str
@@ -441,6 +443,7 @@ class DampingFit:
     success: bool = True
     message: str = ""
     initial_states: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    inertia: float = math.nan
 
     def param(self, name: str) -> float:
         """Value of shared parameter ``name`` (NaN when the structure lacks it).

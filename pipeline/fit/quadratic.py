@@ -546,7 +546,7 @@ def _result(p: JointProblem, theta: np.ndarray, structure: str) -> DampingFit:
                     terms=terms, term_covariance=tcov, rmse=float(math.sqrt(float(r @ r) / max(n, 1))), lag1=lag,
                     n=n, dof_resid=dof_resid,
                     y_fit=tuple(yhat[i, : rec.y.size] for i, rec in enumerate(p.records)), success=ok,
-                    message="; ".join(msg), initial_states=theta[ng:].copy())
+                    message="; ".join(msg), initial_states=theta[ng:].copy(), inertia=float(p.mass))
 
 
 def problem(records: Sequence[DofRecord], dof: str, dt: float, mass: float, structure: str,

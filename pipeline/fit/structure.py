@@ -14,15 +14,18 @@ otherwise the linear one, which is also what ``--model linear`` forces.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from dataclasses import replace
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from ..errors import FitError
-from ..records import DampingFit, StructureChoice, Trial, Segment
+from ..records import DOF_NAMES, DOFS, DampingFit, Estimate, Fits, Segment, StructureChoice, Trial
 from ..vessel import Vessel
 from .heldout_test import channel_score, is_significant
-from .quadratic import (SteadyPoint, decimate_records, dof_records, expand_linear, fit_dof, problem, solve,
+from .least_squares import confidence_interval
+from .segment_fit import MAX_RELATIVE_STDERR
+from .quadratic import (TERM_NAMES, SteadyPoint, decimate_records, dof_records, expand_linear, fit_dof, problem, solve,
                         start_vector)
 
 #: Most folds of the leave-segments-out split.
@@ -196,3 +199,100 @@ def select_structures(trial: Trial, segments: Sequence[Segment], vessel: Vessel,
         except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
             continue
     return out
+
+
+def _joint_estimate(fit: DampingFit, name: str, choice: StructureChoice, n_segments: int) -> Estimate:
+    value, se, unit = fit.terms[name]
+    other = "linear" if choice.selected == "quadratic" else "quadratic"
+    method = (f"joint output-error fit of M_ii nu_dot + D nu + D2 |nu| nu (+ G eta) = tau over {n_segments} "
+              f"{choice.dof} segment(s), {fit.structure} structure; M_ii from the vessel config; "
+              f"structure chosen by held-out error ({choice.folds})")
+    msg = [f"{choice.selected} structure selected over {other}: {choice.message}"]
+    if fit.message:
+        msg.append(fit.message)
+    ok = fit.success and math.isfinite(se) and se > 0
+    if ok and abs(se) > MAX_RELATIVE_STDERR * abs(value):
+        ok = False
+        msg.insert(0, f"relative standard error {se / abs(value) if value else math.inf:.0%} above "
+                      f"{MAX_RELATIVE_STDERR:.0%}: not identified")
+    return Estimate(name=name, value=value, stderr=se, ci95=confidence_interval(value, se, fit.dof_resid), unit=unit,
+                    n_segments=n_segments, method=method, success=ok, message="; ".join(msg))
+
+
+def structure_estimates(estimates: Mapping[str, Estimate], choices: Mapping[str, StructureChoice]) -> dict[str, Estimate]:
+    """Estimates with each DOF's damping taken from the structure the data chose.
+
+    Where the quadratic structure wins, the linear derivative (``X_u``) and the quadratic one
+    (``X_|u|u``) come from the joint quadratic fit (single-DOF exponential fits are biased when the
+    damping is quadratic). Where the linear structure wins, the single-DOF estimate stays (or the
+    joint linear fit's when there is none) and its message names the rejected quadratic model and
+    both held-out errors.
+
+    Parameters
+    ----------
+    estimates : Mapping[str, Estimate]
+        The fit stage's estimates.
+    choices : Mapping[str, StructureChoice]
+        From :func:`select_structures`.
+
+    Returns
+    -------
+    dict[str, Estimate]
+        A new mapping; the input is not modified.
+    """
+    out = dict(estimates)
+    for dof, choice in choices.items():
+        lin_name, quad_name = TERM_NAMES[dof]
+        fit = choice.fits[choice.selected]
+        if lin_name not in fit.terms:
+            continue
+        n_seg = len(fit.y_fit)
+        if choice.selected == "quadratic":
+            out[lin_name] = _joint_estimate(fit, lin_name, choice, n_seg)
+            out[quad_name] = _joint_estimate(fit, quad_name, choice, n_seg)
+            continue
+        old = out.get(lin_name)
+        if old is None or not old.success:
+            out[lin_name] = _joint_estimate(fit, lin_name, choice, n_seg)
+        else:
+            note = f"linear structure kept: {choice.message}"
+            out[lin_name] = replace(old, message="; ".join(m for m in (old.message, note) if m))
+    return out
+
+
+def apply_structures(fits: Fits, trial: Trial, segments: Sequence[Segment], vessel: Vessel,
+                     model: str = "auto") -> Fits:
+    """``fits`` with the damping structure chosen per DOF (:func:`select_structures`) and the damping
+    matrix diagonal taken from the chosen structure's linear terms.
+
+    Parameters
+    ----------
+    fits : Fits
+        Result of the single-DOF (and grey-box) fits.
+    trial : Trial
+        The trial.
+    segments : Sequence[Segment]
+        Its segments.
+    vessel : Vessel
+        Config.
+    model : str
+        ``auto``, ``linear`` or ``quadratic``.
+
+    Returns
+    -------
+    Fits
+        A new record with ``structures`` filled.
+    """
+    if model not in MODELS:
+        raise FitError(f"--model: expected one of {list(MODELS)}, found {model!r}")
+    choices = select_structures(trial, segments, vessel, model)
+    if not choices:
+        return fits
+    estimates = structure_estimates(fits.estimates, choices)
+    d = np.array(fits.damping_matrix, float, copy=True)
+    se = np.array(fits.damping_stderr, float, copy=True)
+    for i, vel in enumerate(DOFS):
+        est = estimates.get(TERM_NAMES[DOF_NAMES[vel]][0])
+        if est is not None and est.success:
+            d[i, i], se[i, i] = -est.value, est.stderr
+    return replace(fits, estimates=estimates, damping_matrix=d, damping_stderr=se, structures=choices)
