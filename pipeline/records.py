@@ -502,6 +502,86 @@ class StructureChoice:
 
 
 @dataclass(frozen=True)
+class Extinction:
+    """One extinction-curve fit (one direction or pooled), :mod:`pipeline.fit.decay_analysis`.
+
+    Attributes
+    ----------
+    label : str
+        ``port down``, ``starboard down``, ``bow up``, ``bow down`` or ``combined``.
+    phi_m, dphi : numpy.ndarray
+        Mean amplitudes and decrements per half cycle [rad].
+    a, b : float
+        Extinction coefficients [-], [1/rad] (``b`` NaN for too few points).
+    cov_ab : numpy.ndarray
+        Their covariance.
+    a_linear, a_linear_se : float
+        Linear-only fit ``dphi = a phi_m`` [-].
+    wn, wn_se : float
+        Natural frequency and standard error [rad/s].
+    B1, B1_se, B2, B2_se : float
+        Linear [kg m^2/s] and quadratic [kg m^2] damping.
+    B_eq, B_eq_se : float
+        Equivalent linear damping at ``amplitude`` [kg m^2/s].
+    amplitude : float
+        Stated amplitude [rad].
+    inertia_fit, inertia_fit_se : float
+        ``C / wn^2`` [kg m^2] (NaN without restoring).
+    n_decays : int
+        Decays pooled.
+    """
+
+    label: str
+    phi_m: np.ndarray
+    dphi: np.ndarray
+    a: float
+    b: float
+    cov_ab: np.ndarray
+    a_linear: float
+    a_linear_se: float
+    wn: float
+    wn_se: float
+    B1: float
+    B1_se: float
+    B2: float
+    B2_se: float
+    B_eq: float
+    B_eq_se: float
+    amplitude: float
+    inertia_fit: float
+    inertia_fit_se: float
+    n_decays: int
+
+
+@dataclass(frozen=True)
+class DecayAnalysis:
+    """Extinction analysis of one DOF's free decays.
+
+    Attributes
+    ----------
+    dof : str
+        ``roll`` or ``pitch``.
+    curves : Mapping[str, Extinction]
+        Per direction and ``combined``.
+    inertia_config : float
+        ``M_ii`` of the vessel config [kg m^2] (NaN when not given).
+    restoring : float
+        ``C`` [N m/rad] (NaN when not given).
+    consistency_p : float
+        Wald test p-value that the directions share ``(a, b)`` (NaN with one direction).
+    message : str
+        Verdict and notes.
+    """
+
+    dof: str
+    curves: Mapping[str, Extinction] = field(default_factory=dict)
+    inertia_config: float = math.nan
+    restoring: float = math.nan
+    consistency_p: float = math.nan
+    message: str = ""
+
+
+@dataclass(frozen=True)
 class Fits:
     """Everything the fit stage identified for one vessel.
 
@@ -521,6 +601,8 @@ class Fits:
     structures : Mapping[str, StructureChoice]
         Per DOF, the damping structure the held-out test chose and both fits (empty when the
         structure selection did not run).
+    decay_analyses : Mapping[str, DecayAnalysis]
+        Roll and pitch extinction analyses (empty when there are no free decays).
     """
 
     vessel: str
@@ -533,3 +615,4 @@ class Fits:
         "(X_u = -D[0,0] < 0); DOF order u, v, p, q, r; Nomoto psi/delta = K/(s(Ts+1))."
     )
     structures: Mapping[str, StructureChoice] = field(default_factory=dict)
+    decay_analyses: Mapping[str, DecayAnalysis] = field(default_factory=dict)

@@ -20,8 +20,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import FitError
-from ..records import DOF_NAMES, DOFS, DampingFit, Estimate, Fits, Segment, StructureChoice, Trial
+from ..records import DOF_NAMES, DOFS, DampingFit, DecayAnalysis, Estimate, Fits, Segment, StructureChoice, Trial
 from ..vessel import Vessel
+from .decay_analysis import analyse_decays
 from .heldout_test import channel_score, is_significant
 from .least_squares import confidence_interval
 from .segment_fit import MAX_RELATIVE_STDERR
@@ -262,8 +263,10 @@ def structure_estimates(estimates: Mapping[str, Estimate], choices: Mapping[str,
 
 def apply_structures(fits: Fits, trial: Trial, segments: Sequence[Segment], vessel: Vessel,
                      model: str = "auto") -> Fits:
-    """``fits`` with the damping structure chosen per DOF (:func:`select_structures`) and the damping
-    matrix diagonal taken from the chosen structure's linear terms.
+    """``fits`` with the damping structure chosen per DOF (:func:`select_structures`), the damping
+    matrix diagonal taken from the chosen structure's linear terms, and the roll/pitch extinction
+    analyses (:func:`pipeline.fit.decay_analysis.analyse_decays`) with the effective inertia
+    ``I_eff_<dof> = C / wn^2`` beside the config's.
 
     Parameters
     ----------
@@ -286,6 +289,9 @@ def apply_structures(fits: Fits, trial: Trial, segments: Sequence[Segment], vess
     if model not in MODELS:
         raise FitError(f"--model: expected one of {list(MODELS)}, found {model!r}")
     choices = select_structures(trial, segments, vessel, model)
+    decays = {dof: a for dof in ("roll", "pitch") if (a := analyse_decays(trial, segments, vessel, dof)) is not None}
+    if decays:
+        fits = replace(fits, estimates={**fits.estimates, **inertia_estimates(decays)}, decay_analyses=decays)
     if not choices:
         return fits
     estimates = structure_estimates(fits.estimates, choices)
@@ -296,3 +302,32 @@ def apply_structures(fits: Fits, trial: Trial, segments: Sequence[Segment], vess
         if est is not None and est.success:
             d[i, i], se[i, i] = -est.value, est.stderr
     return replace(fits, estimates=estimates, damping_matrix=d, damping_stderr=se, structures=choices)
+
+
+def inertia_estimates(decays: Mapping[str, DecayAnalysis]) -> dict[str, Estimate]:
+    """``I_eff_<dof> = C / wn^2`` from each pooled extinction analysis, with the config's in the message.
+
+    Parameters
+    ----------
+    decays : Mapping[str, DecayAnalysis]
+        DOF -> analysis.
+
+    Returns
+    -------
+    dict[str, Estimate]
+        Only DOFs whose restoring is known.
+    """
+    out = {}
+    for dof, a in decays.items():
+        c = a.curves["combined"]
+        if not math.isfinite(c.inertia_fit):
+            continue
+        ok = math.isfinite(c.inertia_fit_se) and c.inertia_fit_se > 0
+        msg = (f"config M_ii = {a.inertia_config:.4g} kg m^2 ({c.inertia_fit / a.inertia_config:.3g} x)"
+               if math.isfinite(a.inertia_config) else "config gives no inertia")
+        out[f"I_eff_{dof}"] = Estimate(
+            f"I_eff_{dof}", c.inertia_fit, c.inertia_fit_se,
+            confidence_interval(c.inertia_fit, c.inertia_fit_se, max(c.phi_m.size, 1)), "kg m^2", c.n_decays,
+            f"effective inertia C / wn^2 with C = {a.restoring:.4g} N m/rad from the config and wn from the "
+            f"extrema times of {c.n_decays} free decay(s)", ok, msg)
+    return out

@@ -11,7 +11,8 @@ Structure (every number in SI; ``null`` wherever a value is not identified, neve
                       ...,                             # all of DERIVATIVES, then
                       "K_nomoto": {...}, "T_nomoto": {...},
                       ...},                            # any further coefficients the fit returned
-     "model_structure": {...}, "quadratic_damping": {...}, "covariance": {...}}   # when structures were selected
+     "model_structure": {...}, "quadratic_damping": {...}, "covariance": {...},   # when structures were selected
+     "decay_analysis": {...}}                          # roll/pitch extinction curves, when free decays were fitted
 
 Derivatives carry Fossen's signs (``X_u = -D[0, 0] < 0``). A coefficient whose fit did not succeed
 has ``value``, ``stderr`` and both ``ci95`` bounds ``null``, ``success`` false and the reason in
@@ -120,7 +121,39 @@ def fits_to_dict(fits: Fits) -> dict[str, Any]:
         "coefficients": {name: estimate_to_dict(fits.estimates.get(name), name)
                          for name in ordered_names(fits.estimates)},
         **model_structure_to_dict(fits),
+        **decay_analysis_to_dict(fits),
     }
+
+
+def decay_analysis_to_dict(fits: Fits) -> dict[str, Any]:
+    """Additive ``decay_analysis`` field: per DOF (roll, pitch) and per release direction plus
+    ``combined``, the extinction curve (``phi_m``, ``dphi`` [rad]), coefficients ``a``, ``b`` with
+    covariance, ``B1`` [kg m^2/s], ``B2`` [kg m^2], ``B_eq`` at ``amplitude`` [rad], ``wn`` [rad/s], and
+    the effective inertia ``C / wn^2`` beside the config's ``inertia_config`` [kg m^2]; the direction
+    consistency p-value and message. Empty without free decays.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
+    """
+    analyses = getattr(fits, "decay_analyses", None) or {}
+    if not analyses:
+        return {}
+    out = {}
+    for dof, a in analyses.items():
+        curves = {}
+        for k, c in a.curves.items():
+            curves[k] = {"n_decays": c.n_decays, "phi_m": [_num(x) for x in c.phi_m], "dphi": [_num(x) for x in c.dphi],
+                         "a": _num(c.a), "b": _num(c.b), "cov_ab": _square(c.cov_ab),
+                         "a_linear": _num(c.a_linear), "a_linear_stderr": _num(c.a_linear_se),
+                         "wn": _num(c.wn), "wn_stderr": _num(c.wn_se), "B1": _num(c.B1), "B1_stderr": _num(c.B1_se),
+                         "B2": _num(c.B2), "B2_stderr": _num(c.B2_se), "B_eq": _num(c.B_eq),
+                         "B_eq_stderr": _num(c.B_eq_se), "amplitude": _num(c.amplitude),
+                         "inertia_fit": _num(c.inertia_fit), "inertia_fit_stderr": _num(c.inertia_fit_se)}
+        out[dof] = {"curves": curves, "inertia_config": _num(a.inertia_config), "restoring": _num(a.restoring),
+                    "consistency_p": _num(a.consistency_p), "message": a.message}
+    return {"decay_analysis": out}
 
 
 def _damping_fit_dict(fit) -> dict[str, Any]:
