@@ -245,7 +245,24 @@ def _pad(arrays: Sequence[np.ndarray], n: int, fill: float = np.nan) -> np.ndarr
 
 # --------------------------------------------------------------------------- problem
 class JointProblem:
-    """The stacked joint problem of one DOF (built by :func:`problem`): shared parameters, per-record initial states, weighted residuals."""
+    """The stacked joint problem of one DOF (built by :func:`problem`): shared parameters,
+    per-record initial states, noise-weighted residuals.
+
+    Parameters
+    ----------
+    records : Sequence[DofRecord]
+        The DOF's records.
+    dof : str
+        DOF name.
+    dt : float
+        Sample interval [s].
+    mass : float
+        ``M_ii`` [kg or kg m^2] (NaN: force gains fitted).
+    quadratic : bool
+        Include ``b``.
+    steady : Sequence[SteadyPoint]
+        Steady force-speed points.
+    """
 
     def __init__(self, records: Sequence[DofRecord], dof: str, dt: float, mass: float, quadratic: bool,
                  steady: Sequence[SteadyPoint] = ()) -> None:
@@ -274,17 +291,38 @@ class JointProblem:
         self.mask = np.isfinite(self.Y)
 
     def split(self, theta: np.ndarray) -> tuple[dict, np.ndarray]:
+        """Shared parameters by name and the per-record locals (records x locals).
+
+        Parameters
+        ----------
+        theta : numpy.ndarray
+            Shared then per-record parameters.
+        """
         g = dict(zip(self.names, theta[: len(self.names)]))
         loc = theta[len(self.names):].reshape(len(self.records), self.n_loc)
         return g, loc
 
     def force(self, g: dict) -> np.ndarray:
+        """Force over inertia per record and sample [m/s^2 or rad/s^2].
+
+        Parameters
+        ----------
+        g : dict
+            Shared parameters by name (the free input gains).
+        """
         f = np.zeros((len(self.records), self.n_len))
         for c, u in self.U.items():
             f += (self.fixed_gain[c] if c in self.fixed_gain else g[f"g_{c}"]) * u
         return f
 
     def simulate(self, theta: np.ndarray) -> np.ndarray:
+        """Model output per record and sample (padding included) [SI of the output].
+
+        Parameters
+        ----------
+        theta : numpy.ndarray
+            Shared then per-record parameters.
+        """
         g, loc = self.split(theta)
         a, b, c = g["a"], g.get("b", 0.0), g.get("c", 0.0)
         f = self.force(g)
@@ -296,11 +334,26 @@ class JointProblem:
         return np.where(self.angle[:, None], x[:, :, 1], x[:, :, 0])
 
     def substeps(self, a: float, c: float) -> int:
-        """RK4 steps per sample: ``h`` times the fastest rate (a, sqrt(c)) at most 0.2 (error < 1e-6)."""
+        """RK4 steps per sample: ``h`` times the fastest rate (a, sqrt(c)) at most 0.2 (error < 1e-6).
+
+        Parameters
+        ----------
+        a : float
+            Linear damping over inertia [1/s].
+        c : float
+            Restoring over inertia [1/s^2].
+        """
         rate = max(abs(a), math.sqrt(abs(c)), 1e-12)
         return int(min(max(math.ceil(self.dt * rate / 0.2), 1), 50))
 
     def steady_rows(self, theta: np.ndarray) -> np.ndarray:
+        """Weighted residuals of the steady-state points (empty without them) [-].
+
+        Parameters
+        ----------
+        theta : numpy.ndarray
+            Shared then per-record parameters.
+        """
         if not self.steady:
             return np.zeros(0)
         g, _ = self.split(theta)
@@ -314,17 +367,45 @@ class JointProblem:
         return (gain * tau - a * u - b * np.abs(u) * u) / np.maximum(sd, 1e-12)
 
     def residual_matrix(self, theta: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Noise-weighted residuals (records x samples), zero outside ``mask`` [-].
+
+        Parameters
+        ----------
+        theta : numpy.ndarray
+            Shared then per-record parameters.
+        mask : numpy.ndarray
+            Samples that count.
+        """
         yhat = self.simulate(theta)
         r = (self.Y - yhat) * self.W
         r = np.where(np.isfinite(r), r, _DIVERGED)
         return np.where(mask, r, 0.0)
 
     def residuals(self, theta: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """The least-squares residual vector: masked samples, then steady-state rows [-].
+
+        Parameters
+        ----------
+        theta : numpy.ndarray
+            Shared then per-record parameters.
+        mask : numpy.ndarray
+            Samples that count.
+        """
         return np.concatenate([self.residual_matrix(theta, mask)[mask], self.steady_rows(theta)])
 
     def jacobian(self, theta: np.ndarray, mask: np.ndarray, free_locals: np.ndarray) -> np.ndarray:
         """Forward differences: one simulation per shared parameter, one per local-parameter type
-        (every record's local perturbed at once: a record's output depends only on its own)."""
+        (every record's local perturbed at once: a record's output depends only on its own).
+
+        Parameters
+        ----------
+        theta : numpy.ndarray
+            Shared then per-record parameters.
+        mask : numpy.ndarray
+            Samples that count.
+        free_locals : numpy.ndarray
+            Records x locals: which locals get a column (others stay zero).
+        """
         r0 = self.residual_matrix(theta, mask)
         s0 = self.steady_rows(theta)
         ng, k = len(self.names), len(self.records)
