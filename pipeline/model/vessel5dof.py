@@ -54,8 +54,11 @@ class Vessel5DofParams:
         object.__setattr__(self, "Minv", np.linalg.inv(np.asarray(self.M, float)))
 
 
-def params_from_vessel(vessel: Vessel, D: np.ndarray | None = None) -> Vessel5DofParams:
-    """Model parameters from a vessel config (its [damping] section unless ``D`` is given).
+def params_from_vessel(vessel: Vessel, D: np.ndarray | None = None, D2: np.ndarray | None = None) -> Vessel5DofParams:
+    """Model parameters from a vessel config (its [damping] section unless ``D`` / ``D2`` are given).
+
+    An identified model runs in the simulator by passing the fit's damping matrix and quadratic
+    damping (``coefficients.json`` ``damping_matrix`` and ``quadratic_damping``) here.
 
     Parameters
     ----------
@@ -63,6 +66,8 @@ def params_from_vessel(vessel: Vessel, D: np.ndarray | None = None) -> Vessel5Do
         Config with rigid-body data.
     D : numpy.ndarray, optional
         Damping to use instead of the config's [SI].
+    D2 : numpy.ndarray, optional
+        |x|x damping per DOF (u v p q r) to use instead of the config's [SI].
     """
     from ..errors import ConfigError
 
@@ -70,6 +75,8 @@ def params_from_vessel(vessel: Vessel, D: np.ndarray | None = None) -> Vessel5Do
     if damping is None:
         raise ConfigError(f"{vessel.name}: expected a [damping] matrix or diagonal to simulate, found none")
     d2 = vessel.quadratic_damping if vessel.quadratic_damping is not None else np.zeros(5)
+    if D2 is not None:
+        d2 = np.nan_to_num(np.asarray(D2, float))
     return Vessel5DofParams(M=vessel.mass_matrix(), D=damping, G=vessel.restoring_matrix(), D2=d2)
 
 
