@@ -100,8 +100,8 @@ def select_structure(records, dof: str, dt: float, mass: float, model: str = "au
     mass : float
         ``M_ii`` from the vessel config [kg or kg m^2] (NaN: no Fossen derivatives).
     model : str
-        ``auto`` (held-out choice), ``linear`` or ``quadratic`` (forced; both are still fitted and
-        scored so the report can show the other).
+        ``auto`` (held-out choice), ``linear`` (only the linear structure is fitted) or
+        ``quadratic`` (forced; both are fitted and scored so the report shows the other).
     steady : Sequence[SteadyPoint]
         Steady force-speed points fitted with the transients.
 

@@ -293,11 +293,13 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = T
         Nomoto K and T but no damping matrix.
     extend : bool
         Add the joint grey-box results (coupled damping, added mass, identifiability, residual
-        tests) with :func:`pipeline.fit.extend.extend_fits`; False gives the single-DOF fits only.
+        tests) with :func:`pipeline.fit.extend.extend_fits` and the damping structure per DOF; False
+        gives the single-DOF fits only.
     model : str
-        Damping structure per DOF (:func:`pipeline.fit.structure.apply_structures`): ``auto`` (linear
-        or linear + quadratic, chosen by held-out error), ``linear`` (linear only; the quadratic
-        model is still fitted and shown) or ``none`` (no joint structure fits).
+        Damping structure per DOF (:func:`pipeline.fit.structure.apply_structures`, with ``extend``):
+        ``auto`` (linear or linear + quadratic, chosen by held-out error), ``linear`` (linear only,
+        as before structure selection existed), ``quadratic`` (forced) or ``none`` (no joint
+        structure fits).
 
     Returns
     -------
@@ -322,7 +324,7 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = T
         from .extend import extend_fits
 
         fits = extend_fits(single_dof, trial, segments, vessel)
-    if model == "none":
+    if not extend or model == "none":
         return fits
     from .structure import apply_structures
 
