@@ -213,9 +213,10 @@ def markdown(summary: dict, otter: list, cmd: str, seconds: float) -> str:
                      f"{s[f'{quad} within 3 SE']:.0%} / {s[f'{quad} CI95 coverage']:.0%} | "
                      f"{s['median held-out RMS ratio quadratic/linear']:.3f} |")
     if otter:
-        lines += ["", "Independent truth: PythonVehicleSimulator Otter coast-downs (PVS main loop, 100 Hz Euler, "
-                  "logged at 20 Hz + white noise); truth from the Otter's own D, its 10 D_r |r| r term and "
-                  "`crossFlowDrag` at r = 1.", "",
+        lines += ["", "Independent truth: PythonVehicleSimulator Otter coast-downs (PVS's own dynamics and "
+                  "kinematics stepped as its main loop does, 100 Hz Euler, after 30 s at rest; logged at 20 Hz + "
+                  "white noise, relative to the drift the payload trim causes); truth from the Otter's own D, its "
+                  "10 D_r |r| r term and `crossFlowDrag` at r = 1.", "",
                   "| DOF | truth structure | n | quadratic selected | term | median value | truth | within 3 SE | "
                   "CI95 coverage |", "|---|---|---|---|---|---|---|---|---|"]
         for dof in ("surge", "yaw"):
