@@ -107,3 +107,13 @@ def test_fits_and_coefficients_json_carry_every_term():
     assert corr.shape == (2, 2) and np.allclose(np.diag(corr), 1.0)
     assert data["quadratic_damping"]["values"][0] == pytest.approx(-out.estimates["X_|u|u"].value)
     assert data["covariance"]["names"] == ["X_u", "X_|u|u"]
+
+
+def test_cli_model_flag_is_parsed_and_checked(capsys):
+    from pipeline.cli import build_parser
+
+    args = build_parser().parse_args(["fit", "--vessel", "v.toml", "log.csv", "--json", "o.json", "--model", "linear"])
+    assert args.model == "linear"
+    with pytest.raises(SystemExit) as exc:
+        build_parser().parse_args(["fit", "--vessel", "v.toml", "log.csv", "--json", "o.json", "--model", "cubic"])
+    assert exc.value.code == 2 and "invalid choice" in capsys.readouterr().err
