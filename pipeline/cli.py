@@ -13,7 +13,9 @@ from typing import Sequence
 
 from . import __version__
 from .autopilot.cli import add_autopilot_parser, add_waves_parser
+from .catalog.cli import add_batch_parser, add_catalog_parser
 from .diagnose.cli import add_diagnose_parser
+from .export.cli import add_export_parser
 from .errors import VesselidError
 
 EXIT_BAD_INPUT = 2
@@ -211,7 +213,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
         require_plotly()
     vessel = _vessel(args.vessel)
     segments = segments_from_json(args.segments) if args.segments else None
-    result = run_flow(args.logs, vessel, None, fs=args.fs, segments=segments, stop_after="fit")
+    result = run_flow(args.logs, vessel, None, fs=args.fs, segments=segments, stop_after="fit",
+                      model=args.model)
     fits = result.fits
     write_json(fits_to_dict(fits), args.json)
     if args.review:
@@ -362,6 +365,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", required=True, metavar="OUT.json", help="coefficients JSON to write")
     p.add_argument("--review", metavar="HTML", help="interactive segment review with each fit's fit %% "
                                                     "(needs plotly: pip install 'vesselid[review]')")
+    p.add_argument("--model", default="auto", choices=["auto", "linear", "quadratic"],
+                   help="damping structure per DOF: chosen by held-out error (auto), or forced")
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("report", help="ingest, segment, fit and write the report folder")
@@ -375,13 +380,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_autopilot_parser(sub)
     add_diagnose_parser(sub)
 
-    try:
-        from .catalog.cli import add_batch_parser, add_catalog_parser
-    except ImportError:  # duckdb / dask not installed
-        pass
-    else:
-        add_batch_parser(sub)
-        add_catalog_parser(sub)
+    add_export_parser(sub)
+    add_batch_parser(sub)
+    add_catalog_parser(sub)
 
     p = sub.add_parser("simulate", help="simulate a sea trial of a vessel and write it as a log file")
     p.add_argument("--vessel", required=True, metavar="VESSEL.toml", help="vessel config with [damping] or [nomoto]")

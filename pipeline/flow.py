@@ -265,7 +265,7 @@ def write_json(obj: Any, path: str | Path) -> Path:
 
 
 # --------------------------------------------------------------------------- fit, autopilot, diagnose
-def fit_segments(trial: Trial, segments: Segments, vessel: Vessel) -> Fits:
+def fit_segments(trial: Trial, segments: Segments, vessel: Vessel, model: str = "auto") -> Fits:
     """Fit every segment and combine them into coefficients (fit stage).
 
     Parameters
@@ -276,10 +276,13 @@ def fit_segments(trial: Trial, segments: Segments, vessel: Vessel) -> Fits:
         Its segments (detected, from a manifest, or from ``segments.json``).
     vessel : Vessel
         Mass, inertia, added mass and restoring.
+    model : str
+        Damping structure per DOF: ``auto`` (chosen by held-out error), ``linear`` or ``quadratic``
+        (see :func:`pipeline.fit.fit_trial`).
     """
     from .fit import fit_trial
 
-    return fit_trial(trial, segments, vessel)
+    return fit_trial(trial, segments, vessel, model=model)
 
 
 #: Keys a manifest's ``[autopilot]`` table may hold.
@@ -432,7 +435,7 @@ def run_flow(logs: Sequence[str | Path], vessel: Vessel, out: str | Path | None 
              autopilot_options: Mapping[str, Any] | None = None, provenance: Provenance | None = None,
              stop_after: str = "report", trial: Trial | None = None,
              runs: Sequence[Sequence[str | Path]] | None = None, run_names: Sequence[str] | None = None,
-             input_kinds: Mapping[str, str] | None = None) -> FlowResult:
+             input_kinds: Mapping[str, str] | None = None, model: str = "auto") -> FlowResult:
     """Every stage, in flow order: ingest -> align -> segment -> fit -> autopilot -> diagnose -> report.
 
     Parameters
@@ -461,6 +464,8 @@ def run_flow(logs: Sequence[str | Path], vessel: Vessel, out: str | Path | None 
     runs, run_names, input_kinds
         Stated runs, their names and input kinds (a manifest's ``[[runs]]`` and ``[inputs]``;
         see :func:`load_trial`).
+    model : str
+        Damping structure per DOF (see :func:`fit_segments`).
 
     Returns
     -------
@@ -472,11 +477,11 @@ def run_flow(logs: Sequence[str | Path], vessel: Vessel, out: str | Path | None 
     with progress(len(steps), "vesselid") as bar:
         load = dict(name=name, fs=fs, columns=columns, units=units, runs=runs, run_names=run_names,
                     input_kinds=input_kinds)
-        return _run_steps(bar, steps, logs, vessel, out, load, manual_segments,
+        return _run_steps(bar, steps, logs, vessel, out, load, model, manual_segments,
                           segments_mode, segments, autopilot_options, provenance, stop_after, trial)
 
 
-def _run_steps(bar, steps, logs, vessel, out, load, manual_segments, segments_mode,
+def _run_steps(bar, steps, logs, vessel, out, load, model, manual_segments, segments_mode,
                segments, autopilot_options, provenance, stop_after, trial) -> FlowResult:
     """The body of :func:`run_flow`, one progress step per stage (parameters as there)."""
     def step(label: str, fn: Callable[[], Any]) -> Any:
@@ -493,7 +498,7 @@ def _run_steps(bar, steps, logs, vessel, out, load, manual_segments, segments_mo
         segments = step(steps[1], lambda: segment_trial(trial, manual_segments, segments_mode))
     else:
         bar.update()
-    fits = step(steps[2], lambda: fit_segments(trial, segments, vessel))
+    fits = step(steps[2], lambda: fit_segments(trial, segments, vessel, model))
     if stop_after == "fit":
         return FlowResult(trial, segments, fits)
     skipped: dict[str, str] = {}

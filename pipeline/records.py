@@ -509,6 +509,196 @@ class Estimate:
 
 
 @dataclass(frozen=True)
+class DampingFit:
+    """The joint fit of one DOF with one damping structure (:mod:`pipeline.fit.quadratic`).
+
+    Attributes
+    ----------
+    dof, structure : str
+        DOF name and ``linear`` or ``quadratic``.
+    names : tuple[str, ...]
+        Shared parameters (``a``, ``b``, ``c``, ``g_<input>``), in covariance order.
+    values, stderr : numpy.ndarray
+        Their estimates and standard errors.
+    covariance : numpy.ndarray
+        Covariance of the shared parameters (the per-segment initial states profiled out).
+    terms : dict
+        Fossen derivative -> (value, stderr, unit), e.g. ``X_u``, ``X_|u|u`` (empty without a mass).
+    term_covariance : numpy.ndarray
+        Covariance of ``terms`` in their order [products of their units].
+    rmse : float
+        RMS of the noise-weighted residuals [-] (1 when only white sensor noise is left).
+    lag1 : float
+        Lag-1 autocorrelation of the residuals.
+    n, dof_resid : int
+        Residual rows and degrees of freedom.
+    y_fit : tuple[numpy.ndarray, ...]
+        Model output per record (for figures).
+    success : bool
+        Solver converged and the covariance is finite.
+    message : str
+        Solver status and notes.
+    initial_states : numpy.ndarray
+        Fitted per-segment initial states, flattened (segment-major).
+    inertia : float
+        ``M_ii`` the force inputs were divided by (vessel config) [kg or kg m^2]; NaN when unknown.
+    """
+
+    dof: str
+    structure: str
+    names: tuple[str, ...]
+    values: np.ndarray
+    stderr: np.ndarray
+    covariance: np.ndarray
+    terms: dict
+    term_covariance: np.ndarray
+    rmse: float
+    lag1: float
+    n: int
+    dof_resid: int
+    y_fit: tuple = ()
+    success: bool = True
+    message: str = ""
+    initial_states: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    inertia: float = math.nan
+
+    def param(self, name: str) -> float:
+        """Value of shared parameter ``name`` (NaN when the structure lacks it).
+
+        Parameters
+        ----------
+        name : str
+            ``a``, ``b``, ``c`` or ``g_<input>``.
+        """
+        return float(self.values[self.names.index(name)]) if name in self.names else math.nan
+
+
+@dataclass(frozen=True)
+class StructureChoice:
+    """Which damping structure the data chose for one DOF, and by how much (:mod:`pipeline.fit.structure`).
+
+    Attributes
+    ----------
+    dof : str
+        DOF name.
+    selected : str
+        ``linear`` or ``quadratic``.
+    fits : Mapping[str, DampingFit]
+        Each structure fitted to all of the DOF's segments (the loser is kept for the report).
+    heldout_rmse : Mapping[str, float]
+        Held-out RMS simulation error per structure [SI unit of the output channel].
+    p_value, p_robust : float
+        Held-out F test of the quadratic term (Bonferroni-corrected; with the most favourable fold
+        left out), :mod:`pipeline.fit.heldout_test`.
+    shrink : float
+        Held-out gap reduction of the quadratic structure [%].
+    explained : float
+        Scale-normalised RMS error the quadratic term explains [-].
+    significant : bool
+        The shared significance rule's verdict.
+    folds : str
+        How the data were split (leave-one-segment-out or time quarters).
+    requested : str
+        ``auto`` (held-out choice) or the structure the user forced (``--model linear``).
+    message : str
+        Why the choice was made, or why no choice was possible.
+    """
+
+    dof: str
+    selected: str
+    fits: Mapping[str, DampingFit]
+    heldout_rmse: Mapping[str, float]
+    p_value: float
+    p_robust: float
+    shrink: float
+    explained: float
+    significant: bool
+    folds: str
+    requested: str = "auto"
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class Extinction:
+    """One extinction-curve fit (one direction or pooled), :mod:`pipeline.fit.decay_analysis`.
+
+    Attributes
+    ----------
+    label : str
+        ``port down``, ``starboard down``, ``bow up``, ``bow down`` or ``combined``.
+    phi_m, dphi : numpy.ndarray
+        Mean amplitudes and decrements per half cycle [rad].
+    a, b : float
+        Extinction coefficients [-], [1/rad] (``b`` NaN for too few points).
+    cov_ab : numpy.ndarray
+        Their covariance.
+    a_linear, a_linear_se : float
+        Linear-only fit ``dphi = a phi_m`` [-].
+    wn, wn_se : float
+        Natural frequency and standard error [rad/s].
+    B1, B1_se, B2, B2_se : float
+        Linear [kg m^2/s] and quadratic [kg m^2] damping.
+    B_eq, B_eq_se : float
+        Equivalent linear damping at ``amplitude`` [kg m^2/s].
+    amplitude : float
+        Stated amplitude [rad].
+    inertia_fit, inertia_fit_se : float
+        ``C / wn^2`` [kg m^2] (NaN without restoring).
+    n_decays : int
+        Decays pooled.
+    """
+
+    label: str
+    phi_m: np.ndarray
+    dphi: np.ndarray
+    a: float
+    b: float
+    cov_ab: np.ndarray
+    a_linear: float
+    a_linear_se: float
+    wn: float
+    wn_se: float
+    B1: float
+    B1_se: float
+    B2: float
+    B2_se: float
+    B_eq: float
+    B_eq_se: float
+    amplitude: float
+    inertia_fit: float
+    inertia_fit_se: float
+    n_decays: int
+
+
+@dataclass(frozen=True)
+class DecayAnalysis:
+    """Extinction analysis of one DOF's free decays.
+
+    Attributes
+    ----------
+    dof : str
+        ``roll`` or ``pitch``.
+    curves : Mapping[str, Extinction]
+        Per direction and ``combined``.
+    inertia_config : float
+        ``M_ii`` of the vessel config [kg m^2] (NaN when not given).
+    restoring : float
+        ``C`` [N m/rad] (NaN when not given).
+    consistency_p : float
+        Wald test p-value that the directions share ``(a, b)`` (NaN with one direction).
+    message : str
+        Verdict and notes.
+    """
+
+    dof: str
+    curves: Mapping[str, Extinction] = field(default_factory=dict)
+    inertia_config: float = math.nan
+    restoring: float = math.nan
+    consistency_p: float = math.nan
+    message: str = ""
+
+
+@dataclass(frozen=True)
 class Fits:
     """Everything the fit stage identified for one vessel.
 
@@ -525,6 +715,11 @@ class Fits:
         identified.
     convention : str
         Sign convention stated in every table.
+    structures : Mapping[str, StructureChoice]
+        Per DOF, the damping structure the held-out test chose and both fits (empty when the
+        structure selection did not run).
+    decay_analyses : Mapping[str, DecayAnalysis]
+        Roll and pitch extinction analyses (empty when there are no free decays).
     """
 
     vessel: str
@@ -536,6 +731,8 @@ class Fits:
         "M nu_dot + D nu = tau with D positive definite; hydrodynamic derivatives follow Fossen "
         "(X_u = -D[0,0] < 0); DOF order u, v, p, q, r; Nomoto psi/delta = K/(s(Ts+1))."
     )
+    structures: Mapping[str, StructureChoice] = field(default_factory=dict)
+    decay_analyses: Mapping[str, DecayAnalysis] = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------- report

@@ -24,7 +24,8 @@ noise levels and seeds) give a verdict other than null in at most 5% of trials. 
     .venv/bin/python benchmarks/diagnose.py --calibrate
 
 which prints, for the clean trials, the largest ``-log10 p`` and shrink of any candidate per trial
-and the false-positive rate at the constants below.
+and the false-positive rate at the constants (defined in :mod:`pipeline.fit.heldout_test`, which
+holds the rule so that model-structure selection in the fit stage uses the same one).
 """
 
 from __future__ import annotations
@@ -33,52 +34,10 @@ from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
-import scipy.stats
 
+from ..fit.heldout_test import (ALPHA, ALPHA_ROBUST, MIN_EXPLAINED, MIN_SHRINK,  # noqa: F401 (re-exported)
+                                ChannelScore, channel_score, is_significant, lag1)
 from .models import GridData
-
-#: Family-wise p-value threshold per candidate and DOF (calibrated, see module docstring).
-ALPHA = 1e-4
-#: p-value threshold once the candidate's most favourable fold is left out (robustness).
-ALPHA_ROBUST = 1e-3
-#: Smallest held-out shrink [%] of the DOF gap for a candidate to count (calibrated).
-MIN_SHRINK = 10.0
-#: Smallest normalised RMS error the effect must explain [-] (0.3% of the channel's scale).
-MIN_EXPLAINED = 0.003
-
-
-@dataclass(frozen=True)
-class ChannelScore:
-    """Held-out comparison of one output channel.
-
-    Attributes
-    ----------
-    channel : str
-        Channel name.
-    n : int
-        Held-out samples.
-    gap_before, gap_after : float
-        Held-out RMS simulation error in units of the channel's white-noise level at the analysis
-        step, baseline and candidate [-] (1 = only sensor noise left).
-    explained : float
-        ``sqrt(e0^2 - e1^2)`` of the RMS errors over the channel's scale [-] (negative when worse).
-    rho : float
-        Lag-1 autocorrelation of the candidate's held-out residual [-].
-    n_eff : float
-        Effective number of independent samples.
-    f_stat, p_value : float
-        F statistic and its p-value (NaN when it cannot be computed).
-    """
-
-    channel: str
-    n: int
-    gap_before: float
-    gap_after: float
-    explained: float
-    rho: float
-    n_eff: float
-    f_stat: float
-    p_value: float
 
 
 @dataclass(frozen=True)
@@ -148,58 +107,6 @@ def noise_units(data: GridData) -> dict[str, float]:
     return {k: (v if np.isfinite(v) and v > 0 else float("nan")) for k, v in out.items()}
 
 
-def lag1(resid: np.ndarray) -> float:
-    """Lag-1 autocorrelation of residual rows, pooled within windows [-].
-
-    Parameters
-    ----------
-    resid : numpy.ndarray
-        Residual rows (W, n), NaN outside windows.
-    """
-    a, b = resid[:, :-1], resid[:, 1:]
-    ok = np.isfinite(a) & np.isfinite(b)
-    den = np.nansum(np.where(np.isfinite(resid), resid**2, 0.0))
-    if den <= 0:
-        return 0.0
-    return float(np.sum(np.where(ok, a * b, 0.0)) / den)
-
-
-def channel_score(name: str, e0: np.ndarray, e1: np.ndarray, p: int, n_windows: int, noise: float) -> ChannelScore:
-    """Held-out F test of one channel.
-
-    Parameters
-    ----------
-    name : str
-        Channel name.
-    e0, e1 : numpy.ndarray
-        Scale-weighted residual rows of the baseline and of the candidate.
-    p : int
-        Parameters the candidate adds.
-    n_windows : int
-        Windows (the least number of independent samples).
-    noise : float
-        Noise level in the residuals' units (NaN: gaps stay scale-normalised).
-    """
-    ok = np.isfinite(e0) & np.isfinite(e1)
-    n = int(ok.sum())
-    if n == 0:
-        return ChannelScore(name, 0, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan)
-    sse0 = float(np.sum(e0[ok] ** 2))
-    sse1 = float(np.sum(e1[ok] ** 2))
-    rho = float(np.clip(lag1(np.where(ok, e1, np.nan)), 0.0, 0.999))
-    n_eff = float(np.clip(n * (1 - rho) / (1 + rho), max(n_windows, p + 2), n))
-    r0, r1 = np.sqrt(sse0 / n), np.sqrt(sse1 / n)
-    # Without a usable noise estimate the scale-normalised error stands in for the gap.
-    unit = noise if np.isfinite(noise) and noise > 0 else 1.0
-    diff = r0**2 - r1**2
-    explained = float(np.sign(diff) * np.sqrt(abs(diff)))
-    if sse1 <= 0 or n_eff <= p + 1:
-        return ChannelScore(name, n, r0 / unit, r1 / unit, explained, rho, n_eff, np.nan, np.nan)
-    f = ((sse0 - sse1) / p) / (sse1 / (n_eff - p))
-    pv = float(scipy.stats.f.sf(f, p, n_eff - p)) if f > 0 else 1.0
-    return ChannelScore(name, n, r0 / unit, r1 / unit, explained, rho, n_eff, float(f), pv)
-
-
 def _pvalue(chans: tuple[ChannelScore, ...]) -> float:
     pvals = np.array([c.p_value for c in chans], float)
     return float(min(np.nanmin(pvals) * len(chans), 1.0)) if np.isfinite(pvals).any() else 1.0
@@ -252,6 +159,5 @@ def score(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str, np.
                                    np.where(keep[:, None], r1[k], np.nan), max(p, 1), int(keep.sum()), noise[k])
                      for k in keys)
         p_rob = _pvalue(rest)
-    robust = not (p_rob >= ALPHA_ROBUST)  # NaN (one fold) passes
-    sig = bool(pv < ALPHA and robust and shrink >= MIN_SHRINK and explained >= MIN_EXPLAINED)
+    sig = is_significant(pv, p_rob, shrink, explained)
     return Score(gb, ga, float(shrink), pv, sig, chans, float(np.nansum(g0**2 - g1**2)), explained, p_rob)

@@ -261,7 +261,7 @@ def _damping_matrix(estimates: Mapping[str, Estimate]) -> tuple[np.ndarray, np.n
     return d, se
 
 
-def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = True) -> Fits:
+def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = True, model: str = "auto") -> Fits:
     """Fit every segment of a trial and combine the results into coefficients.
 
     Per segment kind (Fossen 2021 for the damping; Nomoto et al. 1957 for the ship model):
@@ -293,7 +293,13 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = T
         Nomoto K and T but no damping matrix.
     extend : bool
         Add the joint grey-box results (coupled damping, added mass, identifiability, residual
-        tests) with :func:`pipeline.fit.extend.extend_fits`; False gives the single-DOF fits only.
+        tests) with :func:`pipeline.fit.extend.extend_fits` and the damping structure per DOF; False
+        gives the single-DOF fits only.
+    model : str
+        Damping structure per DOF (:func:`pipeline.fit.structure.apply_structures`, with ``extend``):
+        ``auto`` (linear or linear + quadratic, chosen by held-out error), ``linear`` (linear only,
+        as before structure selection existed), ``quadratic`` (forced) or ``none`` (no joint
+        structure fits).
 
     Returns
     -------
@@ -311,10 +317,15 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = T
     d, se = _damping_matrix(estimates)
     single_dof = Fits(vessel=vessel.name, estimates=estimates, segment_fits=tuple(fits), damping_matrix=d,
                       damping_stderr=se)
-    if not extend:
-        return single_dof
-    # The joint grey-box fit starts from the single-DOF diagonal and adds what the single-DOF
-    # models cannot give: coupled terms, added mass, identifiability and residual checks.
-    from .extend import extend_fits
+    fits = single_dof
+    if extend:
+        # The joint grey-box fit starts from the single-DOF diagonal and adds what the single-DOF
+        # models cannot give: coupled terms, added mass, identifiability and residual checks.
+        from .extend import extend_fits
 
-    return extend_fits(single_dof, trial, segments, vessel)
+        fits = extend_fits(single_dof, trial, segments, vessel)
+    if not extend or model == "none":
+        return fits
+    from .structure import apply_structures
+
+    return apply_structures(fits, trial, segments.items, vessel, model)

@@ -1,4 +1,4 @@
-"""Linear 5-DOF vessel model (u, v, p, q, r) with kinematics, after Fossen (2021, ch. 6-7).
+"""5-DOF vessel model (u, v, p, q, r) with linear and optional |x|x damping and kinematics (Fossen 2021, ch. 6-7).
 
     M nu_dot + D nu + D2 |nu| nu + G eta = tau          nu  = [u, v, p, q, r]
     x_n_dot = u cos psi - v sin psi + V_c,n             eta = [x_n, y_e, phi, theta, psi]
@@ -12,6 +12,7 @@ the vessel over ground. ``D2`` holds optional |x|x damping per DOF (zero for the
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -53,8 +54,11 @@ class Vessel5DofParams:
         object.__setattr__(self, "Minv", np.linalg.inv(np.asarray(self.M, float)))
 
 
-def params_from_vessel(vessel: Vessel, D: np.ndarray | None = None) -> Vessel5DofParams:
-    """Model parameters from a vessel config (its [damping] section unless ``D`` is given).
+def params_from_vessel(vessel: Vessel, D: np.ndarray | None = None, D2: np.ndarray | None = None) -> Vessel5DofParams:
+    """Model parameters from a vessel config (its [damping] section unless ``D`` / ``D2`` are given).
+
+    An identified model runs in the simulator by passing the fit's damping matrix and quadratic
+    damping (``coefficients.json`` ``damping_matrix`` and ``quadratic_damping``) here.
 
     Parameters
     ----------
@@ -62,6 +66,8 @@ def params_from_vessel(vessel: Vessel, D: np.ndarray | None = None) -> Vessel5Do
         Config with rigid-body data.
     D : numpy.ndarray, optional
         Damping to use instead of the config's [SI].
+    D2 : numpy.ndarray, optional
+        |x|x damping per DOF (u v p q r) to use instead of the config's [SI].
     """
     from ..errors import ConfigError
 
@@ -69,6 +75,8 @@ def params_from_vessel(vessel: Vessel, D: np.ndarray | None = None) -> Vessel5Do
     if damping is None:
         raise ConfigError(f"{vessel.name}: expected a [damping] matrix or diagonal to simulate, found none")
     d2 = vessel.quadratic_damping if vessel.quadratic_damping is not None else np.zeros(5)
+    if D2 is not None:
+        d2 = np.nan_to_num(np.asarray(D2, float))
     return Vessel5DofParams(M=vessel.mass_matrix(), D=damping, G=vessel.restoring_matrix(), D2=d2)
 
 
@@ -143,4 +151,112 @@ def _rhs_numeric(x, u, params: Vessel5DofParams) -> np.ndarray:
     out[7] = p + (q * sphi + r * cphi) * np.tan(theta)
     out[8] = q * cphi - r * sphi
     out[9] = (q * sphi + r * cphi) / np.cos(theta)
+    return out
+
+
+def dof_rhs(nu, eta, force, a, b, c=0.0):
+    """One DOF of :func:`vessel5dof_rhs` divided by its inertia (numpy arrays or casadi symbols).
+
+    ``M_ii nu_dot + D_ii nu + D2_i |nu| nu + G_ii eta = tau_i`` divided by ``M_ii``::
+
+        nu_dot  = -a nu - b |nu| nu - c eta + f      a = D_ii/M_ii, b = D2_i/M_ii, c = G_ii/M_ii, f = tau_i/M_ii
+        eta_dot = nu                                  (roll and pitch, small angles)
+
+    Parameters
+    ----------
+    nu : array_like or casadi.SX
+        Velocity [m/s or rad/s] (any shape, elementwise).
+    eta : array_like or casadi.SX or None
+        Angle about the restoring equilibrium [rad]; None for a first-order DOF (surge, sway, yaw).
+    force : array_like or casadi.SX
+        Generalised force over inertia ``f`` [m/s^2 or rad/s^2].
+    a : float
+        Linear damping over inertia [1/s].
+    b : float
+        Quadratic damping over inertia [1/m or 1/rad].
+    c : float
+        Restoring over inertia [1/s^2].
+
+    Returns
+    -------
+    tuple
+        ``(nu_dot, eta_dot)``; ``eta_dot`` is None for a first-order DOF.
+    """
+    o = ops(nu)
+    nu_dot = force - (a + b * o.fabs(nu)) * nu
+    if eta is None:
+        return nu_dot, None
+    return nu_dot - c * eta, nu
+
+
+@lru_cache(maxsize=32)
+def _dof_stepper(k: int, second: bool, substeps: int, n_steps: int):
+    """Casadi function ``(x0, F, P) -> X``: ``n_steps`` samples of RK4 on :func:`dof_rhs` for ``k`` records.
+
+    Compiled once per shape: the per-sample loop runs in casadi's virtual machine instead of the
+    Python interpreter (two orders of magnitude faster for the fits that simulate it hundreds of times).
+    """
+    import casadi as ca
+
+    nu = ca.SX.sym("nu", k)
+    eta = ca.SX.sym("eta", k) if second else None
+    f = ca.SX.sym("f", k)
+    prm = ca.SX.sym("p", 4)  # a, b, c, h
+    a, b, c, h = prm[0], prm[1], prm[2], prm[3]
+    x, e = nu, eta
+    for _ in range(substeps):
+        k1, l1 = dof_rhs(x, e, f, a, b, c)
+        k2, l2 = dof_rhs(x + 0.5 * h * k1, None if e is None else e + 0.5 * h * l1, f, a, b, c)
+        k3, l3 = dof_rhs(x + 0.5 * h * k2, None if e is None else e + 0.5 * h * l2, f, a, b, c)
+        k4, l4 = dof_rhs(x + h * k3, None if e is None else e + h * l3, f, a, b, c)
+        if e is not None:
+            e = e + (h / 6.0) * (l1 + 2 * l2 + 2 * l3 + l4)
+        x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    state = nu if eta is None else ca.vertcat(nu, eta)
+    nxt = x if eta is None else ca.vertcat(x, e)
+    step = ca.Function("dof_step", [state, f, prm], [nxt])
+    return step.mapaccum("dof_sim", n_steps).expand()
+
+
+def simulate_dof(x0: np.ndarray, force: np.ndarray, dt: float, a: float, b: float, c: float = 0.0,
+                 substeps: int = 2) -> np.ndarray:
+    """Integrate :func:`dof_rhs` for ``k`` records on a common uniform grid (RK4, force held per sample).
+
+    Parameters
+    ----------
+    x0 : numpy.ndarray, shape (k,) or (k, 2)
+        Initial ``nu`` (and, second column, ``eta``).
+    force : numpy.ndarray, shape (k, n)
+        Force over inertia per sample, held until the next sample (zero-order hold) [m/s^2 or rad/s^2].
+    dt : float
+        Sample interval [s].
+    a, b, c : float
+        See :func:`dof_rhs`.
+    substeps : int
+        RK4 steps per sample.
+
+    Returns
+    -------
+    numpy.ndarray, shape (k, n) or (k, n, 2)
+        States at the sample times (the first is ``x0``); non-finite once a record diverges.
+    """
+    x0 = np.asarray(x0, float)
+    k, n = force.shape
+    second = x0.ndim == 2
+    out = np.empty((k, n) + ((2,) if second else ()))
+    state0 = x0.T.ravel() if second else x0
+    if second:
+        out[:, 0, 0], out[:, 0, 1] = x0[:, 0], x0[:, 1]
+    else:
+        out[:, 0] = x0
+    if n < 2:
+        return out
+    sim = _dof_stepper(k, second, int(substeps), n - 1)
+    prm = np.tile(np.array([[a], [b], [c], [dt / substeps]]), (1, n - 1))
+    xs = np.asarray(sim(state0, np.asarray(force[:, : n - 1], float), prm))
+    if second:
+        out[:, 1:, 0] = xs[:k]
+        out[:, 1:, 1] = xs[k:]
+    else:
+        out[:, 1:] = xs
     return out

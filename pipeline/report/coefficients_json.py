@@ -10,7 +10,9 @@ Structure (every number in SI; ``null`` wherever a value is not identified, neve
                               "method", "success", "message", "consistency_p"},
                       ...,                             # all of DERIVATIVES, then
                       "K_nomoto": {...}, "T_nomoto": {...},
-                      ...}}                            # any further coefficients the fit returned
+                      ...},                            # any further coefficients the fit returned
+     "model_structure": {...}, "quadratic_damping": {...}, "covariance": {...},   # when structures were selected
+     "decay_analysis": {...}}                          # roll/pitch extinction curves, when free decays were fitted
 
 Derivatives carry Fossen's signs (``X_u = -D[0, 0] < 0``). A coefficient whose fit did not succeed
 has ``value``, ``stderr`` and both ``ci95`` bounds ``null``, ``success`` false and the reason in
@@ -118,7 +120,130 @@ def fits_to_dict(fits: Fits) -> dict[str, Any]:
         "damping_matrix": {"dofs": list(DOFS), "values": _matrix(D), "stderr": _matrix(D_se)},
         "coefficients": {name: estimate_to_dict(fits.estimates.get(name), name)
                          for name in ordered_names(fits.estimates)},
+        **model_structure_to_dict(fits),
+        **decay_analysis_to_dict(fits),
     }
+
+
+def decay_analysis_to_dict(fits: Fits) -> dict[str, Any]:
+    """Additive ``decay_analysis`` field: per DOF (roll, pitch) and per release direction plus
+    ``combined``, the extinction curve (``phi_m``, ``dphi`` [rad]), coefficients ``a``, ``b`` with
+    covariance, ``B1`` [kg m^2/s], ``B2`` [kg m^2], ``B_eq`` at ``amplitude`` [rad], ``wn`` [rad/s], and
+    the effective inertia ``C / wn^2`` beside the config's ``inertia_config`` [kg m^2]; the direction
+    consistency p-value and message. Empty without free decays.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
+    """
+    analyses = getattr(fits, "decay_analyses", None) or {}
+    if not analyses:
+        return {}
+    out = {}
+    for dof, a in analyses.items():
+        curves = {}
+        for k, c in a.curves.items():
+            curves[k] = {"n_decays": c.n_decays, "phi_m": [_num(x) for x in c.phi_m], "dphi": [_num(x) for x in c.dphi],
+                         "a": _num(c.a), "b": _num(c.b), "cov_ab": _square(c.cov_ab),
+                         "a_linear": _num(c.a_linear), "a_linear_stderr": _num(c.a_linear_se),
+                         "wn": _num(c.wn), "wn_stderr": _num(c.wn_se), "B1": _num(c.B1), "B1_stderr": _num(c.B1_se),
+                         "B2": _num(c.B2), "B2_stderr": _num(c.B2_se), "B_eq": _num(c.B_eq),
+                         "B_eq_stderr": _num(c.B_eq_se), "amplitude": _num(c.amplitude),
+                         "inertia_fit": _num(c.inertia_fit), "inertia_fit_stderr": _num(c.inertia_fit_se)}
+        out[dof] = {"curves": curves, "inertia_config": _num(a.inertia_config), "restoring": _num(a.restoring),
+                    "consistency_p": _num(a.consistency_p), "message": a.message}
+    return {"decay_analysis": out}
+
+
+def _damping_fit_dict(fit) -> dict[str, Any]:
+    """One structure's joint fit: its Fossen terms with value, stderr, 95% CI, unit, and covariance."""
+    from ..fit.least_squares import confidence_interval
+
+    names = list(fit.terms)
+    cov = np.asarray(fit.term_covariance, float)
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None)) if cov.size else np.zeros(0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd) if cov.size else cov
+    terms = {}
+    for n in names:
+        v, se, unit = fit.terms[n]
+        lo, hi = confidence_interval(v, se, fit.dof_resid)
+        terms[n] = {"value": _num(v), "stderr": _num(se), "ci95": [_num(lo), _num(hi)], "unit": unit}
+    return {"terms": terms, "covariance": {"names": names, "matrix": _square(cov)},
+            "correlation": {"names": names, "matrix": _square(corr)},
+            "parameters": {n: {"value": _num(v), "stderr": _num(e)}
+                           for n, v, e in zip(fit.names, fit.values, fit.stderr)},
+            "rmse_noise_units": _num(fit.rmse), "residual_lag1": _num(fit.lag1), "n_residuals": int(fit.n),
+            "inertia": _num(fit.inertia), "success": bool(fit.success), "message": fit.message}
+
+
+def _square(a: np.ndarray) -> list[list[float | None]]:
+    return [[_num(x) for x in row] for row in np.asarray(a, float)]
+
+
+def model_structure_to_dict(fits: Fits) -> dict[str, Any]:
+    """Additive ``coefficients.json`` fields of the damping-structure selection (empty without it).
+
+    ``model_structure``: per DOF the selected structure (``linear`` or ``quadratic``), the one
+    requested, both structures' joint fits (terms with value, stderr, ci95, unit; covariance and
+    correlation of the terms; shared parameters), their held-out RMS errors [SI unit of the output]
+    and the held-out test (p-value, robust p-value, gap shrink [%], significant); each fit also gives
+    the ``inertia`` M_ii [kg or kg m^2] it used. ``quadratic_damping``:
+    D2 per DOF (positive, ``D2 = -X_|u|u``) in DOF order u v p q r, null where the linear structure
+    was kept. ``covariance``: the selected damping terms of every DOF with their full covariance and
+    correlation matrix; terms of different DOFs come from disjoint segments and independent fits, so
+    their covariance is zero.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results (``fits.structures`` may be empty).
+
+    Returns
+    -------
+    dict
+        ``{}`` or the three keys above.
+    """
+    choices = getattr(fits, "structures", None) or {}
+    if not choices:
+        return {}
+    from ..fit.quadratic import TERM_NAMES
+
+    structure, names, blocks = {}, [], []
+    d2 = [None] * 5
+    d2_se = [None] * 5
+    for dof, ch in choices.items():
+        structure[dof] = {
+            "selected": ch.selected, "requested": ch.requested, "message": ch.message, "folds": ch.folds,
+            "heldout_rmse": {k: _num(v) for k, v in ch.heldout_rmse.items()},
+            "p_value": _num(ch.p_value), "p_robust": _num(ch.p_robust), "shrink_percent": _num(ch.shrink),
+            "explained": _num(ch.explained), "significant": bool(ch.significant),
+            "models": {k: _damping_fit_dict(f) for k, f in ch.fits.items()},
+        }
+        sel = ch.fits[ch.selected]
+        if sel.terms:
+            names += list(sel.terms)
+            blocks.append(np.asarray(sel.term_covariance, float))
+        quad = TERM_NAMES[dof][1]
+        if ch.selected == "quadratic" and quad in sel.terms:
+            i = list(DOFS).index({"surge": "u", "sway": "v", "roll": "p", "pitch": "q", "yaw": "r"}[dof])
+            d2[i] = _num(-sel.terms[quad][0])
+            d2_se[i] = _num(sel.terms[quad][1])
+    n = len(names)
+    cov = np.zeros((n, n))
+    k = 0
+    for b in blocks:
+        cov[k:k + b.shape[0], k:k + b.shape[0]] = b
+        k += b.shape[0]
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    return {"model_structure": structure,
+            "quadratic_damping": {"dofs": list(DOFS), "values": d2, "stderr": d2_se},
+            "covariance": {"names": names, "matrix": _square(cov), "correlation": _square(corr),
+                           "note": "selected damping terms of every DOF; terms of different DOFs come from "
+                                   "disjoint segments and independent fits (zero covariance)"}}
 
 
 def dumps(fits: Fits) -> str:
