@@ -18,7 +18,7 @@ from .damping import (damping_from_decay, damping_from_gain, damping_from_time_c
 from .data import gain_formulation, input_levels, segment_label
 from .first_order import fit_coast_down, fit_step, step_steadiness
 from .nomoto import fit_rudder_step
-from .nomoto_oe import WHOLE_RECORD_KINDS, fit_nomoto_segment
+from .nomoto_segment import WHOLE_RECORD_KINDS, fit_nomoto_segment
 from .second_order import fit_free_decay
 from .segment_fit import failed_segment_fit
 
@@ -274,7 +274,7 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = T
       ``K_p``/``M_q`` ``= -2 zeta wn I_eff``, ``wn_ratio_<dof>`` against the config's restoring.
     - ``rudder_step`` (yaw): first-order Nomoto -> ``K_nomoto``, ``T_nomoto``.
     - ``zigzag``, ``sinusoid`` (yaw, rudder input): whole-record Nomoto output-error or wave
-      prediction-error fit (:func:`pipeline.fit.nomoto_oe.fit_nomoto_segment`) -> ``K_nomoto``,
+      prediction-error fit (:func:`pipeline.fit.nomoto_segment.fit_nomoto_segment`) -> ``K_nomoto``,
       ``T_nomoto`` (combined with the rudder steps) and the rudder bias ``b_nomoto`` [rad].
 
     Repeated segments are combined by an inverse-variance weighted mean with a chi-square
