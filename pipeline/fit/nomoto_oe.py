@@ -84,7 +84,7 @@ __all__ = ["DYNAMIC_PARAMS", "MIN_SAMPLES", "NOISE_MODELS", "NOISE_PARAMS", "Nom
 def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, noise: str = "auto",
                waves: WaveParams | None = None, noise_var: float | None = None, bias: bool = True,
                channels: Sequence[str] | None = None, start: Mapping[str, float] | None = None,
-               max_nfev: int = 100) -> NomotoFit:
+               max_nfev: int = 100, servo: Sequence[str] = ()) -> NomotoFit:
     """Fit the Nomoto model to whole records by output error or prediction error.
 
     Parameters
@@ -93,7 +93,8 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
         One or more records of the same ship; K, T (T1..T3), b and the wave model are shared,
         the initial heading and yaw rate are per record.
     order : int
-        1 (K, T) or 2 (K, T1, T2, T3).
+        1 (K, T), 2 (K, T1, T2, T3) or 3 (the second order as K, T12 = T1 + T2, T1T2 = T1 T2, T3,
+        which also holds complex poles).
     noise : str
         ``"white"`` (OE), ``"waves"`` (PEM with the wave model) or ``"auto"`` (see module doc).
     waves : WaveParams, optional
@@ -111,6 +112,10 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
         Start values by parameter name (``K``, ``T``, ``T1``...), overriding the closed-form guess.
     max_nfev : int
         Maximum function evaluations per solver call.
+    servo : sequence of str
+        Rudder-servo parameters to estimate when ``delta`` is the logged *command*: ``t_servo``
+        (first-order lag [s]) and/or ``rate_servo`` (rate limit [rad/s]); the ship is then driven
+        by :func:`pipeline.model.nomoto.servo_response`. Empty: ``delta`` is the rudder angle.
 
     Returns
     -------
@@ -127,7 +132,7 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
     if not recs:
         raise FitError("fit_nomoto: expected at least one record, found none")
     if order not in DYNAMIC_PARAMS:
-        raise FitError(f"fit_nomoto: expected order 1 or 2, found {order!r}")
+        raise FitError(f"fit_nomoto: expected order 1, 2 or 3, found {order!r}")
     if noise not in NOISE_MODELS:
         raise FitError(f"fit_nomoto: expected noise in {NOISE_MODELS}, found {noise!r}")
     if channels is None:
@@ -148,7 +153,11 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
     # White-noise OE first: it starts the PEM, and it is the answer when the residuals are white.
     (K0, T0), b0, ics = first_order_start(preps, bias, channels)
     K0, T0, b0 = start.get("K", K0), start.get("T", T0), start.get("b", b0)
-    if order == 2:
+    if order == 3:
+        ics = [ic + [0.0] for ic in ics]
+        candidates = [[K0, start.get("T12", 1.2 * T0), start.get("T1T2", 0.2 * T0**2), start.get("T3", 0.2 * T0)],
+                      [K0, 2.0 * T0, 1.0 * T0**2, 1.0 * T0], [K0, 4.0 * T0, 4.0 * T0**2, 3.0 * T0]]
+    elif order == 2:
         ics = [ic + [0.0] for ic in ics]
         candidates = [[K0, start.get("T1", 1.1 * T0), start.get("T2", 0.1 * T0), start.get("T3", 0.2 * T0)],
                       [K0, T0, 0.05 * T0, 0.15 * T0], [K0, 1.5 * T0, 0.2 * T0, 0.7 * T0]]
@@ -156,8 +165,8 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
         candidates = [[K0, T0], [K0, 0.3 * T0], [K0, 3.0 * T0]]
     best = None
     for dyn in candidates:
-        prob = Problem(preps, order, bias, channels, "white", None, None)
-        res = reweighted_solve(prob, start_vector(prob, dyn, b0, ics, ()), max_nfev)
+        prob = Problem(preps, order, bias, channels, "white", None, None, servo)
+        res = reweighted_solve(prob, start_vector(prob, dyn, b0, ics, (), start), max_nfev)
         if best is None or res.cost < best[1].cost:
             best = (prob, res)
         # A first-order fit that converged inside the plausible ranges needs no other start; the
@@ -182,10 +191,18 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
     if waves is not None:
         omega0, lam = waves.omega0, waves.lam
         ratio = waves.kw / (math.sqrt(noise_var) if noise_var is not None else max(sv, 1e-12))
-    pem_prob = Problem(preps, order, bias, channels, "waves", waves, noise_var)
+    pem_prob = Problem(preps, order, bias, channels, "waves", waves, noise_var, servo)
     noise0 = [dict(zip(NOISE_PARAMS, (omega0, lam, ratio)))[nm] for nm in pem_prob.noise_free]
-    pem_res = reweighted_solve(pem_prob, start_vector(pem_prob, dyn, b, icl, noise0), max_nfev)
+    servo0 = {nm: float(theta[j]) for nm, j in zip(prob.servo, prob.servo_index)}
+    pem_res = reweighted_solve(pem_prob, start_vector(pem_prob, dyn, b, icl, noise0, servo0), max_nfev)
     pem = finish(pem_prob, pem_res, [])
+    if noise == "auto" and not pem.success and oe.success:
+        # The refinement failed (a wave parameter out of range, no covariance): the plain fit that
+        # worked is kept, and the message says why the noise model was not used.
+        why = ", ".join(pem.at_bound) + " out of range" if pem.at_bound else (
+            "solver did not converge" if not pem.converged else "covariance not computed")
+        return _timed(_with_message(oe, f"compass residuals coloured but the wave PEM failed ({why}): OE kept, "
+                                        f"its error bars assume white residuals"), t_start)
     if noise == "auto" and waves is None:
         if pem.bic >= oe.bic:
             return _timed(_with_message(oe, f"compass residuals coloured but the wave PEM does not lower the BIC "

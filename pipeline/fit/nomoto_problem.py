@@ -11,7 +11,8 @@ import numpy as np
 from scipy import optimize
 
 from ..errors import FitError
-from ..model.nomoto import NOMOTO_ORDER_PARAMS, nomoto2_coefficients, nomoto_matrices
+from ..model.nomoto import (NOMOTO_ORDER_PARAMS, nomoto2_coefficients, nomoto2_sum_product, nomoto_matrices,
+                            servo_response)
 from ..model.waves import WaveParams
 from .nomoto_pem import initial_state_response, innovation_filter, InnovationFilter, noise_from_ratio, whiten_profiled
 from .nomoto_records import NomotoFit, NomotoRecord
@@ -22,6 +23,8 @@ from .residual_tests import residual_test
 DYNAMIC_PARAMS: Mapping[int, tuple[str, ...]] = NOMOTO_ORDER_PARAMS
 #: Wave/noise parameters of the PEM (estimated on a log scale).
 NOISE_PARAMS = ("omega0", "lambda", "kw_ratio")
+#: Rudder-servo parameters (estimated on a log scale when only the command is logged).
+SERVO_PARAMS = ("t_servo", "rate_servo")
 NOISE_MODELS = ("auto", "white", "waves")
 #: Fewest samples a record must have.
 MIN_SAMPLES = 50
@@ -30,7 +33,7 @@ UNIFORM_TOLERANCE = 1e-3
 # The residual is linear in these (initial states, and the bias through the input delta - b).
 _LINEAR_KINDS = frozenset({"b", "psi0", "r0", "rdot0"})
 # Floors of the finite-difference steps per parameter kind (step = 1e-6 max(|x|, floor)).
-_FD_FLOOR = {"K": 1e-3, "T": 1.0, "T1": 1.0, "T2": 1.0, "T3": 1.0, "b": 1e-2, "psi0": 1e-2, "r0": 1e-3,
+_FD_FLOOR = {"K": 1e-3, "T": 1.0, "T12": 1.0, "T1T2": 1.0, "T1": 1.0, "T2": 1.0, "T3": 1.0, "b": 1e-2, "psi0": 1e-2, "r0": 1e-3,
              "rdot0": 1e-4, "log": 10.0}
 
 
@@ -116,8 +119,10 @@ class Problem:
     """Residuals of the OE/PEM criterion over several records, with caches for the FD Jacobian."""
 
     def __init__(self, recs: Sequence[Prepared], order: int, bias: bool, channels: tuple[str, ...],
-                 noise: str, fixed_waves: WaveParams | None, fixed_noise_var: float | None):
+                 noise: str, fixed_waves: WaveParams | None, fixed_noise_var: float | None,
+                 servo: Sequence[str] = ()):
         self.recs = recs
+        self.servo = tuple(servo)
         self.order = order
         self.bias = bias
         self.channels = channels
@@ -127,7 +132,7 @@ class Problem:
         dyn = list(DYNAMIC_PARAMS[order])
         self.names: list[str] = dyn + (["b"] if bias else [])
         self.kinds: list[str] = list(self.names)
-        self.ic_names = (["psi0"] if "psi" in channels else []) + ["r0"] + (["rdot0"] if order == 2 else [])
+        self.ic_names = (["psi0"] if "psi" in channels else []) + ["r0"] + (["rdot0"] if order != 1 else [])
         self.ic_index: list[list[int]] = []
         for i in range(len(recs)):
             idx = []
@@ -145,13 +150,47 @@ class Problem:
                 self.noise_index.append(len(self.names))
                 self.names.append(nm)
                 self.kinds.append("log")
+        # The rudder servo driven by a logged command: lag t_servo [s], rate limit rate_servo [rad/s].
+        self.servo_index: list[int] = []
+        for nm in self.servo:
+            if nm not in SERVO_PARAMS:
+                raise FitError(f"servo parameters: expected names among {SERVO_PARAMS}, found {nm!r}")
+            self.servo_index.append(len(self.names))
+            self.names.append(nm)
+            self.kinds.append("log")
         self.n_dyn = len(dyn)
         # Time constants and noise parameters are positive: the solver works on their logarithms.
-        self.log_mask = np.array([k in ("T", "T1", "T2", "T3", "log") for k in self.kinds])
+        self.log_mask = np.array([k in ("T", "T1", "T2", "T3", "T12", "T1T2", "log") for k in self.kinds])
         self.weights = {ch: 1.0 for ch in channels}
         self._sim_cache: dict = {}
         self._filt_cache: dict = {}
         self._phi_cache: dict = {}
+        self._servo_cache: dict = {}
+
+    def rudder(self, z: np.ndarray, i: int) -> np.ndarray:
+        """Rudder angle driving record ``i``: the logged one, or the servo's response to the logged
+        command (:func:`pipeline.model.nomoto.servo_response`) when servo parameters are estimated.
+
+        Parameters
+        ----------
+        z : numpy.ndarray
+            Solver vector.
+        i : int
+            Record index.
+        """
+        rec = self.recs[i]
+        if not self.servo:
+            return rec.u
+        x = self.natural(z)
+        vals = dict(zip(self.servo, (float(x[j]) for j in self.servo_index)))
+        key = (i, tuple(vals.values()))
+        out = self._servo_cache.get(key)
+        if out is None:
+            if len(self._servo_cache) > 64:
+                self._servo_cache.clear()
+            out = servo_response(rec.u, rec.h, vals.get("t_servo", 0.0), vals.get("rate_servo", math.inf))
+            self._servo_cache[key] = out
+        return out
 
     # -- pieces
     def natural(self, z: np.ndarray) -> np.ndarray:
@@ -225,20 +264,22 @@ class Problem:
         b = float(x[self.n_dyn]) if self.bias else 0.0
         icd = {nm: float(x[j]) for nm, j in zip(self.ic_names, self.ic_index[i])}
         psi0 = icd.pop("psi0", 0.0)
+        servo = tuple(float(x[j]) for j in self.servo_index)
         # The initial heading only shifts psi: it is added after the cached simulation, so a
         # finite-difference step in psi0 costs no new simulation.
-        key = (i, dyn, b, tuple(icd.values()))
+        key = (i, dyn, b, tuple(icd.values()), servo)
         out = self._sim_cache.get(key)
         if out is None:
+            u = self.rudder(z, i)
             a, bm = nomoto_matrices(self.order, dyn)
             ad, bd = zoh_discretise(a, bm, rec.h)
             x0 = np.zeros(a.shape[0])
             x0[1] = icd["r0"]
-            if self.order == 2:
-                a1, _, b1, _ = nomoto2_coefficients(*dyn)
+            if self.order != 1:
+                a1, _, b1, _ = nomoto2_coefficients(*dyn) if self.order == 2 else nomoto2_sum_product(*dyn)
                 # x2 from the initial yaw acceleration: x2 = r_dot + a1 r - b1 (delta - b).
-                x0[2] = icd["rdot0"] + a1 * icd["r0"] - b1 * (rec.u[0] - b)
-            states = simulate_zoh(ad, bd, x0, rec.u - b)
+                x0[2] = icd["rdot0"] + a1 * icd["r0"] - b1 * (u[0] - b)
+            states = simulate_zoh(ad, bd, x0, u - b)
             out = {"psi": states[:, 0], "r": states[:, 1]}
             if len(self._sim_cache) > 256:
                 self._sim_cache.clear()
@@ -365,10 +406,15 @@ def plausible_ranges(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
     lo = np.full(len(prob.names), -np.inf)
     hi = np.full(len(prob.names), np.inf)
     for j, k in enumerate(prob.kinds):
-        if k in ("T", "T1", "T2", "T3"):
+        if k in ("T", "T1", "T2", "T3", "T12"):
             lo[j], hi[j] = 0.1 * h, 100.0 * dur
+        elif k == "T1T2":
+            lo[j], hi[j] = (0.1 * h) ** 2, (100.0 * dur) ** 2
         elif k == "b":
             lo[j], hi[j] = -math.pi / 2, math.pi / 2
+    for nm, j in zip(prob.servo, prob.servo_index):
+        # A servo faster than a tenth of a sample is not seen; slower than the record is not a servo.
+        lo[j], hi[j] = (0.1 * h, dur) if nm == "t_servo" else (math.radians(0.1), math.radians(1000.0))
     for nm, j in zip(prob.noise_free, prob.noise_index):
         if nm == "omega0":
             lo[j], hi[j] = 2 * math.pi / dur, math.pi / h
@@ -430,7 +476,7 @@ def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int) -> optimize.O
 
 
 def start_vector(prob: Problem, dyn: Sequence[float], b: float, ics: Sequence[Sequence[float]],
-                  noise0: Sequence[float]) -> np.ndarray:
+                  noise0: Sequence[float], servo0: Mapping[str, float] | None = None) -> np.ndarray:
     """Solver vector from SI start values.
 
     Parameters
@@ -445,6 +491,8 @@ def start_vector(prob: Problem, dyn: Sequence[float], b: float, ics: Sequence[Se
         Initial states per record, in ``prob.ic_names`` order.
     noise0 : sequence of float
         Start of the free noise parameters.
+    servo0 : Mapping[str, float], optional
+        Start of the servo parameters (default ``t_servo`` = 2 samples, ``rate_servo`` = 10 deg/s).
     """
     x = np.ones(len(prob.names))
     x[: prob.n_dyn] = dyn
@@ -454,6 +502,10 @@ def start_vector(prob: Problem, dyn: Sequence[float], b: float, ics: Sequence[Se
         x[idx] = ic
     if prob.noise_index:
         x[prob.noise_index] = np.asarray(noise0, float)
+    defaults = {"t_servo": 2 * min(r.h for r in prob.recs), "rate_servo": math.radians(10.0)}
+    defaults.update(servo0 or {})
+    for nm, j in zip(prob.servo, prob.servo_index):
+        x[j] = defaults[nm]
     return prob.solver_vector(x)
 
 

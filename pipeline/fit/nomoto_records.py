@@ -135,9 +135,11 @@ class NomotoFit:
 
     @property
     def T(self) -> float:
-        """Nomoto time constant [s]; for order 2 the equivalent ``T1 + T2 - T3``."""
+        """Nomoto time constant [s]; for the second order the equivalent ``T1 + T2 - T3``."""
         if self.order == 1:
             return self.value("T")
+        if self.order == 3:
+            return self.value("T12") - self.value("T3")
         return self.value("T1") + self.value("T2") - self.value("T3")
 
     @property

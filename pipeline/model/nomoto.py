@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+import scipy.signal
 
 from ._backend import ops
 from .waves import WaveParams, wave_matrices
@@ -45,7 +46,11 @@ NOMOTO2_STATES = ("psi", "r", "x2")
 #: States of the augmented heading model (:func:`heading_model_matrices`).
 HEADING_MODEL_STATES = ("xi_w", "psi_w", "psi", "r", "b")
 #: Dynamic parameter names per model order.
-NOMOTO_ORDER_PARAMS = {1: ("K", "T"), 2: ("K", "T1", "T2", "T3")}
+#: Order 3 is the second-order model written with ``T12 = T1 + T2`` [s] and ``T1T2 = T1 T2`` [s^2]
+#: (both positive for a stable ship), which also holds complex pole pairs (Clarke83-type ships).
+NOMOTO_ORDER_PARAMS = {1: ("K", "T"), 2: ("K", "T1", "T2", "T3"), 3: ("K", "T12", "T1T2", "T3")}
+#: The order key of the sum/product form of the second-order model.
+ORDER2_SUM_PRODUCT = 3
 
 
 @dataclass(frozen=True)
@@ -181,6 +186,45 @@ def nomoto2_rhs(t, x, u, params: Nomoto2Params):
     return o.stack([x[1], -a1 * x[1] + x[2] + b1 * v, -a0 * x[1] + b0 * v])
 
 
+def nomoto2_sum_product(K: float, T12: float, T1T2: float, T3: float) -> tuple[float, float, float, float]:
+    """``(a1, a0, b1, b0)`` of the second-order model from ``T12 = T1 + T2`` and ``T1T2 = T1 T2``.
+
+    Parameters
+    ----------
+    K : float
+        Gain [1/s].
+    T12 : float
+        Sum of the pole time constants [s].
+    T1T2 : float
+        Their product [s^2] (complex poles when ``T12^2 < 4 T1T2``).
+    T3 : float
+        Zero time constant [s].
+
+    Returns
+    -------
+    tuple of float
+        As :func:`nomoto2_coefficients`.
+    """
+    return T12 / T1T2, 1.0 / T1T2, K * T3 / T1T2, K / T1T2
+
+
+def pole_time_constants(T12: float, T1T2: float) -> tuple[float, float] | None:
+    """``(T1, T2)`` with ``T1 >= T2`` from their sum and product; None for a complex pair.
+
+    Parameters
+    ----------
+    T12 : float
+        ``T1 + T2`` [s].
+    T1T2 : float
+        ``T1 T2`` [s^2].
+    """
+    disc = T12 * T12 - 4.0 * T1T2
+    if disc < 0:
+        return None
+    root = math.sqrt(disc)
+    return 0.5 * (T12 + root), 0.5 * (T12 - root)
+
+
 def nomoto_matrices(order: int, dyn: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
     """Continuous ``(A, B)`` of the linear Nomoto model for the input ``delta - b``; state 0 is psi.
 
@@ -189,8 +233,8 @@ def nomoto_matrices(order: int, dyn: Sequence[float]) -> tuple[np.ndarray, np.nd
     Parameters
     ----------
     order : int
-        1 (``dyn = (K, T)``, states ``[psi, r]``) or 2 (``dyn = (K, T1, T2, T3)``, states
-        ``NOMOTO2_STATES``).
+        1 (``dyn = (K, T)``, states ``[psi, r]``), 2 (``dyn = (K, T1, T2, T3)``, states
+        ``NOMOTO2_STATES``) or 3 (``dyn = (K, T12, T1T2, T3)``, the same states).
     dyn : sequence of float
         Dynamic parameters [1/s, s, ...].
 
@@ -202,11 +246,11 @@ def nomoto_matrices(order: int, dyn: Sequence[float]) -> tuple[np.ndarray, np.nd
     if order == 1:
         K, T = dyn
         return np.array([[0.0, 1.0], [0.0, -1.0 / T]]), np.array([[0.0], [K / T]])
-    if order == 2:
-        a1, a0, b1, b0 = nomoto2_coefficients(*dyn)
+    if order in (2, ORDER2_SUM_PRODUCT):
+        a1, a0, b1, b0 = nomoto2_coefficients(*dyn) if order == 2 else nomoto2_sum_product(*dyn)
         a = np.array([[0.0, 1.0, 0.0], [0.0, -a1, 1.0], [0.0, -a0, 0.0]])
         return a, np.array([[0.0], [b1], [b0]])
-    raise ValueError(f"Nomoto model order: expected 1 or 2, found {order!r}")
+    raise ValueError(f"Nomoto model order: expected 1, 2 or 3, found {order!r}")
 
 
 def heading_model_matrices(K: float, T: float, waves: WaveParams
@@ -289,9 +333,19 @@ def servo_response(delta_c: np.ndarray, h: float, t_servo: float, rate_max: floa
     """
     u = np.asarray(delta_c, float)
     d = float(u[0] if delta0 is None else delta0)
+    lim = rate_max if rate_max > 0 else math.inf
+    if t_servo > 0:
+        # Without the rate limit the lag is linear: exact per sample, d[k+1] = a d[k] + (1 - a) u[k].
+        a = math.exp(-h / t_servo)
+        start = np.empty(u.size)
+        start[0] = d
+        if u.size > 1:
+            zi = np.array([a * d])
+            start[1:] = scipy.signal.lfilter([1.0 - a], [1.0, -a], u[:-1], zi=zi)[0]
+        if not np.isfinite(lim) or float(np.max(np.abs(u - start))) <= lim * t_servo:
+            return u + (start - u) * (t_servo / h) * (1.0 - a)
     dt = h / substeps
     out = np.empty(u.size)
-    lim = rate_max if rate_max > 0 else math.inf
     # A lag shorter than the Euler step would overshoot: below 2 dt the rate limit alone acts.
     lag = t_servo if t_servo > 2 * dt else 0.0
     for k, uk in enumerate(u):
