@@ -26,6 +26,7 @@ from dataclasses import replace
 
 from ..errors import FitError
 from ..records import Segment, SegmentFit, Trial
+from ..segment.rudder import is_command_like
 from .data import (gain_formulation, input_levels, noise_sigma, pick_channel, segment_label, segment_samples,
                    steady_before)
 from .first_order import (MIN_SAMPLES, STEP_PARAMS, check_first_order_length, guess_step, step_jacobian, step_response,
@@ -163,8 +164,9 @@ def fit_rudder_step(trial: Trial, segment: Segment) -> SegmentFit:
     so a servo ramp (measured rudder) or a servo lag and rate limit (logged command, estimated)
     are part of the model rather than a bias of K and T, and the heading carries the excitation of
     a slow ship whose yaw rate hardly leaves the gyro noise. When that fit cannot be made (no
-    heading and too few samples, a gap in the rudder), the closed-form step response below is fitted
-    to the yaw rate instead (:func:`fit_rudder_step_response`).
+    heading and too few samples, a gap in the rudder), or when the log holds only the yaw rate and a
+    held rudder command (the closed form is exact there), the closed-form step response is fitted to
+    the yaw rate instead (:func:`fit_rudder_step_response`).
 
     Parameters
     ----------
@@ -189,7 +191,11 @@ def fit_rudder_step(trial: Trial, segment: Segment) -> SegmentFit:
         raise FitError(f"{where}: expected a rudder_step in yaw, found DOF {segment.dof!r}")
     if trial.has("delta") and (trial.has("psi") or trial.has("r")):
         before, after, _ = input_levels(trial, segment)
-        if math.isfinite(after - before) and after != before:
+        rudder = trial.window(segment.t_start, segment.t_end)["delta"].to_numpy(dtype=float)
+        # The closed form is exact for a held command and a yaw-rate record; a compass (the
+        # heading's excitation) or a measured servo angle (ramps) needs the whole-record fit.
+        whole = trial.has("psi") or not is_command_like(rudder[np.isfinite(rudder)])
+        if whole and math.isfinite(after - before) and after != before:
             try:
                 sf = fit_nomoto_window(trial, segment, rudder_step_lead_in(trial, segment), segment.t_end)
             except FitError as exc:
