@@ -340,7 +340,10 @@ def main(argv=None) -> int:
         import multiprocessing as mp
 
         with mp.get_context("fork").Pool(args.workers) as pool:
-            results = pool.map(run_one, tasks, chunksize=1)
+            results = []
+            for i, res in enumerate(pool.imap(run_one, tasks, chunksize=1)):
+                results.append(res)
+                print(f"task {i + 1}/{len(tasks)} done ({time.time() - t0:.0f} s)", flush=True)
     else:
         results = [run_one(task) for task in tasks]
     rows = []

@@ -302,7 +302,7 @@ def heading_model_matrices(K: float, T: float, waves: WaveParams
 
 
 def servo_response(delta_c: np.ndarray, h: float, t_servo: float, rate_max: float = math.inf,
-                   delta0: float | None = None, substeps: int = 10) -> np.ndarray:
+                   delta0: float | None = None, substeps: int = 40) -> np.ndarray:
     """Rudder angle of a servo following a held command: first-order lag with a rate limit.
 
     ``delta_dot = clip((delta_c - delta) / T_s, -rate_max, rate_max)`` (Fossen 2021, sec. 9.5;
