@@ -194,8 +194,14 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
     pem_prob = Problem(preps, order, bias, channels, "waves", waves, noise_var, servo)
     noise0 = [dict(zip(NOISE_PARAMS, (omega0, lam, ratio)))[nm] for nm in pem_prob.noise_free]
     servo0 = {nm: float(theta[j]) for nm, j in zip(prob.servo, prob.servo_index)}
-    pem_res = reweighted_solve(pem_prob, start_vector(pem_prob, dyn, b, icl, noise0, servo0), max_nfev)
-    pem = finish(pem_prob, pem_res, [])
+    try:
+        pem_res = reweighted_solve(pem_prob, start_vector(pem_prob, dyn, b, icl, noise0, servo0), max_nfev)
+        pem = finish(pem_prob, pem_res, [])
+    except (FitError, np.linalg.LinAlgError, FloatingPointError) as exc:
+        if noise != "auto":
+            raise
+        return _timed(_with_message(oe, f"compass residuals coloured but the wave PEM failed ({exc}): OE kept, "
+                                        f"its error bars assume white residuals"), t_start)
     if noise == "auto" and not pem.success and oe.success:
         # The refinement failed (a wave parameter out of range, no covariance): the plain fit that
         # worked is kept, and the message says why the noise model was not used.

@@ -27,7 +27,7 @@ from ..segment.rudder import is_command_like
 from .data import noise_sigma, pick_channel, segment_label
 from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
 from .nomoto_oe import fit_nomoto
-from .nomoto_problem import MIN_SAMPLES, Problem, prepare, unwrap_heading
+from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
 from .nomoto_records import NomotoFit, NomotoRecord
 from .segment_fit import MAX_RELATIVE_STDERR
 
@@ -127,6 +127,9 @@ def fit_nomoto_window(trial: Trial, segment: Segment, t0: float, t1: float) -> S
     order, order_note = _choose_order(rec, channels, servo)
     notes.append(order_note)
     fit = fit_nomoto(rec, order=order, noise="auto", channels=channels, servo=servo)
+    if servo and any(n in SERVO_PARAMS for n in fit.at_bound):
+        notes.append("the servo parameters left their range with the chosen structure: rudder taken as the command")
+        fit = fit_nomoto(rec, order=order, noise="auto", channels=channels)
     if order != 1 and not fit.success:
         first = fit_nomoto(rec, order=1, noise="auto", channels=channels, servo=servo)
         if first.success:
@@ -169,12 +172,18 @@ def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str
             errs[order] = math.inf
             continue
         # A fit that ends out of range (the second order collapsing onto the first: T2 -> 0) is no candidate.
-        errs[order] = _heldout_rmse(fit, rec, channels, servo, n_fit) if fit.success else math.inf
+        errs[order] = _heldout_rmse(fit, rec, channels, servo, n_fit) if _usable(fit) else math.inf
     second = errs[ORDER2_SUM_PRODUCT]
     text = f"held-out RMSE ({HOLDOUT_FRACTION:.0%} of the record) first order {errs[1]:.4g}, second order {second:.4g}"
     if second < (1.0 - ORDER2_GAIN) * errs[1]:
         return ORDER2_SUM_PRODUCT, f"second-order Nomoto (T1, T2, T3) selected: {text}"
     return 1, f"first-order Nomoto selected: {text}"
+
+
+def _usable(fit: NomotoFit) -> bool:
+    """Converged with the ship's parameters in range (a servo lag collapsing to zero is allowed:
+    the other structure may not need it)."""
+    return fit.converged and all(n in SERVO_PARAMS for n in fit.at_bound) and bool(np.all(np.isfinite(fit.values)))
 
 
 def _heldout_rmse(fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...],
