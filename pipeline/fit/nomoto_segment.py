@@ -218,6 +218,13 @@ def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: 
                                  f"(T1, T2 not real)"]
             else:
                 params["T1"], params["T2"] = poles
+                # Delta method: T1,2 = (S +- D)/2 with D = sqrt(S^2 - 4P), S = T1 + T2, P = T1 T2.
+                i, j = fit.names.index("T12"), fit.names.index("T1T2")
+                cov = fit.covariance[np.ix_([i, j], [i, j])]
+                d = poles[0] - poles[1]
+                for name, sign in (("T1", 1.0), ("T2", -1.0)):
+                    g = np.array([0.5 * (1.0 + sign * params["T12"] / d), -sign / d]) if d > 0 else np.full(2, np.nan)
+                    stderr[name] = float(math.sqrt(max(g @ cov @ g, 0.0))) if np.all(np.isfinite(g)) else math.nan
     fail = []
     if not fit.converged:
         fail.append("solver did not converge")
@@ -271,7 +278,8 @@ def rudder_step_lead_in(trial: Trial, segment: Segment) -> float:
 
 
 #: Extra Nomoto coefficients a segment fit may carry: parameter -> (estimate name, unit).
-EXTRA_COEFFICIENTS = {"T12": ("T12_nomoto", "s"), "T1T2": ("T1T2_nomoto", "s^2"), "T3": ("T3_nomoto", "s"),
+EXTRA_COEFFICIENTS = {"T1": ("T1_nomoto", "s"), "T2": ("T2_nomoto", "s"), "T3": ("T3_nomoto", "s"),
+                      "T12": ("T12_nomoto", "s"), "T1T2": ("T1T2_nomoto", "s^2"),
                       "t_servo": ("T_servo", "s"), "rate_servo": ("rate_servo", "rad/s")}
 
 
