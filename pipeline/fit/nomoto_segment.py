@@ -173,6 +173,10 @@ def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str
             continue
         # A fit that ends out of range (the second order collapsing onto the first: T2 -> 0) is no candidate.
         errs[order] = _heldout_rmse(fit, rec, channels, servo, n_fit) if _usable(fit) else math.inf
+        if order == 1 and _usable(fit) and all(t.white for t in fit.residual_tests):
+            # White first-order residuals leave a second order nothing to explain: not tried.
+            return 1, (f"first-order Nomoto: its residuals are white, so no second-order structure was tried "
+                       f"(held-out RMSE {errs[1]:.4g})")
     second = errs[ORDER2_SUM_PRODUCT]
     text = f"held-out RMSE ({HOLDOUT_FRACTION:.0%} of the record) first order {errs[1]:.4g}, second order {second:.4g}"
     if second < (1.0 - ORDER2_GAIN) * errs[1]:
