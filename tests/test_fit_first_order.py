@@ -150,11 +150,11 @@ def test_two_consistent_coast_downs_are_inverse_variance_weighted():
     assert "2 coast-downs" in T.method and "inverse-variance mean of 2 segments" in T.method
 
 
-def test_inconsistent_coast_downs_inflate_stderr_by_birge_ratio():
+def test_inconsistent_coast_downs_combine_by_random_effects():
     trial, segs = two_coast_downs(4.0, 5.5)
     T = fit_trial(trial, segs, vessel()).estimates["T_surge"]
     assert T.consistency_p < 0.01
-    assert "Birge ratio" in T.message and "disagree" in T.message
+    assert "random-effects" in T.message and "disagree" in T.message
     # The inflated error reflects the scatter: the two values lie about one inflated sigma apart.
     assert T.stderr > 0.3 and T.ci95[0] < 4.0 and T.ci95[1] > 5.5
 

@@ -78,15 +78,17 @@ def test_combine_inverse_variance_mean():
     assert est.n_segments == 2 and est.per_segment == (-2.9, -2.8) and est.success
 
 
-def test_combine_inflates_by_birge_ratio_when_inconsistent():
+def test_combine_uses_random_effects_when_inconsistent():
     values = [1.0, 2.0, 1.5]
     est = combine("T", "s", "m", [Contribution(v, 0.05, str(i)) for i, v in enumerate(values)])
     w = np.full(3, 400.0)
     chi2 = float(w @ (np.array(values) - 1.5) ** 2)
     assert est.consistency_p < 0.01
-    assert est.stderr == pytest.approx(0.05 / math.sqrt(3) * math.sqrt(chi2 / 2))
-    assert "Birge ratio" in est.message
-    assert est.ci95[1] - est.value == pytest.approx(stats.t.ppf(0.975, 2) * est.stderr)
+    # DerSimonian-Laird: tau^2 = (Q - (k - 1)) / (S1 - S2/S1), weights 1/(se^2 + tau^2).
+    tau2 = (chi2 - 2) / (w.sum() - (w**2).sum() / w.sum())
+    assert est.stderr == pytest.approx(math.sqrt((0.05**2 + tau2) / 3))
+    assert "random-effects" in est.message and "DerSimonian-Laird" in est.method
+    assert est.ci95[1] - est.value == pytest.approx(stats.norm.ppf(0.975) * est.stderr)
 
 
 def test_combine_leaves_out_failed_segments_and_names_them():

@@ -337,8 +337,8 @@ def test_bad_records_are_refused_with_a_message():
         fit_nomoto(NomotoRecord(t, bad_u, psi))
     with pytest.raises(FitError, match="expected noise in"):
         fit_nomoto(NomotoRecord(t, u, psi), noise="pink")
-    with pytest.raises(FitError, match="expected order 1 or 2"):
-        fit_nomoto(NomotoRecord(t, u, psi), order=3)
+    with pytest.raises(FitError, match="expected order 1, 2 or 3"):
+        fit_nomoto(NomotoRecord(t, u, psi), order=4)
     with pytest.raises(FitError, match="expected channel 'psi'"):
         fit_nomoto(NomotoRecord(t, u, None, r=np.gradient(psi, H)), noise="waves")
     with pytest.raises(FitError, match="at least 50 samples"):

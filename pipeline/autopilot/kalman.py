@@ -49,10 +49,12 @@ import numpy as np
 import scipy.linalg
 
 from ..errors import AutopilotError
-from ..model.waves import WaveParams, wave_matrices
+from ..model import discretise
+from ..model.nomoto import HEADING_MODEL_STATES, heading_model_matrices
+from ..model.waves import WaveParams
 
 #: Filter states, in order.
-KALMAN_STATES = ("xi_w", "psi_w", "psi", "r", "b")
+KALMAN_STATES = HEADING_MODEL_STATES
 #: Default continuous process-noise intensities ``(q_w [-], q_b [rad^2/s])`` (the seed's hand-out).
 #: In this package's convention the wave noise w_w has unit intensity, so q_w = 30 is a tuning
 #: choice, not a physical value: it makes the filter follow the measured wave band more closely.
@@ -79,6 +81,8 @@ def ssa(angle):
 def continuous_model(K: float, T: float, waves: WaveParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(A, B, E, C)`` of the 5-state heading model ``[xi_w, psi_w, psi, r, b]``.
 
+    :func:`pipeline.model.nomoto.heading_model_matrices`, with K and T checked first.
+
     Parameters
     ----------
     K : float
@@ -100,19 +104,7 @@ def continuous_model(K: float, T: float, waves: WaveParams) -> tuple[np.ndarray,
     """
     if not (math.isfinite(K) and math.isfinite(T) and T > 0):
         raise AutopilotError(f"Nomoto model: expected finite K and T > 0, found K={K!r}, T={T!r}")
-    aw, ew, _ = wave_matrices(waves)
-    a = np.zeros((5, 5))
-    a[:2, :2] = aw
-    a[2, 3] = 1.0
-    a[3, 3] = -1.0 / T
-    a[3, 4] = -K / T
-    b = np.zeros((5, 1))
-    b[3, 0] = K / T
-    e = np.zeros((5, 2))
-    e[:2, 0] = ew[:, 0]
-    e[4, 1] = 1.0
-    c = np.array([[0.0, 1.0, 1.0, 0.0, 0.0]])
-    return a, b, e, c
+    return heading_model_matrices(K, T, waves)
 
 
 #: The seed's four model variants (part IV): state indices kept from the 5-state model.
@@ -212,25 +204,7 @@ def van_loan(a: np.ndarray, b: np.ndarray, e: np.ndarray, q: np.ndarray, h: floa
     """
     if not (math.isfinite(h) and h > 0):
         raise AutopilotError(f"sample time: expected a positive number [s], found {h!r}")
-    a = np.asarray(a, float)
-    n = a.shape[0]
-    bu = np.hstack([np.asarray(b, float), np.asarray(e, float)])
-    m = bu.shape[1]
-    big = np.zeros((n + m, n + m))
-    big[:n, :n] = a
-    big[:n, n:] = bu
-    ex = scipy.linalg.expm(big * h)
-    ad = ex[:n, :n]
-    bd = ex[:n, n:n + np.asarray(b).shape[1]]
-    ed = ex[:n, n + np.asarray(b).shape[1]:]
-    eqe = np.asarray(e, float) @ np.asarray(q, float) @ np.asarray(e, float).T
-    vl = np.zeros((2 * n, 2 * n))
-    vl[:n, :n] = -a
-    vl[:n, n:] = eqe
-    vl[n:, n:] = a.T
-    fx = scipy.linalg.expm(vl * h)
-    qd = fx[n:, n:].T @ fx[:n, n:]
-    return ad, bd, ed, 0.5 * (qd + qd.T)
+    return discretise.van_loan(a, b, e, q, h)
 
 
 # --------------------------------------------------------------------------- the filter

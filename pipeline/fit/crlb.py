@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import FitError
 from ..model.waves import WaveParams
 from .first_order import decay_jacobian
-from .nomoto_oe import DYNAMIC_PARAMS, NomotoRecord, _prepare, _Problem, _start_vector
+from .nomoto_problem import DYNAMIC_PARAMS, NomotoRecord, Problem, prepare, start_vector
 from .nomoto_pem import innovation_filter
 
 
@@ -103,17 +103,17 @@ def nomoto_crlb(designs: Sequence[NomotoRecord], truth: Mapping[str, float], ini
     channels = tuple(channels)
     recs = [NomotoRecord(d.t, d.delta, np.zeros(len(d.t)) if "psi" in channels else None,
                          np.zeros(len(d.t)) if "r" in channels else None, d.name) for d in designs]
-    preps = [_prepare(r, i, channels) for i, r in enumerate(recs)]
+    preps = [prepare(r, i, channels) for i, r in enumerate(recs)]
     if waves is not None:
-        prob = _Problem(preps, order, bias, channels, "waves", waves, noise_var["psi"])
+        prob = Problem(preps, order, bias, channels, "waves", waves, noise_var["psi"])
     else:
-        prob = _Problem(preps, order, bias, channels, "white", None, None)
+        prob = Problem(preps, order, bias, channels, "white", None, None)
     dyn = [truth[n] for n in DYNAMIC_PARAMS[order]]
     ics = []
     for ini in initial:
         ic = ([ini.get("psi0", 0.0)] if "psi" in channels else []) + [ini.get("r0", 0.0)]
         ics.append(ic + ([ini.get("rdot0", 0.0)] if order == 2 else []))
-    z = _start_vector(prob, dyn, truth.get("b", 0.0), ics, ())
+    z = start_vector(prob, dyn, truth.get("b", 0.0), ics, ())
     # Noise-free data at the truth: the residual Jacobian is then exactly the (whitened) sensitivity.
     sims = [prob.simulate(z, i) for i in range(len(preps))]
     prob.recs = [type(p)(h=p.h, u=p.u, y={ch: sims[i][ch] for ch in channels}, mask=p.mask, duration=p.duration,

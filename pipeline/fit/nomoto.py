@@ -22,13 +22,17 @@ import math
 
 import numpy as np
 
+from dataclasses import replace
+
 from ..errors import FitError
 from ..records import Segment, SegmentFit, Trial
+from ..segment.rudder import is_command_like
 from .data import (gain_formulation, input_levels, noise_sigma, pick_channel, segment_label, segment_samples,
                    steady_before)
 from .first_order import (MIN_SAMPLES, STEP_PARAMS, check_first_order_length, guess_step, step_jacobian, step_response,
                           time_constant_bounds)
 from .least_squares import fit_least_squares
+from .nomoto_segment import fit_nomoto_window, rudder_step_lead_in
 from .segment_fit import build_segment_fit
 
 PARAMS = ("r0", "K", "T")
@@ -152,7 +156,60 @@ def guess_nomoto_step(t: np.ndarray, r: np.ndarray, delta_after: float, delta_be
 
 
 def fit_rudder_step(trial: Trial, segment: Segment) -> SegmentFit:
-    """Fit the first-order Nomoto model to a rudder step.
+    """Fit the Nomoto model to a rudder step: whole-record fit over the step and its steady lead-in.
+
+    The step is fitted as a record (:func:`pipeline.fit.nomoto_segment.fit_nomoto_window`) from
+    the start of the steady rudder hold before it (:func:`pipeline.fit.nomoto_segment.rudder_step_lead_in`,
+    at most the step's own length back) to the segment's end: the logged rudder drives the model,
+    so a servo ramp (measured rudder) or a servo lag and rate limit (logged command, estimated)
+    are part of the model rather than a bias of K and T, and the heading carries the excitation of
+    a slow ship whose yaw rate hardly leaves the gyro noise. When that fit cannot be made (no
+    heading and too few samples, a gap in the rudder), or when the log holds only the yaw rate and a
+    held rudder command (the closed form is exact there), the closed-form step response is fitted to
+    the yaw rate instead (:func:`fit_rudder_step_response`).
+
+    Parameters
+    ----------
+    trial : Trial
+        Trial holding the yaw rate ``r`` and/or heading ``psi`` and the rudder ``delta``.
+    segment : Segment
+        A ``rudder_step`` segment in yaw.
+
+    Returns
+    -------
+    SegmentFit
+        Model ``nomoto_oe``/``nomoto_pem`` (see :func:`pipeline.fit.nomoto_segment.fit_nomoto_segment`),
+        or that of :func:`fit_rudder_step_response`.
+
+    Raises
+    ------
+    FitError
+        Wrong DOF, missing channels, no rudder change, too few samples.
+    """
+    where = segment_label(segment)
+    if segment.dof != "yaw":
+        raise FitError(f"{where}: expected a rudder_step in yaw, found DOF {segment.dof!r}")
+    if trial.has("delta") and (trial.has("psi") or trial.has("r")):
+        before, after, _ = input_levels(trial, segment)
+        rudder = trial.window(segment.t_start, segment.t_end)["delta"].to_numpy(dtype=float)
+        # The closed form is exact for a held command and a yaw-rate record; a compass (the
+        # heading's excitation) or a measured servo angle (ramps) needs the whole-record fit.
+        whole = trial.has("psi") or not is_command_like(rudder[np.isfinite(rudder)])
+        if whole and math.isfinite(after - before) and after != before:
+            try:
+                sf = fit_nomoto_window(trial, segment, rudder_step_lead_in(trial, segment), segment.t_end)
+            except FitError as exc:
+                fallback = str(exc)
+            else:
+                return sf
+            sf = fit_rudder_step_response(trial, segment)
+            return replace(sf, message=f"whole-record fit not possible ({fallback}): step response fitted; "
+                                       f"{sf.message}")
+    return fit_rudder_step_response(trial, segment)
+
+
+def fit_rudder_step_response(trial: Trial, segment: Segment) -> SegmentFit:
+    """Fit the closed-form first-order Nomoto step response to the yaw rate of a rudder step.
 
     Parameters
     ----------

@@ -49,41 +49,17 @@ import numpy as np
 import scipy.signal
 
 from ..errors import FitError
+from ..model.discretise import expm_small, noise_integral_fast
+from ..model.nomoto import HEADING_MODEL_STATES, heading_model_matrices
 from ..model.waves import WaveParams, wave_matrices
 
-#: States of the seed's augmented model, in order.
-AUGMENTED_STATES = ("xi_w", "psi_w", "psi", "r", "b")
-#: Taylor terms of :func:`expm_small` after scaling to a 1-norm of at most 1/2 (error < 1e-16).
-_TAYLOR_TERMS = 16
-
-
-def expm_small(m: np.ndarray) -> np.ndarray:
-    """Matrix exponential of a small matrix by scaling and squaring of its Taylor series.
-
-    The same result as :func:`scipy.linalg.expm` to rounding (the tests compare them), but
-    built only from small matrix products: scipy's Pade step calls LAPACK solvers whose
-    threading costs milliseconds per call on a loaded machine, and the fits call this once per
-    candidate parameter vector and finite-difference step. With ``||M / 2^s||_1 <= 1/2`` the
-    truncated series' error is below ``0.5^17 / 17! < 1e-19`` (Moler & Van Loan 2003, methods 1 and 3).
-
-    Parameters
-    ----------
-    m : numpy.ndarray, shape (n, n)
-        Matrix (already multiplied by the sample time) [-].
-    """
-    m = np.asarray(m, float)
-    norm = float(np.abs(m).sum(axis=0).max()) if m.size else 0.0
-    s = max(0, int(math.ceil(math.log2(norm / 0.5)))) if norm > 0.5 else 0
-    x = m / 2.0**s
-    eye = np.eye(m.shape[0])
-    e = eye
-    for k in range(_TAYLOR_TERMS, 0, -1):
-        e = eye + (x @ e) / k
-    for _ in range(s):
-        e = e @ e
-    return e
-
-
+#: States of the seed's augmented model, in order (:data:`pipeline.model.nomoto.HEADING_MODEL_STATES`).
+AUGMENTED_STATES = HEADING_MODEL_STATES
+#: The augmented model is :func:`pipeline.model.nomoto.heading_model_matrices`; the exponential
+#: :func:`pipeline.model.discretise.expm_small` (both re-exported here for existing callers).
+__all__ = ["AUGMENTED_STATES", "InnovationFilter", "augmented_matrices", "dare_filter_2x2", "expm_small",
+           "guess_wave_noise", "initial_state_response", "innovation_filter", "kalman_innovations",
+           "noise_from_ratio", "wave_discrete", "wave_std", "whiten", "whiten_profiled"]
 def _inv2(m: np.ndarray) -> np.ndarray:
     det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
     return np.array([[m[1, 1], -m[0, 1]], [-m[1, 0], m[0, 0]]]) / det
@@ -95,7 +71,7 @@ def dare_filter_2x2(ad: np.ndarray, c: np.ndarray, qd: np.ndarray, noise_var: fl
 
     Solves ``P = A P A^T - A P C^T (C P C^T + R)^-1 C P A^T + Q`` by the structure-preserving
     doubling algorithm (Chu, Fan, Lin & Wang 2004), which converges quadratically, with closed-form
-    2x2 inverses (no LAPACK call; see :func:`expm_small` for why). The tests check it against
+    2x2 inverses (no LAPACK call; see :func:`pipeline.model.discretise.expm_small` for why). The tests check it against
     :func:`scipy.linalg.solve_discrete_are`.
 
     Parameters
@@ -183,15 +159,7 @@ def wave_discrete(waves: WaveParams, h: float) -> tuple[np.ndarray, np.ndarray]:
         ``int_0^h exp(A_w s) E E^T exp(A_w^T s) ds`` [rad^2].
     """
     a, e, _ = wave_matrices(waves)
-    n = a.shape[0]
-    big = np.zeros((2 * n, 2 * n))
-    big[:n, :n] = -a
-    big[:n, n:] = e @ e.T
-    big[n:, n:] = a.T
-    ex = expm_small(big * h)
-    ad = ex[n:, n:].T
-    qd = ad @ ex[:n, n:]
-    return ad, 0.5 * (qd + qd.T)
+    return noise_integral_fast(a, e @ e.T, h)
 
 
 def innovation_filter(waves: WaveParams, noise_var: float, h: float) -> InnovationFilter:
@@ -392,7 +360,7 @@ def guess_wave_noise(w: np.ndarray, fs: float, noise_std: float) -> tuple[float,
 
 
 def augmented_matrices(K: float, T: float, waves: WaveParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Continuous ``(A, B, E, C)`` of the seed's augmented model, states ``AUGMENTED_STATES``.
+    """Continuous ``(A, B, E, C)`` of the seed's augmented model: :func:`pipeline.model.nomoto.heading_model_matrices`.
 
     Parameters
     ----------
@@ -402,29 +370,8 @@ def augmented_matrices(K: float, T: float, waves: WaveParams) -> tuple[np.ndarra
         Nomoto time constant [s].
     waves : WaveParams
         Wave model.
-
-    Returns
-    -------
-    A : numpy.ndarray, shape (5, 5)
-    B : numpy.ndarray, shape (5, 1)
-        Rudder input.
-    E : numpy.ndarray, shape (5, 2)
-        Noise inputs ``(w_w, w_b)``.
-    C : numpy.ndarray, shape (1, 5)
-        Compass ``y = psi + psi_w``.
     """
-    w0, lam = waves.omega0, waves.lam
-    a = np.zeros((5, 5))
-    a[0, 1] = 1.0
-    a[1, 0], a[1, 1] = -w0**2, -2 * lam * w0
-    a[2, 3] = 1.0
-    a[3, 3], a[3, 4] = -1.0 / T, -K / T
-    b = np.zeros((5, 1))
-    b[3, 0] = K / T
-    e = np.zeros((5, 2))
-    e[1, 0], e[4, 1] = waves.kw, 1.0
-    c = np.array([[0.0, 1.0, 1.0, 0.0, 0.0]])
-    return a, b, e, c
+    return heading_model_matrices(K, T, waves)
 
 
 def kalman_innovations(ad: np.ndarray, bd: np.ndarray, c: np.ndarray, qd: np.ndarray, noise_var: float,

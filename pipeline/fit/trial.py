@@ -18,7 +18,7 @@ from .damping import (damping_from_decay, damping_from_gain, damping_from_time_c
 from .data import gain_formulation, input_levels, segment_label
 from .first_order import fit_coast_down, fit_step, step_steadiness
 from .nomoto import fit_rudder_step
-from .nomoto_oe import WHOLE_RECORD_KINDS, fit_nomoto_segment
+from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment, structure_note
 from .second_order import fit_free_decay
 from .segment_fit import failed_segment_fit
 
@@ -43,9 +43,11 @@ _KIND_WORDS = {"coast_down": ("coast-down", "coast-downs"), "step": ("step", "st
 # Estimates first in this order (the report's table order); extras follow in insertion order.
 _ORDER = ("X_u", "Y_v", "K_p", "M_q", "N_r", "K_nomoto", "T_nomoto", "b_nomoto")
 #: How the whole-record Nomoto fits (zig-zags, sinusoids) are described in an estimate's method.
-WHOLE_RECORD_METHOD = ("whole-record first-order Nomoto fit on {kinds}: exact ZOH simulation of heading (and yaw "
-                       "rate) with rudder bias, output error when the compass residuals are white, else "
-                       "prediction error with the wave noise model (steady-state Kalman innovations)")
+WHOLE_RECORD_METHOD = ("whole-record Nomoto fit on {kinds}: exact ZOH simulation of heading (and yaw rate) driven "
+                       "by the logged rudder (a logged command through an estimated servo lag / rate limit), "
+                       "first or second order by held-out error, with rudder bias; output error when the compass "
+                       "residuals are white, else prediction error with the wave noise model (steady-state "
+                       "Kalman innovations)")
 
 
 @dataclass
@@ -99,6 +101,7 @@ class _Collector:
         self.trial = trial
         self.vessel = vessel
         self.pools: dict[str, _Pool] = {}
+        self.nomoto_fits: list[SegmentFit] = []
 
     def add(self, name: str, unit: str, method: str, kind: str, c: Contribution) -> None:
         pool = self.pools.setdefault(name, _Pool(unit=unit, method=method))
@@ -143,13 +146,25 @@ class _Collector:
             k = self._param(sf, "K")
             if sf.success and "K" not in sf.params:
                 k = replace(k, ok=False, reason=sf.message)
+            if sf.model.startswith("nomoto_oe") or sf.model.startswith("nomoto_pem"):
+                method = WHOLE_RECORD_METHOD
             self.add("K_nomoto", "1/s", method, kind, k)
             self.add("T_nomoto", "s", method, kind, self._param(sf, "T"))
+            self._nomoto_extras(sf, method)
         elif kind in WHOLE_RECORD_KINDS and dof == "yaw":
             for name, unit in (("K", "1/s"), ("T", "s"), ("b", "rad")):
                 if name == "b" and "b" not in sf.params and sf.success:
                     continue
                 self.add(f"{name}_nomoto", unit, WHOLE_RECORD_METHOD, kind, self._param(sf, name))
+            self._nomoto_extras(sf, WHOLE_RECORD_METHOD)
+
+    def _nomoto_extras(self, sf: SegmentFit, method: str) -> None:
+        """Second-order time constants and the rudder servo, where a segment's fit estimated them."""
+        if sf.success:
+            self.nomoto_fits.append(sf)
+        for param, (name, unit) in EXTRA_COEFFICIENTS.items():
+            if param in sf.params:
+                self.add(name, unit, method, sf.segment.kind, self._param(sf, param))
 
     def _first_order(self, sf: SegmentFit) -> None:
         seg = sf.segment
@@ -230,6 +245,10 @@ class _Collector:
                         f"{WN_TOLERANCE:.0%}): check restoring.{dof}, the inertia and the added mass")
                 ratio_pool.notes.append(flag)
                 self.pools[DERIVATIVES[dof]].notes.append(flag)
+        note = structure_note(self.nomoto_fits)
+        for name in ("K_nomoto", "T_nomoto"):
+            if note and name in self.pools:
+                self.pools[name].notes.append(note)
         out = {name: combine(name, pool.unit, pool.method_text(), pool.items, pool.notes)
                for name, pool in self.pools.items()}
         if "b_nomoto" in out:
@@ -274,7 +293,7 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = T
       ``K_p``/``M_q`` ``= -2 zeta wn I_eff``, ``wn_ratio_<dof>`` against the config's restoring.
     - ``rudder_step`` (yaw): first-order Nomoto -> ``K_nomoto``, ``T_nomoto``.
     - ``zigzag``, ``sinusoid`` (yaw, rudder input): whole-record Nomoto output-error or wave
-      prediction-error fit (:func:`pipeline.fit.nomoto_oe.fit_nomoto_segment`) -> ``K_nomoto``,
+      prediction-error fit (:func:`pipeline.fit.nomoto_segment.fit_nomoto_segment`) -> ``K_nomoto``,
       ``T_nomoto`` (combined with the rudder steps) and the rudder bias ``b_nomoto`` [rad].
 
     Repeated segments are combined by an inverse-variance weighted mean with a chi-square

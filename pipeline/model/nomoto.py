@@ -1,22 +1,56 @@
-"""First-order Nomoto ship model (Nomoto et al. 1957; Fossen 2021, sec. 7.2).
+"""Nomoto ship models, written once (Nomoto et al. 1957; Norrbin 1963; Fossen 2021, sec. 7.2).
+
+First order (and Norrbin's nonlinear form)::
 
     psi_dot = r
-    r_dot   = (-r + K (delta - b)) / T
+    r_dot   = (-r - n3 r^3 - d2 |r| r + K (delta - b)) / T
 
 so that psi/delta = K / (s (T s + 1)) with positive rudder giving positive yaw rate. ``b`` is a
 rudder bias [rad]: the rudder angle that cancels a constant yaw disturbance (current, wind,
-thrust asymmetry), as in the ship-autopilot seed's Kalman model. An optional ``|r| r`` term gives
-the nonlinear (Norrbin-type) yaw damping the simulator can switch on.
+thrust asymmetry), as in the ship-autopilot seed's Kalman model. ``n3`` [s^2/rad^2] is Norrbin's
+cubic term (``T r_dot + r + n3 r^3 = K delta``); ``d2`` the ``|r| r`` damping the simulator can
+switch on.
+
+Second order: ``r / (delta - b) = K (1 + T3 s) / ((1 + T1 s)(1 + T2 s))`` (:func:`nomoto2_rhs`),
+whose first-order equivalent has ``T = T1 + T2 - T3``.
+
+The heading model the Kalman filter and the prediction-error fit share (the ship-autopilot seed's
+eq. 1: wave states, Nomoto, rudder bias as a random walk) is :func:`heading_model_matrices`; the
+rudder servo (first-order lag with a rate limit) is :func:`servo_response`.
+
+References
+----------
+Nomoto, K., Taguchi, T., Honda, K., Hirano, S. (1957). On the steering qualities of ships.
+International Shipbuilding Progress 4, 354-370.
+Norrbin, N. H. (1963). On the design and analysis of the zig-zag test on base of quasi-linear
+frequency response. SSPA Report B104-3.
+Fossen, T. I. (2021). Handbook of Marine Craft Hydrodynamics and Motion Control, 2nd ed., Wiley.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.signal
 
 from ._backend import ops
+from .waves import WaveParams, wave_matrices
 
 NOMOTO_STATES = ("psi", "r")
 NOMOTO_INPUTS = ("delta",)
+#: States of the second-order model (:func:`nomoto2_rhs`).
+NOMOTO2_STATES = ("psi", "r", "x2")
+#: States of the augmented heading model (:func:`heading_model_matrices`).
+HEADING_MODEL_STATES = ("xi_w", "psi_w", "psi", "r", "b")
+#: Dynamic parameter names per model order.
+#: Order 3 is the second-order model written with ``T12 = T1 + T2`` [s] and ``T1T2 = T1 T2`` [s^2]
+#: (both positive for a stable ship), which also holds complex pole pairs (Clarke83-type ships).
+NOMOTO_ORDER_PARAMS = {1: ("K", "T"), 2: ("K", "T1", "T2", "T3"), 3: ("K", "T12", "T1T2", "T3")}
+#: The order key of the sum/product form of the second-order model.
+ORDER2_SUM_PRODUCT = 3
 
 
 @dataclass(frozen=True)
@@ -34,12 +68,15 @@ class NomotoParams:
     d2 : float
         Quadratic yaw damping [s/rad]: adds ``-d2 |r| r`` to the numerator (zero for the
         linear Nomoto model; used by the simulator's nonlinear-damping effect).
+    n3 : float
+        Norrbin's cubic yaw damping [s^2/rad^2]: adds ``-n3 r^3`` to the numerator.
     """
 
     K: float
     T: float
     b: float = 0.0
     d2: float = 0.0
+    n3: float = 0.0
 
 
 def nomoto_rhs(t, x, u, params: NomotoParams):
@@ -54,7 +91,7 @@ def nomoto_rhs(t, x, u, params: NomotoParams):
     u : array_like, shape (1,)
         Input ``[delta]`` [rad].
     params : NomotoParams
-        K [1/s], T [s], b [rad].
+        K [1/s], T [s], b [rad], d2 [s/rad], n3 [s^2/rad^2].
 
     Returns
     -------
@@ -63,4 +100,262 @@ def nomoto_rhs(t, x, u, params: NomotoParams):
     """
     o = ops(x)
     r = x[1]
-    return o.stack([r, (-r - params.d2 * o.fabs(r) * r + params.K * (u[0] - params.b)) / params.T])
+    damping = r + params.d2 * o.fabs(r) * r + params.n3 * r * r * r
+    return o.stack([r, (-damping + params.K * (u[0] - params.b)) / params.T])
+
+
+@dataclass(frozen=True)
+class Nomoto2Params:
+    """Parameters of :func:`nomoto2_rhs` (second-order Nomoto model).
+
+    Attributes
+    ----------
+    K : float
+        Gain [1/s].
+    T1, T2 : float
+        Time constants of the poles [s] (``T1 >= T2`` by convention).
+    T3 : float
+        Time constant of the zero [s].
+    b : float
+        Rudder bias [rad].
+    """
+
+    K: float
+    T1: float
+    T2: float
+    T3: float
+    b: float = 0.0
+
+    @property
+    def T_equivalent(self) -> float:
+        """First-order equivalent time constant ``T1 + T2 - T3`` [s] (Fossen 2021, eq. 7.41)."""
+        return self.T1 + self.T2 - self.T3
+
+
+def nomoto2_coefficients(K: float, T1: float, T2: float, T3: float) -> tuple[float, float, float, float]:
+    """``(a1, a0, b1, b0)`` of ``r (s^2 + a1 s + a0) = (b1 s + b0)(delta - b)``.
+
+    Parameters
+    ----------
+    K : float
+        Gain [1/s].
+    T1, T2, T3 : float
+        Pole and zero time constants [s].
+
+    Returns
+    -------
+    tuple of float
+        ``a1 = (T1 + T2)/(T1 T2)`` [1/s], ``a0 = 1/(T1 T2)`` [1/s^2], ``b1 = K T3/(T1 T2)`` [1/s],
+        ``b0 = K/(T1 T2)`` [1/s^2].
+    """
+    a1 = (T1 + T2) / (T1 * T2)
+    a0 = 1.0 / (T1 * T2)
+    return a1, a0, K * T3 / (T1 * T2), K / (T1 * T2)
+
+
+def nomoto2_rhs(t, x, u, params: Nomoto2Params):
+    """Right-hand side ``f(t, x, u, params)`` of the second-order Nomoto model.
+
+    Observable canonical form of ``r/(delta - b) = K (1 + T3 s) / ((1 + T1 s)(1 + T2 s))``::
+
+        psi_dot = r
+        r_dot   = -a1 r + x2 + b1 (delta - b)
+        x2_dot  = -a0 r + b0 (delta - b)
+
+    with the coefficients of :func:`nomoto2_coefficients`.
+
+    Parameters
+    ----------
+    t : float
+        Time [s] (unused; time-invariant).
+    x : array_like, shape (3,)
+        ``[psi, r, x2]`` [rad, rad/s, rad/s^2]; ``x2 = r_dot + a1 r - b1 (delta - b)``.
+    u : array_like, shape (1,)
+        ``[delta]`` [rad].
+    params : Nomoto2Params
+        K [1/s], T1, T2, T3 [s], b [rad].
+
+    Returns
+    -------
+    array_like, shape (3,)
+        ``[psi_dot, r_dot, x2_dot]``.
+    """
+    o = ops(x)
+    a1, a0, b1, b0 = nomoto2_coefficients(params.K, params.T1, params.T2, params.T3)
+    v = u[0] - params.b
+    return o.stack([x[1], -a1 * x[1] + x[2] + b1 * v, -a0 * x[1] + b0 * v])
+
+
+def nomoto2_sum_product(K: float, T12: float, T1T2: float, T3: float) -> tuple[float, float, float, float]:
+    """``(a1, a0, b1, b0)`` of the second-order model from ``T12 = T1 + T2`` and ``T1T2 = T1 T2``.
+
+    Parameters
+    ----------
+    K : float
+        Gain [1/s].
+    T12 : float
+        Sum of the pole time constants [s].
+    T1T2 : float
+        Their product [s^2] (complex poles when ``T12^2 < 4 T1T2``).
+    T3 : float
+        Zero time constant [s].
+
+    Returns
+    -------
+    tuple of float
+        As :func:`nomoto2_coefficients`.
+    """
+    return T12 / T1T2, 1.0 / T1T2, K * T3 / T1T2, K / T1T2
+
+
+def pole_time_constants(T12: float, T1T2: float) -> tuple[float, float] | None:
+    """``(T1, T2)`` with ``T1 >= T2`` from their sum and product; None for a complex pair.
+
+    Parameters
+    ----------
+    T12 : float
+        ``T1 + T2`` [s].
+    T1T2 : float
+        ``T1 T2`` [s^2].
+    """
+    disc = T12 * T12 - 4.0 * T1T2
+    if disc < 0:
+        return None
+    root = math.sqrt(disc)
+    return 0.5 * (T12 + root), 0.5 * (T12 - root)
+
+
+def nomoto_matrices(order: int, dyn: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous ``(A, B)`` of the linear Nomoto model for the input ``delta - b``; state 0 is psi.
+
+    The same system as :func:`nomoto_rhs` (``n3 = d2 = 0``) or :func:`nomoto2_rhs`.
+
+    Parameters
+    ----------
+    order : int
+        1 (``dyn = (K, T)``, states ``[psi, r]``), 2 (``dyn = (K, T1, T2, T3)``, states
+        ``NOMOTO2_STATES``) or 3 (``dyn = (K, T12, T1T2, T3)``, the same states).
+    dyn : sequence of float
+        Dynamic parameters [1/s, s, ...].
+
+    Returns
+    -------
+    a, b : numpy.ndarray
+        ``(n, n)`` and ``(n, 1)``.
+    """
+    if order == 1:
+        K, T = dyn
+        return np.array([[0.0, 1.0], [0.0, -1.0 / T]]), np.array([[0.0], [K / T]])
+    if order in (2, ORDER2_SUM_PRODUCT):
+        a1, a0, b1, b0 = nomoto2_coefficients(*dyn) if order == 2 else nomoto2_sum_product(*dyn)
+        a = np.array([[0.0, 1.0, 0.0], [0.0, -a1, 1.0], [0.0, -a0, 0.0]])
+        return a, np.array([[0.0], [b1], [b0]])
+    raise ValueError(f"Nomoto model order: expected 1, 2 or 3, found {order!r}")
+
+
+def heading_model_matrices(K: float, T: float, waves: WaveParams
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, E, C)`` of the augmented heading model, states ``HEADING_MODEL_STATES``.
+
+    The ship-autopilot seed's model (Fossen 2021, sec. 13.3)::
+
+        xi_w_dot  = psi_w
+        psi_w_dot = -omega_0^2 xi_w - 2 lambda omega_0 psi_w + K_w w_w
+        psi_dot   = r
+        r_dot     = (-r + K (delta - b)) / T
+        b_dot     = w_b
+        y         = psi + psi_w + v
+
+    shared by the Kalman filter (:mod:`pipeline.autopilot.kalman`) and the prediction-error fit.
+
+    Parameters
+    ----------
+    K : float
+        Nomoto gain [1/s].
+    T : float
+        Nomoto time constant [s].
+    waves : WaveParams
+        Wave model (omega_0 [rad/s], lambda [-], K_w [rad s^-1/2]).
+
+    Returns
+    -------
+    A : numpy.ndarray, shape (5, 5)
+    B : numpy.ndarray, shape (5, 1)
+        Rudder input [rad].
+    E : numpy.ndarray, shape (5, 2)
+        Noise inputs ``(w_w, w_b)``.
+    C : numpy.ndarray, shape (1, 5)
+        Compass ``y = psi + psi_w``.
+    """
+    aw, ew, _ = wave_matrices(waves)
+    a = np.zeros((5, 5))
+    a[:2, :2] = aw
+    a[2, 3] = 1.0
+    a[3, 3], a[3, 4] = -1.0 / T, -K / T
+    b = np.zeros((5, 1))
+    b[3, 0] = K / T
+    e = np.zeros((5, 2))
+    e[:2, 0] = ew[:, 0]
+    e[4, 1] = 1.0
+    c = np.array([[0.0, 1.0, 1.0, 0.0, 0.0]])
+    return a, b, e, c
+
+
+def servo_response(delta_c: np.ndarray, h: float, t_servo: float, rate_max: float = math.inf,
+                   delta0: float | None = None, substeps: int = 40) -> np.ndarray:
+    """Rudder angle of a servo following a held command: first-order lag with a rate limit.
+
+    ``delta_dot = clip((delta_c - delta) / T_s, -rate_max, rate_max)`` (Fossen 2021, sec. 9.5;
+    PythonVehicleSimulator's ships use this form), integrated with ``substeps`` Euler steps per
+    sample. The value returned for interval ``k`` is the mean rudder angle over
+    ``[t_k, t_k+1)``, so that a zero-order-hold simulation driven by it keeps the heading's
+    increment right to second order.
+
+    Parameters
+    ----------
+    delta_c : numpy.ndarray, shape (N,)
+        Commanded rudder angle, held over each sample interval [rad].
+    h : float
+        Sample time [s].
+    t_servo : float
+        Servo time constant [s] (0 gives a pure rate limiter).
+    rate_max : float
+        Rate limit [rad/s] (``inf``: none).
+    delta0 : float, optional
+        Rudder angle at the first sample [rad]; the first command by default.
+    substeps : int
+        Integration steps per sample.
+
+    Returns
+    -------
+    numpy.ndarray, shape (N,)
+        Mean servo angle over each sample interval [rad].
+    """
+    u = np.asarray(delta_c, float)
+    d = float(u[0] if delta0 is None else delta0)
+    lim = rate_max if rate_max > 0 else math.inf
+    if t_servo > 0:
+        # Without the rate limit the lag is linear: exact per sample, d[k+1] = a d[k] + (1 - a) u[k].
+        a = math.exp(-h / t_servo)
+        start = np.empty(u.size)
+        start[0] = d
+        if u.size > 1:
+            zi = np.array([a * d])
+            start[1:] = scipy.signal.lfilter([1.0 - a], [1.0, -a], u[:-1], zi=zi)[0]
+        if not np.isfinite(lim) or float(np.max(np.abs(u - start))) <= lim * t_servo:
+            return u + (start - u) * (t_servo / h) * (1.0 - a)
+    dt = h / substeps
+    out = np.empty(u.size)
+    # A lag shorter than the Euler step would overshoot: below 2 dt the rate limit alone acts.
+    lag = t_servo if t_servo > 2 * dt else 0.0
+    for k, uk in enumerate(u):
+        acc = 0.0
+        for _ in range(substeps):
+            err = uk - d
+            rate = err / lag if lag else (err / dt if abs(err) < lim * dt else math.copysign(lim, err))
+            rate = min(max(rate, -lim), lim)
+            d_new = d + dt * rate
+            acc += 0.5 * (d + d_new)
+            d = d_new
+        out[k] = acc / substeps
+    return out

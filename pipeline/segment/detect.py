@@ -17,6 +17,7 @@ import numpy as np
 from ..records import DOF_CHANNELS, INPUT_UNITS, Segment, Segments, Trial
 from .decays import equilibrium, release_decays, release_index
 from .inputs import Level, split_levels
+from .rudder import RudderChange, classify_changes, find_holds, is_command_like, sine_fit_r2, zigzag_runs
 from .speed_events import coast_down_segments
 
 #: Input channel -> (DOF, response channel) for input-driven segments.
@@ -94,8 +95,21 @@ def _input_segments(trial: Trial) -> list[Segment]:
     # All change instants of every input: a segment ends at the next change of any input.
     changes: list[float] = []
     per_input: dict[str, tuple[list[Level], list]] = {}
+    measured_rudder = None
     for ch in inputs:
-        levels, varying = split_levels(trial.data[ch].to_numpy(), fs)
+        u = trial.data[ch].to_numpy()
+        if ch == "delta" and not is_command_like(u):
+            # A measured servo angle: holds and ramps, not levels and jumps.
+            noise = noise_std(u)
+            holds = find_holds(u, fs, noise)
+            finite = u[np.isfinite(u)]
+            # A manoeuvre's step is well above the sensor noise and a tenth of the rudder's range.
+            min_step = max(10 * noise, 0.1 * float(np.ptp(finite))) if finite.size else 0.0
+            steps, varying_r = classify_changes(holds, fs, min_step)
+            measured_rudder = (steps, varying_r)
+            changes += [t[st.before.i_end] for st in steps] + [t[a] for a, _ in varying_r]
+            continue
+        levels, varying = split_levels(u, fs)
         per_input[ch] = (levels, varying)
         changes += [t[lv.i_start] for lv in levels] + [t[v.i_start] for v in varying]
     changes = sorted(set(changes))
@@ -105,6 +119,9 @@ def _input_segments(trial: Trial) -> list[Segment]:
             continue
         dof, resp = INPUT_DOF[ch]
         if not trial.has(resp):
+            continue
+        if ch == "delta" and measured_rudder is not None:
+            segs += _measured_rudder_segments(trial, *measured_rudder, changes)
             continue
         levels, varying = per_input[ch]
         zig_idx = _zigzag_runs(levels) if ch == "delta" else []
@@ -141,7 +158,9 @@ def _input_segments(trial: Trial) -> list[Segment]:
             y = window[resp].to_numpy()
             noise = noise_std(y)
             _, tau = _settle_index(y, fs, noise)
-            if np.isfinite(tau):
+            if np.isfinite(tau) and ch != "delta":
+                # A rudder step's window ends at the next input change: a noisy settle-time
+                # estimate of a slow ship must not cut it (the whole-record fit uses it all).
                 t_end = min(t_end, t0 + 8 * tau)
             if t_end - t0 < 5 / fs:
                 continue
@@ -155,9 +174,76 @@ def _input_segments(trial: Trial) -> list[Segment]:
             snr = abs(np.nanmedian(y[-max(len(y) // 10, 2):]) - np.nanmedian(y[:3])) / max(noise, 1e-12)
             if kind == "coast_down":
                 snr = abs(np.nanmedian(y[:3])) / max(noise, 1e-12)
+            if ch == "delta":
+                snr = max(snr, _heading_snr(trial, t0, t_end))
             q = _quality(snr, (t_end - t0) / tau if np.isfinite(tau) else np.nan)
             segs.append(Segment(kind, dof, t0, float(t_end), ch, prev.value, lv.value, quality=q,
                                 label=f"T~{tau:.2f} s, SNR {snr:.0f}" if np.isfinite(tau) else f"SNR {snr:.0f}"))
+    return segs
+
+
+def _heading_snr(trial: Trial, t0: float, t1: float) -> float:
+    """Heading change over a window against the compass noise: a slow ship's rudder step moves the
+    heading by many degrees while its yaw rate barely leaves the gyro noise."""
+    if not trial.has("psi"):
+        return 0.0
+    psi = trial.window(t0, t1)["psi"].to_numpy()
+    psi = psi[np.isfinite(psi)]
+    if psi.size < 4:
+        return 0.0
+    psi = np.unwrap(psi)
+    return float(np.ptp(psi) / max(noise_std(psi), 1e-6))
+
+
+def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: list[tuple[int, int]],
+                              changes: list[float]) -> list[Segment]:
+    """Rudder steps, zig-zags and sinusoids of a measured rudder angle (:mod:`pipeline.segment.rudder`)."""
+    t = trial.t
+    fs = trial.fs
+    segs: list[Segment] = []
+    runs = zigzag_runs(steps)
+    in_zig = {k for run in runs for k in run}
+    for run in runs:
+        first, last = steps[run[0]], steps[run[-1]]
+        t0 = float(t[first.before.i_end])
+        t1 = _gap_cut(trial, t0, float(t[last.after.i_end - 1]), "r")
+        if _in_gap(trial, t0) or t1 - t0 < 5 / fs:
+            continue
+        segs.append(Segment("zigzag", "yaw", t0, t1, "delta", first.before.value, first.after.value, quality=1.0,
+                            label=f"{len(run)} rudder holds, measured rudder"))
+    u = trial.data["delta"].to_numpy()
+    for i0, i1 in varying:
+        seg = u[i0:i1]
+        if len(seg) < 8 or not np.all(np.isfinite(seg)):
+            continue
+        r2, w, amp = sine_fit_r2(seg, fs)
+        periods = w * (i1 - i0) / fs / (2 * np.pi) if np.isfinite(w) else 0.0
+        t0, t1 = float(t[i0]), float(t[i1 - 1])
+        if r2 < 0.9 or periods < 1.0 or _in_gap(trial, t0):
+            continue
+        t1 = _gap_cut(trial, t0, t1, "r")
+        segs.append(Segment("sinusoid", "yaw", t0, t1, "delta", 0.0, amp, quality=float(np.clip(periods / 3, 0, 1)),
+                            label=f"omega {w:.4g} rad/s, {periods:.1f} periods, sine fit R^2 {r2:.3f}"))
+    for k, st in enumerate(steps):
+        if k in in_zig:
+            continue
+        t0 = float(t[st.before.i_end])
+        if _in_gap(trial, t0):
+            continue
+        later = [c for c in changes if c > t0 + 0.5 / fs]
+        t1 = min(later[0] if later else float(t[-1]), float(t[st.after.i_end - 1]))
+        t1 = _gap_cut(trial, t0, t1, "r")
+        if t1 - t0 < 5 / fs:
+            continue
+        ramp = (st.after.i_start - st.before.i_end) / fs
+        snr = _heading_snr(trial, t0, t1)
+        if trial.has("r"):
+            r = trial.window(t0, t1)["r"].to_numpy()
+            snr = max(snr, abs(np.nanmedian(r[-max(len(r) // 10, 2):]) - np.nanmedian(r[:3]))
+                      / max(noise_std(r), 1e-12))
+        segs.append(Segment("rudder_step", "yaw", t0, t1, "delta", st.before.value, st.after.value,
+                            quality=_quality(snr, (t1 - t0) / max(ramp, 1.0)),
+                            label=f"measured rudder, {ramp:.1f} s ramp, SNR {snr:.0f}"))
     return segs
 
 

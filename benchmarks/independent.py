@@ -1,0 +1,477 @@
+"""Nomoto identification on ships vesselid was not tuned on: Fossen's PythonVehicleSimulator.
+
+Ships (PythonVehicleSimulator's own classes and equations; nothing of it is copied here): the
+frigate (Norrbin model, rudder servo with 1 s lag and 10 deg/s rate limit, U = 8 m/s), the
+Clarke83 ship (linear 3-DOF sway-yaw model: second-order Nomoto with complex poles and a zero;
+1 s rudder lag), and the tanker (nonlinear, shallow water, rudder rate limit 5 deg/s; 20 and
+25 m depth). Manoeuvres: rudder steps (hold, +a, hold, -a, ...), a closed-loop a/a zig-zag and
+sinusoids at two frequencies. Each is run once per ship with the simulator's own ``dynamics`` at
+20 Hz (its forward Euler) and logged at 5 Hz as a canonical CSV: heading (wrapped), yaw rate,
+speed and the rudder, logged either as the servo's measured angle (``measured``: noisy, ramps) or
+as the command (``commanded``: clean steps). Each seed then adds its own sensor noise (compass
+0.2 deg, gyro 0.05 deg/s, rudder sensor 0.1 deg) and, with ``waves``, a narrow-band wave-induced
+yaw (0.5 deg std around 0.6 rad/s, on heading and yaw rate).
+
+Truth: the simulator's own linearisation about its straight-line steady state (finite differences
+of its ``dynamics`` in sway velocity, yaw rate and rudder) reduced to ``r/delta = (b1 s + b0)/(s^2
++ a1 s + a0)``: ``K = b0/a0``, first-order equivalent ``T = T1 + T2 - T3 = a1/a0 - b1/b0``.
+
+Each log goes through vesselid as a new user's would: :func:`pipeline.flow.load_trial` (CSV reader
+and aligner), :func:`pipeline.segment.detect_segments`, :func:`pipeline.fit.fit_trial` with a
+vessel config that gives only its name. Peers on the same logs: a plain 30-line scipy output-error
+fit (first-order Nomoto with bias, heading simulated by ``scipy.signal.lsim`` from the logged
+rudder, ``scipy.optimize.least_squares``) and, on the sinusoid pair, the seeds' two-frequency
+amplitude method.
+
+Per row (ship, manoeuvre, rudder log, waves): median and worst relative error of K and T over the
+seeds, 95 % CI coverage, the number of estimates more than 20 % off that were marked success,
+and the peers' median errors.
+
+Run: ``.venv/bin/python benchmarks/independent.py [--seeds N] [--ships a,b] [--manoeuvres a,b]``.
+PythonVehicleSimulator is found at ``$PVS_PATH`` (default ``/work/pvs/src``); without it the script
+prints why and exits 0. Results are written to benchmarks/RESULTS.md under
+"## Independent simulator (PythonVehicleSimulator, Nomoto)".
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import math  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import scipy.optimize  # noqa: E402
+import scipy.signal  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline.errors import VesselidError  # noqa: E402
+from pipeline.fit import fit_trial, nomoto_amplitude_method, sinusoid_amplitude  # noqa: E402
+from pipeline.flow import load_trial  # noqa: E402
+from pipeline.segment import detect_segments  # noqa: E402
+from pipeline.vessel import parse_vessel  # noqa: E402
+
+D2R = math.pi / 180.0
+H_SIM = 0.05          # integration step [s] (the simulator's Euler)
+FS_LOG = 5.0          # log rate [Hz]
+SECTION = "## Independent simulator (PythonVehicleSimulator, Nomoto)"
+NOISE = {"psi": 0.2 * D2R, "r": 0.05 * D2R, "delta": 0.1 * D2R}
+WAVE_STD, WAVE_OMEGA = 0.5 * D2R, 0.6
+
+
+def load_pvs():
+    """Import PythonVehicleSimulator's vehicles from ``$PVS_PATH``; None (with a message) when absent."""
+    path = os.environ.get("PVS_PATH", "/work/pvs/src")
+    if not Path(path, "python_vehicle_simulator").is_dir():
+        print(f"PythonVehicleSimulator not found at {path!r} (set PVS_PATH): benchmark skipped")
+        return None
+    sys.path.insert(0, path)
+    import python_vehicle_simulator.vehicles as vehicles
+
+    return vehicles
+
+
+@dataclass(frozen=True)
+class Ship:
+    name: str
+    make: object          # () -> vehicle
+    amplitude: float      # rudder amplitude [rad] for steps / zig-zag / sinusoid
+    zigzag_psi: float     # zig-zag heading switch [rad]
+
+
+def ships(v) -> dict[str, Ship]:
+    return {
+        "frigate": Ship("frigate", lambda: v.frigate("stepInput", U=8.0), 10 * D2R, 10 * D2R),
+        "clarke83": Ship("clarke83", lambda: v.shipClarke83(), 10 * D2R, 10 * D2R),
+        "tanker20": Ship("tanker20", lambda: v.tanker(depth=20.0), 10 * D2R, 10 * D2R),
+        "tanker25": Ship("tanker25", lambda: v.tanker(depth=25.0), 10 * D2R, 10 * D2R),
+    }
+
+
+# --------------------------------------------------------------------------- simulation
+def settle(vehicle, seconds: float = 3000.0) -> np.ndarray:
+    """Straight-line steady state of the simulator at zero rudder."""
+    nu = np.array(vehicle.nu, float)
+    ua = np.zeros(1)
+    eta = np.zeros(6)
+    for _ in range(int(seconds / H_SIM)):
+        nu, ua = vehicle.dynamics(eta, nu, ua, np.zeros(1), H_SIM)
+    return nu
+
+
+def linearise(vehicle, nu0: np.ndarray) -> dict[str, float]:
+    """The simulator's own linear sway-yaw model about ``nu0`` -> K, T1+T2, T1 T2, T3, T equivalent."""
+    eta = np.zeros(6)
+
+    def f(v, r, d):
+        nu = np.array(nu0, float)
+        nu[1], nu[5] = v, r
+        h = 1e-3
+        nu1, _ = vehicle.dynamics(eta, nu, np.array([d]), np.array([d]), h)
+        return (nu1 - nu) / h
+
+    eps = (1e-4, 1e-6, 1e-5)
+    base = np.array([nu0[1], nu0[5], 0.0])
+    cols = []
+    for j, e in enumerate(eps):
+        xp, xm = base.copy(), base.copy()
+        xp[j] += e
+        xm[j] -= e
+        cols.append((f(*xp) - f(*xm)) / (2 * e))
+    jac = np.column_stack(cols)[[1, 5]]    # rows v_dot, r_dot; columns v, r, delta
+    a, b = jac[:, :2], jac[:, 2:]
+    if abs(a[0, 0]) < 1e-12 and abs(a[0, 1]) < 1e-12 and abs(b[0, 0]) < 1e-12:
+        # Yaw-only model (frigate): r_dot = a r + b delta.
+        K, T = -b[1, 0] / a[1, 1], -1.0 / a[1, 1]
+        return {"K": K, "T": T, "T1": T, "T2": 0.0, "T3": 0.0, "order": 1}
+    num, den = scipy.signal.ss2tf(a, b, np.array([[0.0, 1.0]]), np.zeros((1, 1)))
+    num = num[0][-2:]
+    a1, a0 = den[1], den[2]
+    b1, b0 = num
+    K = b0 / a0
+    T3 = b1 / b0
+    return {"K": K, "T": a1 / a0 - T3, "T1pT2": a1 / a0, "T1T2": 1.0 / a0, "T3": T3, "order": 2,
+            "complex_poles": bool(a1**2 < 4 * a0)}
+
+
+def rudder_program(kind: str, ship: Ship, T: float, K: float):
+    """Command generator ``(t, psi) -> delta_c`` and the duration [s].
+
+    ``T`` is the ship's slowest time scale (``T1 + T2`` for a second-order ship), ``K`` the signed
+    linear gain (the zig-zag switches on the heading the rudder drives).
+    """
+    a = ship.amplitude
+    sign = 1.0 if K > 0 else -1.0
+    if kind == "steps":
+        hold = max(6 * T, 60.0)
+        pattern = [0.0, a, 0.0, -a, 0.0, 0.5 * a, 0.0]
+        return (lambda t, psi, st: pattern[min(int(t // hold), len(pattern) - 1)]), hold * len(pattern)
+    if kind == "zigzag":
+        def zig(t, psi, st):
+            if t < 30.0:
+                return 0.0
+            if st.get("d") is None:
+                st["d"] = a
+            turned = sign * psi
+            if st["d"] > 0 and turned > ship.zigzag_psi:
+                st["d"] = -a
+            elif st["d"] < 0 and turned < -ship.zigzag_psi:
+                st["d"] = a
+            return st["d"]
+        half_cycle = 2 * ship.zigzag_psi / (abs(K) * a) + T
+        return zig, 30.0 + 7 * half_cycle
+    if kind.startswith("sinusoid"):
+        w = (0.5 if kind.endswith("slow") else 2.0) / T
+        periods = 3
+        return (lambda t, psi, st: a * math.sin(w * t)), periods * 2 * math.pi / w
+    raise ValueError(kind)
+
+
+def time_scale(truth: dict) -> float:
+    """The ship's slowest time scale [s]: T, or T1 + T2 for a second-order ship."""
+    return abs(truth["T"]) if truth["order"] == 1 else abs(truth["T1pT2"])
+
+
+def simulate(ship: Ship, kind: str, truth: dict) -> dict[str, np.ndarray]:
+    """Noise-free log at FS_LOG: t, psi (unwrapped), r, u, delta_c, delta (servo)."""
+    vehicle = ship.make()
+    nu = settle(vehicle)
+    prog, duration = rudder_program(kind, ship, time_scale(truth), truth["K"])
+    ua = np.zeros(1)
+    eta = np.zeros(6)
+    psi = 0.0
+    st: dict = {}
+    every = int(round(1 / (FS_LOG * H_SIM)))
+    rows = []
+    n = int(duration / H_SIM)
+    dc = 0.0
+    for k in range(n + 1):
+        t = k * H_SIM
+        if k % every == 0:
+            dc = prog(t, psi, st)       # a digital command, updated at the log rate and held
+            rows.append((t, psi, nu[5], nu[0], dc, ua[0]))
+        nu, ua = vehicle.dynamics(eta, nu, ua, np.array([dc]), H_SIM)
+        psi += H_SIM * nu[5]
+    arr = np.array(rows)
+    return dict(zip(("t", "psi", "r", "u", "delta_c", "delta"), arr.T))
+
+
+def wave_yaw(t: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Narrow-band wave-induced heading and yaw rate (30 random-phase components)."""
+    w = WAVE_OMEGA * (1 + 0.2 * rng.standard_normal(30))
+    ph = rng.uniform(0, 2 * math.pi, 30)
+    amp = WAVE_STD * math.sqrt(2.0 / 30)
+    psi_w = (amp * np.cos(np.outer(t, w) + ph)).sum(axis=1)
+    r_w = (-amp * w * np.sin(np.outer(t, w) + ph)).sum(axis=1)
+    return psi_w, r_w
+
+
+def noisy_log(sim: dict, rudder: str, waves: bool, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """One seed's log: sensor noise, optional waves, rudder as measured angle or command."""
+    t = sim["t"]
+    psi = sim["psi"] + NOISE["psi"] * rng.standard_normal(t.size)
+    r = sim["r"] + NOISE["r"] * rng.standard_normal(t.size)
+    if waves:
+        pw, rw = wave_yaw(t, rng)
+        psi, r = psi + pw, r + rw
+    if rudder == "measured":
+        delta = sim["delta"] + NOISE["delta"] * rng.standard_normal(t.size)
+    else:
+        delta = sim["delta_c"].copy()
+    psi = (psi + math.pi) % (2 * math.pi) - math.pi
+    return {"t": t, "psi": psi, "r": r, "u": sim["u"], "delta": delta}
+
+
+def write_csv(log: dict, path: Path) -> None:
+    cols = ("t", "psi", "r", "u", "delta")
+    np.savetxt(path, np.column_stack([log[c] for c in cols]), delimiter=",", header=",".join(cols), comments="",
+               fmt="%.9g")
+
+
+# --------------------------------------------------------------------------- estimators
+def vesselid_fit(log: dict, workdir: Path, tag: str) -> dict:
+    """The user's path: CSV -> load_trial -> detect_segments -> fit_trial (name-only vessel)."""
+    path = workdir / f"{tag}.csv"
+    write_csv(log, path)
+    vessel = parse_vessel({"name": "pvs_ship"})
+    try:
+        trial = load_trial([path])
+        segs = detect_segments(trial)
+        fits = fit_trial(trial, segs, vessel, extend=False)
+    except VesselidError as exc:
+        return {"error": str(exc)}
+    except Exception as exc:  # noqa: BLE001 - a crash is a result of the benchmark, recorded per run
+        return {"error": f"crash: {type(exc).__name__}: {exc}"}
+    out = {"kinds": [s.kind for s in segs.items if s.dof == "yaw"]}
+    for key, name in (("K", "K_nomoto"), ("T", "T_nomoto")):
+        est = fits.estimates.get(name)
+        if est is None:
+            out[key] = None
+            continue
+        out[key] = {"value": est.value, "stderr": est.stderr, "ci": est.ci95, "success": est.success,
+                    "message": est.message[:300]}
+    return out
+
+
+def scipy_oe(log: dict) -> tuple[float, float]:
+    """Peer: plain first-order Nomoto output-error fit of the heading (scipy only)."""
+    t, psi, delta = log["t"], np.unwrap(log["psi"]), log["delta"]
+
+    def sim(p):
+        K, T, b, psi0, r0 = p
+        sys_ = scipy.signal.StateSpace([[0, 1], [0, -1 / T]], [[0], [K / T]], [[1, 0]], [[0]])
+        _, y, _ = scipy.signal.lsim(sys_, delta - b, t - t[0], X0=[psi0, r0], interp=False)
+        return y
+
+    r_ss = np.median(np.abs(log["r"])) + 1e-6
+    p0 = [r_ss / (np.median(np.abs(delta)) + 1e-3), 20.0, 0.0, psi[0], log["r"][0]]
+    res = scipy.optimize.least_squares(lambda p: sim(p) - psi, p0, bounds=([-np.inf, 0.1, -0.5, -np.inf, -1],
+                                                                       [np.inf, 5000, 0.5, np.inf, 1]))
+    return float(res.x[0]), float(res.x[1])
+
+
+# --------------------------------------------------------------------------- the benchmark
+def rel(v, truth):
+    return (v - truth) / abs(truth) if v is not None and math.isfinite(v) else math.nan
+
+
+def run_one(task) -> dict:
+    """One seed of one row: noisy log(s) -> vesselid and the peers."""
+    ship_name, kinds, sims, rudder, waves, seed, truth = task
+    rng = np.random.default_rng(1000 * seed + 17)
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for kind in kinds:
+            log = noisy_log(sims[kind], rudder, waves == "yes", rng)
+            run = {"kind": kind, "seed": seed}
+            run["vesselid"] = vesselid_fit(log, Path(tmp), f"{ship_name}_{kind}_{seed}")
+            try:
+                run["oe"] = scipy_oe(log)
+            except (ValueError, np.linalg.LinAlgError):
+                run["oe"] = (math.nan, math.nan)
+            if kind.startswith("sinusoid"):
+                w = (0.5 if kind.endswith("slow") else 2.0) / time_scale(truth)
+                run["amp"] = (sinusoid_amplitude(log["t"], np.unwrap(log["psi"]), log["delta"]), w)
+            runs.append(run)
+    return runs
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--ships", default="frigate,clarke83,tanker20,tanker25")
+    ap.add_argument("--manoeuvres", default="steps,zigzag,sinusoid")
+    ap.add_argument("--rudder", default="measured,commanded")
+    ap.add_argument("--waves", default="no,yes")
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--no-write", action="store_true", help="print only; do not touch RESULTS.md")
+    args = ap.parse_args(argv)
+    v = load_pvs()
+    if v is None:
+        return 0
+    all_ships = ships(v)
+    chosen = [all_ships[s] for s in args.ships.split(",")]
+    rows_spec = []
+    t0 = time.time()
+    for ship in chosen:
+        vehicle = ship.make()
+        truth = linearise(vehicle, settle(vehicle))
+        print(f"{ship.name}: truth K = {truth['K']:.5g} 1/s, T = {truth['T']:.5g} s "
+              f"({'second order' if truth['order'] == 2 else 'first order'})", flush=True)
+        for man in args.manoeuvres.split(","):
+            kinds = ["sinusoid_slow", "sinusoid_fast"] if man == "sinusoid" else [man]
+            sims = {kind: simulate(ship, kind, truth) for kind in kinds}
+            for rudder in args.rudder.split(","):
+                for waves in args.waves.split(","):
+                    rows_spec.append((ship.name, man, rudder, waves, truth,
+                                      [(ship.name, kinds, sims, rudder, waves, seed, truth) for seed in range(args.seeds)]))
+    tasks = [task for spec in rows_spec for task in spec[5]]
+    if args.workers > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("fork").Pool(args.workers) as pool:
+            results = []
+            for i, res in enumerate(pool.imap(run_one, tasks, chunksize=1)):
+                results.append(res)
+                print(f"task {i + 1}/{len(tasks)} done ({time.time() - t0:.0f} s)", flush=True)
+    else:
+        results = [run_one(task) for task in tasks]
+    rows = []
+    k = 0
+    for ship_name, man, rudder, waves, truth, seed_tasks in rows_spec:
+        runs = [run for res in results[k:k + len(seed_tasks)] for run in res]
+        k += len(seed_tasks)
+        rows.append(summarise({"ship": ship_name, "man": man, "rudder": rudder, "waves": waves, "truth": truth,
+                               "runs": runs}))
+        print(format_row(rows[-1]), flush=True)
+    elapsed = time.time() - t0
+    text = render(rows, args, elapsed, {spec[0]: spec[4] for spec in rows_spec})
+    print(text)
+    if not args.no_write:
+        write_results(text)
+    return 0
+
+
+def summarise(res: dict) -> dict:
+    truth = res["truth"]
+    K0, T0 = truth["K"], truth["T"]
+    errs = {"K": [], "T": []}
+    cover = {"K": [], "T": []}
+    wrong_success = 0
+    fails = []
+    oe_err = {"K": [], "T": []}
+    amp_err = {"K": [], "T": []}
+    by_seed: dict[int, list] = {}
+    for run in res["runs"]:
+        vid = run["vesselid"]
+        for key, tv in (("K", K0), ("T", T0)):
+            est = vid.get(key) if "error" not in vid else None
+            if est is None or not est["success"]:
+                errs[key].append(math.nan)
+                if est is not None and math.isfinite(est["value"]) and abs(rel(est["value"], tv)) > 0.2:
+                    pass
+                fails.append((est or {}).get("message", vid.get("error", "no estimate"))[:120])
+                continue
+            e = rel(est["value"], tv)
+            errs[key].append(e)
+            lo, hi = est["ci"]
+            cover[key].append(lo <= tv <= hi)
+            if abs(e) > 0.2:
+                wrong_success += 1
+        oe_err["K"].append(rel(run["oe"][0], K0))
+        oe_err["T"].append(rel(run["oe"][1], T0))
+        if "amp" in run:
+            by_seed.setdefault(run["seed"], []).append(run["amp"])
+    for pair in by_seed.values():
+        if len(pair) == 2:
+            try:
+                K, T = nomoto_amplitude_method(pair[0][0], pair[1][0], pair[0][1], pair[1][1])
+                amp_err["K"].append(rel(K, abs(K0)) if K0 > 0 else rel(-K, K0))
+                amp_err["T"].append(rel(T, T0))
+            except VesselidError:
+                amp_err["K"].append(math.nan)
+                amp_err["T"].append(math.nan)
+
+    def med(x):
+        x = np.abs(np.array(x, float))
+        x = x[np.isfinite(x)]
+        return float(np.median(x)) if x.size else math.nan
+
+    def worst(x):
+        x = np.abs(np.array(x, float))
+        x = x[np.isfinite(x)]
+        return float(np.max(x)) if x.size else math.nan
+
+    n = len(errs["K"])
+    return {"ship": res["ship"], "man": res["man"], "rudder": res["rudder"], "waves": res["waves"],
+            "n": n, "nK": int(np.isfinite(errs["K"]).sum()), "nT": int(np.isfinite(errs["T"]).sum()),
+            "K_med": med(errs["K"]), "K_max": worst(errs["K"]), "T_med": med(errs["T"]), "T_max": worst(errs["T"]),
+            "K_bias": float(np.nanmedian(errs["K"])) if np.isfinite(errs["K"]).any() else math.nan,
+            "T_bias": float(np.nanmedian(errs["T"])) if np.isfinite(errs["T"]).any() else math.nan,
+            "cov_K": float(np.mean(cover["K"])) if cover["K"] else math.nan,
+            "cov_T": float(np.mean(cover["T"])) if cover["T"] else math.nan,
+            "wrong_success": wrong_success, "oe_K": med(oe_err["K"]), "oe_T": med(oe_err["T"]),
+            "amp_K": med(amp_err["K"]), "amp_T": med(amp_err["T"]), "fails": fails[:2]}
+
+
+def pct(x):
+    return "-" if not math.isfinite(x) else f"{100 * x:.1f}"
+
+
+def format_row(r: dict) -> str:
+    return (f"| {r['ship']} | {r['man']} | {r['rudder']} | {r['waves']} | {r['nK']}/{r['n']} | "
+            f"{pct(r['K_bias'])} / {pct(r['K_med'])} / {pct(r['K_max'])} | "
+            f"{pct(r['T_bias'])} / {pct(r['T_med'])} / {pct(r['T_max'])} | {pct(r['cov_K'])} / {pct(r['cov_T'])} | "
+            f"{r['wrong_success']} | {pct(r['oe_K'])} / {pct(r['oe_T'])} | {pct(r['amp_K'])} / {pct(r['amp_T'])} |")
+
+
+HEADER = ("| ship | manoeuvre | rudder log | waves | K estimates | K err % (median signed / median abs / worst) | "
+          "T err % (median signed / median abs / worst) | 95% CI coverage K / T % | >20 % off marked success | "
+          "scipy OE peer median abs err K / T % | amplitude method K / T % |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|")
+
+
+def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
+    cmd = (f"benchmarks/independent.py --seeds {args.seeds} --ships {args.ships} --manoeuvres {args.manoeuvres} "
+           f"--rudder {args.rudder} --waves {args.waves} --workers {args.workers}")
+    truth_lines = []
+    for name, tr in truths.items():
+        extra = (f", T1 + T2 = {tr['T1pT2']:.4g} s, T1 T2 = {tr['T1T2']:.4g} s^2, T3 = {tr['T3']:.4g} s"
+                 f"{' (complex poles)' if tr.get('complex_poles') else ''}" if tr["order"] == 2 else "")
+        truth_lines.append(f"- {name}: K = {tr['K']:.5g} 1/s, T = {tr['T']:.5g} s{extra}")
+    lines = [SECTION, "", f"Command: `PYTHONPATH=. .venv/bin/python {cmd}` ({elapsed / 60:.1f} min on 2 shared cores).",
+             "", "Truth (the simulator's own linearisation at its straight-line steady state):", ""] + truth_lines + [
+             "", HEADER] + [format_row(r) for r in rows]
+    fails = [f"- {r['ship']} {r['man']} {r['rudder']} {r['waves']}: {r['fails'][0]}" for r in rows if r["fails"]]
+    if fails:
+        lines += ["", "First failure message per row (not identified / not marked success):", ""] + fails
+    return "\n".join(lines) + "\n"
+
+
+def write_results(text: str) -> None:
+    path = ROOT / "benchmarks" / "RESULTS.md"
+    old = path.read_text() if path.exists() else ""
+    if SECTION in old:
+        head, rest = old.split(SECTION, 1)
+        nxt = rest.find("\n## ")
+        tail = rest[nxt + 1:] if nxt >= 0 else ""
+        new = head + text + ("\n" + tail if tail else "")
+    else:
+        new = old.rstrip() + "\n\n" + text
+    tmp = path.with_suffix(".md.tmp")
+    tmp.write_text(new)
+    tmp.replace(path)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

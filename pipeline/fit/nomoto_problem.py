@@ -1,0 +1,612 @@
+"""The whole-record Nomoto criterion: records prepared on their grid, output-error and
+prediction-error residuals, the solver, and the covariance (see :mod:`pipeline.fit.nomoto_oe`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from ..errors import FitError
+from ..model.nomoto import (NOMOTO_ORDER_PARAMS, nomoto2_coefficients, nomoto2_sum_product, nomoto_matrices,
+                            servo_response)
+from ..model.waves import WaveParams
+from .nomoto_pem import initial_state_response, innovation_filter, InnovationFilter, noise_from_ratio, whiten_profiled
+from .nomoto_records import NomotoFit, NomotoRecord
+from .nomoto_zoh import simulate_zoh, zoh_discretise
+from .residual_tests import residual_test
+
+#: Dynamic parameter names per model order.
+DYNAMIC_PARAMS: Mapping[int, tuple[str, ...]] = NOMOTO_ORDER_PARAMS
+#: Wave/noise parameters of the PEM (estimated on a log scale).
+NOISE_PARAMS = ("omega0", "lambda", "kw_ratio")
+#: Rudder-servo parameters (estimated on a log scale when only the command is logged).
+SERVO_PARAMS = ("t_servo", "rate_servo")
+NOISE_MODELS = ("auto", "white", "waves")
+#: Fewest samples a record must have.
+MIN_SAMPLES = 50
+#: Relative jitter of the sample spacing accepted as uniform.
+UNIFORM_TOLERANCE = 1e-3
+# The residual is linear in these (initial states, and the bias through the input delta - b).
+_LINEAR_KINDS = frozenset({"b", "psi0", "r0", "rdot0"})
+# Floors of the finite-difference steps per parameter kind (step = 1e-6 max(|x|, floor)).
+_FD_FLOOR = {"K": 1e-3, "T": 1.0, "T12": 1.0, "T1T2": 1.0, "T1": 1.0, "T2": 1.0, "T3": 1.0, "b": 1e-2, "psi0": 1e-2, "r0": 1e-3,
+             "rdot0": 1e-4, "log": 10.0}
+
+
+# --------------------------------------------------------------------------- preparation
+@dataclass(frozen=True)
+class Prepared:
+    h: float
+    u: np.ndarray
+    y: Mapping[str, np.ndarray]
+    mask: Mapping[str, np.ndarray]
+    duration: float
+    name: str
+
+
+def unwrap_heading(psi: np.ndarray) -> np.ndarray:
+    """Heading unwrapped over its finite samples (NaN kept) [rad].
+
+    Parameters
+    ----------
+    psi : numpy.ndarray
+        Heading [rad], wrapped or not; NaN marks a missing sample.
+    """
+    out = np.array(psi, float)
+    ok = np.isfinite(out)
+    out[ok] = np.unwrap(out[ok])
+    return out
+
+
+def prepare(rec: NomotoRecord, i: int, channels: Sequence[str]) -> Prepared:
+    """Check one record and put it on its uniform grid (heading unwrapped, masks of finite samples).
+
+    Parameters
+    ----------
+    rec : NomotoRecord
+        The record.
+    i : int
+        Its index, for messages when it has no name.
+    channels : sequence of str
+        Outputs to fit (``psi``, ``r``).
+
+    Returns
+    -------
+    Prepared
+
+    Raises
+    ------
+    FitError
+        Too few samples, non-uniform time, non-finite rudder, missing channel.
+    """
+    name = rec.name or f"record {i}"
+    t = np.asarray(rec.t, float)
+    u = np.asarray(rec.delta, float)
+    if t.ndim != 1 or t.size < MIN_SAMPLES:
+        raise FitError(f"{name}: expected at least {MIN_SAMPLES} samples, found {t.size}")
+    if u.shape != t.shape:
+        raise FitError(f"{name}: expected delta with {t.size} samples like t, found shape {u.shape}")
+    if not np.all(np.isfinite(u)):
+        raise FitError(f"{name}: expected a finite rudder angle on every sample (the model is driven by it), "
+                       f"found {int((~np.isfinite(u)).sum())} non-finite samples")
+    dt = np.diff(t)
+    h = float(np.median(dt))
+    if not (h > 0 and np.all(np.abs(dt - h) <= UNIFORM_TOLERANCE * h)):
+        raise FitError(f"{name}: expected uniform, increasing sample times, found spacings "
+                       f"{float(dt.min()):.4g}..{float(dt.max()):.4g} s")
+    ys, masks = {}, {}
+    for ch in channels:
+        raw = rec.psi if ch == "psi" else rec.r
+        if raw is None:
+            raise FitError(f"{name}: channel {ch!r} requested but not given")
+        y = np.asarray(raw, float)
+        if y.shape != t.shape:
+            raise FitError(f"{name}: expected {ch} with {t.size} samples like t, found shape {y.shape}")
+        y = unwrap_heading(y) if ch == "psi" else y
+        m = np.isfinite(y)
+        if m.sum() < MIN_SAMPLES:
+            raise FitError(f"{name}: expected at least {MIN_SAMPLES} finite {ch} samples, found {int(m.sum())}")
+        ys[ch], masks[ch] = np.where(m, y, 0.0), m
+    return Prepared(h=h, u=u, y=ys, mask=masks, duration=float(t[-1] - t[0]), name=name)
+
+
+# --------------------------------------------------------------------------- the problem
+class Problem:
+    """Residuals of the OE/PEM criterion over several records, with caches for the FD Jacobian."""
+
+    def __init__(self, recs: Sequence[Prepared], order: int, bias: bool, channels: tuple[str, ...],
+                 noise: str, fixed_waves: WaveParams | None, fixed_noise_var: float | None,
+                 servo: Sequence[str] = ()):
+        self.recs = recs
+        self.servo = tuple(servo)
+        self.order = order
+        self.bias = bias
+        self.channels = channels
+        self.noise = noise
+        self.fixed_waves = fixed_waves
+        self.fixed_noise_var = fixed_noise_var
+        dyn = list(DYNAMIC_PARAMS[order])
+        self.names: list[str] = dyn + (["b"] if bias else [])
+        self.kinds: list[str] = list(self.names)
+        self.ic_names = (["psi0"] if "psi" in channels else []) + ["r0"] + (["rdot0"] if order != 1 else [])
+        self.ic_index: list[list[int]] = []
+        for i in range(len(recs)):
+            idx = []
+            for nm in self.ic_names:
+                idx.append(len(self.names))
+                self.names.append(nm if len(recs) == 1 else f"{nm}[{i}]")
+                self.kinds.append(nm)
+            self.ic_index.append(idx)
+        self.noise_index: list[int] = []
+        self.noise_free: tuple[str, ...] = ()
+        if noise == "waves":
+            self.noise_free = NOISE_PARAMS if fixed_waves is None else (
+                ("kw_ratio",) if fixed_noise_var is None else ())
+            for nm in self.noise_free:
+                self.noise_index.append(len(self.names))
+                self.names.append(nm)
+                self.kinds.append("log")
+        # The rudder servo driven by a logged command: lag t_servo [s], rate limit rate_servo [rad/s].
+        self.servo_index: list[int] = []
+        for nm in self.servo:
+            if nm not in SERVO_PARAMS:
+                raise FitError(f"servo parameters: expected names among {SERVO_PARAMS}, found {nm!r}")
+            self.servo_index.append(len(self.names))
+            self.names.append(nm)
+            self.kinds.append("log")
+        self.n_dyn = len(dyn)
+        # Time constants and noise parameters are positive: the solver works on their logarithms.
+        self.log_mask = np.array([k in ("T", "T1", "T2", "T3", "T12", "T1T2", "log") for k in self.kinds])
+        self.weights = {ch: 1.0 for ch in channels}
+        self._sim_cache: dict = {}
+        self._filt_cache: dict = {}
+        self._phi_cache: dict = {}
+        self._servo_cache: dict = {}
+
+    def rudder(self, z: np.ndarray, i: int) -> np.ndarray:
+        """Rudder angle driving record ``i``: the logged one, or the servo's response to the logged
+        command (:func:`pipeline.model.nomoto.servo_response`) when servo parameters are estimated.
+
+        Parameters
+        ----------
+        z : numpy.ndarray
+            Solver vector.
+        i : int
+            Record index.
+        """
+        rec = self.recs[i]
+        if not self.servo:
+            return rec.u
+        x = self.natural(z)
+        vals = dict(zip(self.servo, (float(x[j]) for j in self.servo_index)))
+        key = (i, tuple(vals.values()))
+        out = self._servo_cache.get(key)
+        if out is None:
+            if len(self._servo_cache) > 64:
+                self._servo_cache.clear()
+            out = servo_response(rec.u, rec.h, vals.get("t_servo", 0.0), vals.get("rate_servo", math.inf))
+            self._servo_cache[key] = out
+        return out
+
+    # -- pieces
+    def natural(self, z: np.ndarray) -> np.ndarray:
+        """SI parameter values from the solver's vector (logarithms of the positive ones).
+
+        Parameters
+        ----------
+        z : numpy.ndarray
+            Solver vector.
+        """
+        return np.where(self.log_mask, np.exp(np.clip(z, -60.0, 60.0)), z)
+
+    def solver_vector(self, theta: np.ndarray) -> np.ndarray:
+        """The solver's vector from SI values.
+
+        Parameters
+        ----------
+        theta : numpy.ndarray
+            Parameter values in SI units.
+        """
+        theta = np.asarray(theta, float)
+        return np.where(self.log_mask, np.log(np.where(self.log_mask, theta, 1.0)), theta)
+
+    def _noise_params(self, z: np.ndarray) -> tuple[float, float, float]:
+        vals = dict(zip(self.noise_free, self.natural(z)[self.noise_index]))
+        fw = self.fixed_waves
+        omega0 = vals.get("omega0", fw.omega0 if fw else math.nan)
+        lam = vals.get("lambda", fw.lam if fw else math.nan)
+        if "kw_ratio" in vals:
+            ratio = vals["kw_ratio"]
+        else:
+            ratio = fw.kw / math.sqrt(self.fixed_noise_var)
+        return omega0, lam, ratio
+
+    def _filter(self, x: np.ndarray, h: float) -> InnovationFilter | None:
+        if self.noise != "waves":
+            return None
+        omega0, lam, ratio = self._noise_params(x)
+        key = (omega0, lam, ratio, h)
+        f = self._filt_cache.get(key)
+        if f is None:
+            if len(self._filt_cache) > 64:
+                self._filt_cache.clear()
+            f = innovation_filter(WaveParams(omega0, lam, ratio), 1.0, h)
+            self._filt_cache[key] = f
+        return f
+
+    def _phi(self, filt: InnovationFilter, h: float, n: int) -> np.ndarray:
+        key = (filt.num.tobytes(), filt.gain.tobytes(), h, n)
+        phi = self._phi_cache.get(key)
+        if phi is None:
+            if len(self._phi_cache) > 64:
+                self._phi_cache.clear()
+            phi = initial_state_response(filt, n)
+            self._phi_cache[key] = phi
+        return phi
+
+    def simulate(self, z: np.ndarray, i: int) -> dict[str, np.ndarray]:
+        """Noise-free outputs of record ``i`` at the solver vector ``z``.
+
+        Parameters
+        ----------
+        z : numpy.ndarray
+            Solver vector.
+        i : int
+            Record index.
+        """
+        rec = self.recs[i]
+        x = self.natural(z)
+        dyn = tuple(float(v) for v in x[: self.n_dyn])
+        b = float(x[self.n_dyn]) if self.bias else 0.0
+        icd = {nm: float(x[j]) for nm, j in zip(self.ic_names, self.ic_index[i])}
+        psi0 = icd.pop("psi0", 0.0)
+        servo = tuple(float(x[j]) for j in self.servo_index)
+        # The initial heading only shifts psi: it is added after the cached simulation, so a
+        # finite-difference step in psi0 costs no new simulation.
+        key = (i, dyn, b, tuple(icd.values()), servo)
+        out = self._sim_cache.get(key)
+        if out is None:
+            u = self.rudder(z, i)
+            a, bm = nomoto_matrices(self.order, dyn)
+            ad, bd = zoh_discretise(a, bm, rec.h)
+            x0 = np.zeros(a.shape[0])
+            x0[1] = icd["r0"]
+            if self.order != 1:
+                a1, _, b1, _ = nomoto2_coefficients(*dyn) if self.order == 2 else nomoto2_sum_product(*dyn)
+                # x2 from the initial yaw acceleration: x2 = r_dot + a1 r - b1 (delta - b).
+                x0[2] = icd["rdot0"] + a1 * icd["r0"] - b1 * (u[0] - b)
+            states = simulate_zoh(ad, bd, x0, u - b)
+            out = {"psi": states[:, 0], "r": states[:, 1]}
+            if len(self._sim_cache) > 256:
+                self._sim_cache.clear()
+            self._sim_cache[key] = out
+        return {"psi": out["psi"] + psi0, "r": out["r"]} if psi0 else out
+
+    def channel_residuals(self, x: np.ndarray) -> list[dict[str, np.ndarray]]:
+        """Unweighted residuals per record and channel (masked samples removed).
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            Solver vector.
+        """
+        res = []
+        for i, rec in enumerate(self.recs):
+            sim = self.simulate(x, i)
+            filt = self._filter(x, rec.h)
+            per = {}
+            for ch in self.channels:
+                w = rec.y[ch] - sim[ch]
+                m = rec.mask[ch]
+                if ch == "psi" and filt is not None:
+                    if m.all():
+                        e = whiten_profiled(filt, w, self._phi(filt, rec.h, w.size))
+                    else:
+                        e = whiten_with_gaps(filt, w, m)
+                    per[ch] = e[m]
+                else:
+                    per[ch] = w[m]
+            res.append(per)
+        return res
+
+    def residual(self, x: np.ndarray) -> np.ndarray:
+        """Weighted residual vector of every record and channel (the solver's criterion).
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            Solver vector.
+        """
+        parts = []
+        for per in self.channel_residuals(x):
+            for ch in self.channels:
+                parts.append(per[ch] * self.weights[ch])
+        return np.concatenate(parts)
+
+    def fd_steps(self, x: np.ndarray) -> np.ndarray:
+        """Finite-difference steps per parameter: ``1e-6 max(|x|, floor)``.
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            Solver vector.
+        """
+        floor = np.array([1.0 if lg else _FD_FLOOR.get(k, 1e-3) for k, lg in zip(self.kinds, self.log_mask)])
+        return 1e-6 * np.maximum(np.abs(x), floor)
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """Central differences for K, T and the noise parameters; one-sided for the parameters the
+        residual is linear in (initial states, bias), where a forward difference is exact.
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            Solver vector.
+        """
+        steps = self.fd_steps(x)
+        base = None
+        cols = []
+        for j, s in enumerate(steps):
+            xp = np.array(x, float)
+            if self.kinds[j] in _LINEAR_KINDS:
+                if base is None:
+                    base = self.residual(x)
+                s = 1e3 * s   # exact for a linear map: a larger step only lowers the rounding error
+                xp[j] += s
+                cols.append((self.residual(xp) - base) / s)
+                continue
+            xm = np.array(x, float)
+            xp[j] += s
+            xm[j] -= s
+            cols.append((self.residual(xp) - self.residual(xm)) / (2 * s))
+        return np.column_stack(cols)
+
+
+def whiten_with_gaps(filt: InnovationFilter, w: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Innovations of the steady-state wave filter over a record with missing compass samples.
+
+    Parameters
+    ----------
+    filt : InnovationFilter
+        From :func:`pipeline.fit.nomoto_pem.innovation_filter`.
+    w : numpy.ndarray
+        Output error ``y - y_sim`` [rad] (any value where ``mask`` is False).
+    mask : numpy.ndarray of bool
+        True where the compass was logged.
+    """
+    # A missing compass sample is a Kalman step without update: predict only. Rare (segments do
+    # not span gaps), so the plain loop is good enough.
+    a, l, c = filt.ad, filt.gain.ravel(), filt.c.ravel()
+    xh = np.zeros(2)
+    e = np.zeros(w.size)
+    for k in range(w.size):
+        if mask[k]:
+            e[k] = w[k] - c @ xh
+            xh = a @ xh + l * e[k]
+        else:
+            xh = a @ xh
+    return e
+
+
+# --------------------------------------------------------------------------- the fit
+def plausible_ranges(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """Plausible SI ranges; an estimate outside is reported (the solver itself is unbounded).
+
+    Parameters
+    ----------
+    prob : Problem
+        The problem.
+    """
+    h = min(r.h for r in prob.recs)
+    dur = max(r.duration for r in prob.recs)
+    lo = np.full(len(prob.names), -np.inf)
+    hi = np.full(len(prob.names), np.inf)
+    for j, k in enumerate(prob.kinds):
+        if k in ("T", "T1", "T2", "T3", "T12"):
+            lo[j], hi[j] = 0.1 * h, 100.0 * dur
+        elif k == "T1T2":
+            lo[j], hi[j] = (0.1 * h) ** 2, (100.0 * dur) ** 2
+        elif k == "b":
+            lo[j], hi[j] = -math.pi / 2, math.pi / 2
+    for nm, j in zip(prob.servo, prob.servo_index):
+        # A servo faster than a tenth of a sample is not seen; slower than the record is not a servo.
+        lo[j], hi[j] = (0.1 * h, dur) if nm == "t_servo" else (math.radians(0.1), math.radians(1000.0))
+    for nm, j in zip(prob.noise_free, prob.noise_index):
+        if nm == "omega0":
+            lo[j], hi[j] = 2 * math.pi / dur, math.pi / h
+        elif nm == "lambda":
+            lo[j], hi[j] = 1e-3, 5.0
+        else:
+            lo[j], hi[j] = 1e-8, 1e8
+    return lo, hi
+
+
+def solve(prob: Problem, z0: np.ndarray, max_nfev: int) -> optimize.OptimizeResult:
+    """Levenberg-Marquardt on the problem's weighted residuals.
+
+    Parameters
+    ----------
+    prob : Problem
+        The problem.
+    z0 : numpy.ndarray
+        Start (solver vector).
+    max_nfev : int
+        Maximum function evaluations.
+    """
+    # MINPACK's Levenberg-Marquardt: positivity comes from the log parameters, and its QR is its
+    # own code, so a tall Jacobian costs no threaded LAPACK call per iteration.
+    return optimize.least_squares(prob.residual, z0, jac=prob.jacobian, method="lm", x_scale="jac",
+                                  max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+
+
+def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int) -> optimize.OptimizeResult:
+    """Solve, re-estimating the per-channel variances (maximum likelihood for unknown variances).
+
+    Parameters
+    ----------
+    prob : Problem
+        The problem (its channel weights are updated in place: it is local to one fit).
+    x0 : numpy.ndarray
+        Start (solver vector).
+    max_nfev : int
+        Maximum function evaluations per solver call.
+    """
+    def update_weights(x: np.ndarray) -> None:
+        per = prob.channel_residuals(x)
+        for ch in prob.channels:
+            e = np.concatenate([p[ch] for p in per])
+            ms = float(np.mean(e**2))
+            prob.weights[ch] = 1.0 / math.sqrt(ms) if ms > 0 else 1.0
+
+    update_weights(x0)
+    res = solve(prob, x0, max_nfev)
+    # One channel: the weight is only a scale, the solution does not depend on it.
+    for _ in range(4 if len(prob.channels) > 1 else 0):
+        old = dict(prob.weights)
+        update_weights(res.x)
+        if all(abs(prob.weights[c] / old[c] - 1.0) < 1e-3 for c in prob.channels):
+            break
+        res = solve(prob, res.x, max_nfev)
+    update_weights(res.x)
+    return res
+
+
+def start_vector(prob: Problem, dyn: Sequence[float], b: float, ics: Sequence[Sequence[float]],
+                  noise0: Sequence[float], servo0: Mapping[str, float] | None = None) -> np.ndarray:
+    """Solver vector from SI start values.
+
+    Parameters
+    ----------
+    prob : Problem
+        The problem.
+    dyn : sequence of float
+        K, T (or K, T1, T2, T3) [SI].
+    b : float
+        Rudder bias [rad].
+    ics : sequence of sequence of float
+        Initial states per record, in ``prob.ic_names`` order.
+    noise0 : sequence of float
+        Start of the free noise parameters.
+    servo0 : Mapping[str, float], optional
+        Start of the servo parameters (default ``t_servo`` = 2 samples, ``rate_servo`` = 10 deg/s).
+    """
+    x = np.ones(len(prob.names))
+    x[: prob.n_dyn] = dyn
+    if prob.bias:
+        x[prob.n_dyn] = b
+    for idx, ic in zip(prob.ic_index, ics):
+        x[idx] = ic
+    if prob.noise_index:
+        x[prob.noise_index] = np.asarray(noise0, float)
+    defaults = {"t_servo": 2 * min(r.h for r in prob.recs), "rate_servo": math.radians(10.0)}
+    defaults.update(servo0 or {})
+    for nm, j in zip(prob.servo, prob.servo_index):
+        x[j] = defaults[nm]
+    return prob.solver_vector(x)
+
+
+def normal_covariance(jac: np.ndarray, s2: float) -> tuple[np.ndarray, str]:
+    """``(J^T J)^-1 s^2`` through the column-scaled normal matrix (p x p eigen-decomposition).
+
+    Same result as the SVD of :func:`pipeline.fit.least_squares.fit_least_squares` for the
+    well-conditioned problems here, without a threaded LAPACK call on the tall Jacobian.
+
+    Parameters
+    ----------
+    jac : numpy.ndarray
+        Jacobian of the weighted residuals, shape (n, p).
+    s2 : float
+        Residual variance ``RSS/(n - p)``.
+    """
+    p = jac.shape[1]
+    scale = np.linalg.norm(jac, axis=0)
+    if not np.all(np.isfinite(jac)) or np.any(scale == 0):
+        return np.full((p, p), np.nan), "Jacobian has a zero or non-finite column: a parameter does not affect the fit"
+    js = jac / scale
+    w, v = np.linalg.eigh(js.T @ js)
+    # cond(J)^2 above 1e12 is where the normal equations lose the digits the errors need.
+    if w[0] <= w[-1] * 1e-12:
+        return np.full((p, p), np.nan), (f"Jacobian is near-singular (condition number "
+                                         f"{math.sqrt(w[-1] / max(w[0], 1e-300)):.1e}): parameters not separable")
+    inv = (v / w) @ v.T
+    return inv / np.outer(scale, scale) * s2, ""
+
+
+def finish(prob: Problem, res: optimize.OptimizeResult, messages: list[str]) -> NomotoFit:
+    """The :class:`NomotoFit` at the solution: covariance, criteria, residual tests, messages.
+
+    Parameters
+    ----------
+    prob : Problem
+        The problem.
+    res : scipy.optimize.OptimizeResult
+        Solver result.
+    messages : list of str
+        Notes so far (extended).
+    """
+    x = res.x
+    names = tuple(prob.names)
+    p = x.size
+    resid = prob.residual(x)
+    n = resid.size
+    rss = float(resid @ resid)
+    jac = prob.jacobian(x)
+    cov, why = (normal_covariance(jac, rss / (n - p)) if n > p
+                else (np.full((p, p), np.nan), "no degrees of freedom"))
+    if why:
+        messages.append(why)
+    # Solver space -> SI: d theta / d z = theta for the log parameters (delta method).
+    values = prob.natural(x)
+    d = np.where(prob.log_mask, values, 1.0)
+    cov = cov * np.outer(d, d)
+    stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None)) if not why else np.full(p, np.nan)
+    lo, hi = plausible_ranges(prob)
+    at_bound = tuple(nm for nm, v, a, b in zip(names, values, lo, hi) if not a < v < b)
+    if at_bound:
+        messages.append(f"parameter(s) {', '.join(at_bound)} outside the plausible range "
+                        f"({', '.join(f'{a:.3g}..{b:.3g}' for nm, a, b in zip(names, lo, hi) if nm in at_bound)})")
+    if res.status <= 0:
+        messages.append(f"solver did not converge: {res.message}")
+    per = prob.channel_residuals(x)
+    inn_var, neg2 = {}, 0.0
+    for ch in prob.channels:
+        e = np.concatenate([q[ch] for q in per])
+        inn_var[ch] = float(np.mean(e**2))
+        neg2 += e.size * (math.log(2 * math.pi * inn_var[ch]) + 1.0) if inn_var[ch] > 0 else -math.inf
+    waves, noise_var = None, {}
+    h0 = prob.recs[0].h
+    if prob.noise == "waves":
+        omega0, lam, ratio = prob._noise_params(x)
+        if prob.fixed_noise_var is not None and prob.fixed_waves is not None:
+            waves, r = prob.fixed_waves, prob.fixed_noise_var
+        else:
+            waves, r = noise_from_ratio(omega0, lam, ratio, inn_var["psi"], h0)
+        noise_var["psi"] = r
+    elif "psi" in prob.channels:
+        noise_var["psi"] = inn_var["psi"]
+    if "r" in prob.channels:
+        noise_var["r"] = inn_var["r"]
+    y_fit, residuals, tests = [], [], []
+    for i, rec in enumerate(prob.recs):
+        sim = prob.simulate(x, i)
+        y_fit.append({ch: sim[ch] for ch in prob.channels})
+        full = {}
+        for ch in prob.channels:
+            e = np.full(rec.u.size, np.nan)
+            e[rec.mask[ch]] = per[i][ch]
+            full[ch] = e
+            tests.append(residual_test(e, {"delta": rec.u}, f"{rec.name} {ch}"))
+        residuals.append(full)
+    messages += [tst.message for tst in tests if tst.message]
+    model = "OE" if prob.noise == "white" else "PEM (wave noise model)"
+    messages.insert(0, f"{model}, order {prob.order}, {len(prob.recs)} record(s), channels {'+'.join(prob.channels)}")
+    return NomotoFit(order=prob.order, noise_model=prob.noise, names=names, values=values, stderr=stderr,
+                     covariance=cov, waves=waves, noise_var=noise_var, innovation_var=inn_var,
+                     y_fit=tuple(y_fit), residuals=tuple(residuals), n=n, neg2loglik=neg2,
+                     aic=neg2 + 2 * p, bic=neg2 + p * math.log(n), converged=res.status > 0,
+                     at_bound=at_bound, residual_tests=tuple(tests), message="; ".join(messages),
+                     channels=prob.channels)

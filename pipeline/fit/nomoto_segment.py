@@ -1,0 +1,305 @@
+"""Fit-stage adapter: a rudder step, zig-zag or sinusoid of a trial -> whole-record Nomoto fit -> SegmentFit.
+
+What the log holds decides the model, by the data:
+
+- The rudder signal: a piecewise-constant record is a *command* (:func:`pipeline.segment.rudder.is_command_like`),
+  and the servo between command and rudder is estimated with K and T: a first-order lag
+  ``t_servo`` and, kept when the BIC says so, a rate limit ``rate_servo``
+  (:func:`pipeline.model.nomoto.servo_response`). A *measured* rudder angle drives the model
+  directly, interpolated like any measured state (its mean over each sample interval).
+- The structure: first-order Nomoto against second order (T1, T2, T3), by held-out error: both
+  are fitted on the first ``1 - HOLDOUT_FRACTION`` of the record and simulated on through the rest;
+  the second order wins when its held-out heading RMSE is at least ``ORDER2_GAIN`` lower. Both
+  held-out errors are reported in the message. With the second order, ``T`` is its first-order
+  equivalent ``T1 + T2 - T3`` (error from the covariance).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import FitError
+from ..records import Segment, SegmentFit, Trial
+from ..segment.rudder import is_command_like
+from .data import noise_sigma, pick_channel, segment_label
+from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
+from .nomoto_oe import fit_nomoto
+from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
+from .nomoto_records import NomotoFit, NomotoRecord
+from .segment_fit import MAX_RELATIVE_STDERR
+
+
+#: Segment kinds the whole-record fit serves in :func:`pipeline.fit.fit_trial`.
+WHOLE_RECORD_KINDS = ("zigzag", "sinusoid")
+#: Parameters whose relative standard error decides ``success``.
+KEY_PARAMS = ("K", "T")
+#: Share of a record held out (its end) for the model-structure choice.
+HOLDOUT_FRACTION = 0.35
+#: Relative drop of the held-out RMSE the second-order model must bring to be chosen.
+ORDER2_GAIN = 0.10
+#: BIC drop a rate limit must bring to be kept beside the servo lag.
+RATE_LIMIT_BIC = 10.0
+
+
+def fit_nomoto_segment(trial: Trial, segment: Segment) -> SegmentFit:
+    """Whole-record Nomoto fit of a zig-zag or sinusoid segment (see the module doc).
+
+    Parameters
+    ----------
+    trial : Trial
+        Trial with ``delta`` and ``psi`` and/or ``r``.
+    segment : Segment
+        A ``zigzag`` or ``sinusoid`` segment in yaw.
+
+    Returns
+    -------
+    SegmentFit
+        Model ``nomoto_oe`` or ``nomoto_pem``, channel ``psi`` (``r`` without a compass), with
+        parameters ``K`` [1/s], ``T`` [s] (``T1``, ``T2``, ``T3`` [s] too for the second order),
+        ``b`` [rad], the initial states, ``t_servo`` [s] / ``rate_servo`` [rad/s] for a logged
+        command, and for the PEM ``omega0`` [rad/s], ``lambda`` [-], ``kw_ratio`` [s^-1/2];
+        ``y_fit`` is the simulated heading.
+
+    Raises
+    ------
+    FitError
+        Wrong DOF, missing channels, gaps in the rudder, too few samples.
+    """
+    return fit_nomoto_window(trial, segment, segment.t_start, segment.t_end)
+
+
+def fit_nomoto_window(trial: Trial, segment: Segment, t0: float, t1: float) -> SegmentFit:
+    """Whole-record Nomoto fit of the trial between ``t0`` and ``t1`` for ``segment``.
+
+    Parameters
+    ----------
+    trial : Trial
+        Trial with ``delta`` and ``psi`` and/or ``r``.
+    segment : Segment
+        The segment the result belongs to (a yaw segment driven by ``delta``).
+    t0, t1 : float
+        Window [s, trial clock]; may start before the segment (a rudder step's steady lead-in).
+
+    Returns
+    -------
+    SegmentFit
+        See :func:`fit_nomoto_segment`; ``t`` is relative to ``segment.t_start``.
+
+    Raises
+    ------
+    FitError
+        Wrong DOF, missing channels, gaps in the rudder, too few samples.
+    """
+    where = segment_label(segment)
+    if segment.dof != "yaw":
+        raise FitError(f"{where}: expected a {segment.kind} in yaw, found DOF {segment.dof!r}")
+    u_ch = segment.input_channel or "delta"
+    if u_ch != "delta":
+        raise FitError(f"{where}: expected the rudder (delta) as input, found {u_ch!r}")
+    pick_channel(trial, segment, ["delta"])
+    channels = tuple(ch for ch in ("psi", "r") if trial.has(ch))
+    if not channels:
+        pick_channel(trial, segment, ["psi", "r"])
+    rows = trial.window(t0, t1)
+    t = rows["t"].to_numpy(dtype=float)
+    delta = rows["delta"].to_numpy(dtype=float)
+    if t.size < MIN_SAMPLES:
+        raise FitError(f"{where}: expected at least {MIN_SAMPLES} samples, found {t.size}")
+    if not np.all(np.isfinite(delta)):
+        raise FitError(f"{where}: expected a logged rudder on every sample, found {int((~np.isfinite(delta)).sum())} gaps")
+    command = is_command_like(delta)
+    notes = []
+    if command:
+        notes.append("rudder logged as a command (piecewise constant): servo estimated with K and T")
+        drive = delta
+    else:
+        notes.append("rudder logged as a measured angle: used directly (mean over each sample interval)")
+        drive = np.concatenate([0.5 * (delta[:-1] + delta[1:]), delta[-1:]])
+    rec = NomotoRecord(t=t, delta=drive, psi=rows["psi"].to_numpy(dtype=float) if "psi" in channels else None,
+                       r=rows["r"].to_numpy(dtype=float) if "r" in channels else None, name=where)
+    servo: tuple[str, ...] = ()
+    if command:
+        servo, servo_note = _choose_servo(rec, channels)
+        notes.append(servo_note)
+    order, order_note = _choose_order(rec, channels, servo)
+    notes.append(order_note)
+    fit = fit_nomoto(rec, order=order, noise="auto", channels=channels, servo=servo)
+    if servo and any(n in SERVO_PARAMS for n in fit.at_bound):
+        notes.append("the servo parameters left their range with the chosen structure: rudder taken as the command")
+        fit = fit_nomoto(rec, order=order, noise="auto", channels=channels)
+    if order != 1 and not fit.success:
+        first = fit_nomoto(rec, order=1, noise="auto", channels=channels, servo=servo)
+        if first.success:
+            notes.append("the second-order fit of the whole record failed: first order kept")
+            fit = first
+    return _segment_fit(segment, fit, rec, channels, t - segment.t_start, notes)
+
+
+def _choose_servo(rec: NomotoRecord, channels: tuple[str, ...]) -> tuple[tuple[str, ...], str]:
+    """Servo lag always (a commanded rudder never moves instantly); the rate limit when the BIC says so."""
+    lag = fit_nomoto(rec, noise="white", channels=channels, servo=("t_servo",))
+    if not lag.success:
+        plain = fit_nomoto(rec, noise="white", channels=channels)
+        if plain.success:
+            return (), "servo lag not identified (no converged fit with it): rudder taken as the command"
+        return ("t_servo",), "servo lag fit did not succeed"
+    both = fit_nomoto(rec, noise="white", channels=channels, servo=("t_servo", "rate_servo"),
+                      start={"t_servo": lag.value("t_servo")})
+    if both.success and both.bic < lag.bic - RATE_LIMIT_BIC:
+        return ("t_servo", "rate_servo"), (f"servo lag and rate limit estimated (BIC {both.bic:.1f} vs "
+                                           f"{lag.bic:.1f} for the lag alone)")
+    return ("t_servo",), (f"servo lag estimated; a rate limit not supported by the data (BIC "
+                          f"{both.bic:.1f} vs {lag.bic:.1f} for the lag alone)")
+
+
+def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...]) -> tuple[int, str]:
+    """First or second order by the held-out heading (or yaw-rate) RMSE of the record's end."""
+    n = rec.t.size
+    n_fit = int(round((1.0 - HOLDOUT_FRACTION) * n))
+    if n_fit < MIN_SAMPLES or n - n_fit < 10:
+        return 1, "first-order Nomoto (record too short to hold out a part for the second-order check)"
+    part = NomotoRecord(t=rec.t[:n_fit], delta=rec.delta[:n_fit],
+                        psi=None if rec.psi is None else rec.psi[:n_fit],
+                        r=None if rec.r is None else rec.r[:n_fit], name=rec.name)
+    errs = {}
+    for order in (1, ORDER2_SUM_PRODUCT):
+        try:
+            fit = fit_nomoto(part, order=order, noise="white", channels=channels, servo=servo)
+        except FitError:
+            errs[order] = math.inf
+            continue
+        # A fit that ends out of range (the second order collapsing onto the first: T2 -> 0) is no candidate.
+        errs[order] = _heldout_rmse(fit, rec, channels, servo, n_fit) if _usable(fit) else math.inf
+        if order == 1 and _usable(fit) and all(t.white for t in fit.residual_tests):
+            # White first-order residuals leave a second order nothing to explain: not tried.
+            return 1, (f"first-order Nomoto: its residuals are white, so no second-order structure was tried "
+                       f"(held-out RMSE {errs[1]:.4g})")
+    second = errs[ORDER2_SUM_PRODUCT]
+    text = f"held-out RMSE ({HOLDOUT_FRACTION:.0%} of the record) first order {errs[1]:.4g}, second order {second:.4g}"
+    if second < (1.0 - ORDER2_GAIN) * errs[1]:
+        return ORDER2_SUM_PRODUCT, f"second-order Nomoto (T1, T2, T3) selected: {text}"
+    return 1, f"first-order Nomoto selected: {text}"
+
+
+def _usable(fit: NomotoFit) -> bool:
+    """Converged with the ship's parameters in range (a servo lag collapsing to zero is allowed:
+    the other structure may not need it)."""
+    return fit.converged and all(n in SERVO_PARAMS for n in fit.at_bound) and bool(np.all(np.isfinite(fit.values)))
+
+
+def _heldout_rmse(fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...],
+                  n_fit: int) -> float:
+    prob = Problem([prepare(rec, 0, channels)], fit.order, "b" in fit.names, channels, "white", None, None, servo)
+    z = prob.solver_vector(np.array([fit.value(nm) for nm in prob.names]))
+    sim = prob.simulate(z, 0)
+    ch = channels[0]
+    y = prob.recs[0].y[ch]
+    m = prob.recs[0].mask[ch].copy()
+    m[:n_fit] = False
+    e = (y - sim[ch])[m]
+    return float(np.sqrt(np.mean(e**2))) if e.size else math.inf
+
+
+def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], t_rel: np.ndarray,
+                 notes: list[str]) -> SegmentFit:
+    main = channels[0]
+    model = "nomoto_oe" if fit.noise_model == "white" else "nomoto_pem"
+    params = {n: float(v) for n, v in zip(fit.names, fit.values)}
+    stderr = {n: float(s) for n, s in zip(fit.names, fit.stderr)}
+    if fit.order != 1:
+        # First-order equivalent T = T1 + T2 - T3 (Fossen 2021, eq. 7.41), its error from the covariance.
+        g = np.array([1.0 if n in ("T1", "T2", "T12") else -1.0 if n == "T3" else 0.0 for n in fit.names])
+        params["T"] = fit.T
+        stderr["T"] = float(math.sqrt(max(g @ fit.covariance @ g, 0.0))) if np.all(np.isfinite(fit.covariance)) \
+            else math.nan
+        if fit.order == ORDER2_SUM_PRODUCT:
+            poles = pole_time_constants(params["T12"], params["T1T2"])
+            if poles is None:
+                notes = notes + [f"complex pole pair: T1 + T2 = {params['T12']:.4g} s, T1 T2 = {params['T1T2']:.4g} s^2 "
+                                 f"(T1, T2 not real)"]
+            else:
+                params["T1"], params["T2"] = poles
+                # Delta method: T1,2 = (S +- D)/2 with D = sqrt(S^2 - 4P), S = T1 + T2, P = T1 T2.
+                i, j = fit.names.index("T12"), fit.names.index("T1T2")
+                cov = fit.covariance[np.ix_([i, j], [i, j])]
+                d = poles[0] - poles[1]
+                for name, sign in (("T1", 1.0), ("T2", -1.0)):
+                    g = np.array([0.5 * (1.0 + sign * params["T12"] / d), -sign / d]) if d > 0 else np.full(2, np.nan)
+                    stderr[name] = float(math.sqrt(max(g @ cov @ g, 0.0))) if np.all(np.isfinite(g)) else math.nan
+    fail = []
+    if not fit.converged:
+        fail.append("solver did not converge")
+    if fit.at_bound:
+        fail.append(f"parameter(s) {', '.join(fit.at_bound)} outside the plausible range")
+    if not np.all(np.isfinite(fit.stderr)):
+        fail.append("covariance not computed")
+    for name in KEY_PARAMS:
+        v, se = params[name], stderr[name]
+        if math.isfinite(se) and abs(se) > MAX_RELATIVE_STDERR * abs(v):
+            fail.append(f"{name} = {v:.4g} +- {se:.2g} has a relative standard error above "
+                        f"{MAX_RELATIVE_STDERR:.0%}: not identified")
+    notes = [fit.message] + notes
+    if segment.kind == "zigzag" and not all(t.independent for t in fit.residual_tests):
+        notes.append("a zig-zag switches the rudder on the heading, so residuals that lead the rudder "
+                     "(negative lags) are the expected feedback, not a model error")
+    y = rec.psi if main == "psi" else rec.r
+    y = unwrap_heading(y) if main == "psi" else np.asarray(y, float)
+    e = fit.residuals[0][main]
+    rmse = float(np.sqrt(np.nanmean(e**2)))
+    return SegmentFit(segment=segment, model=model, channel=main, param_names=fit.names, params=params,
+                      stderr=stderr, covariance=fit.covariance, t=t_rel, y=y, y_fit=fit.y_fit[0][main], rmse=rmse,
+                      aic=fit.aic, bic=fit.bic, success=not fail, message="; ".join(fail + notes))
+
+
+def rudder_step_lead_in(trial: Trial, segment: Segment) -> float:
+    """Start [s] of the steady rudder hold before a rudder step (at most the step's own length back).
+
+    The whole-record fit of a step needs the rudder level before the change and the yaw rate it
+    held there: together they separate K from the rudder bias.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    segment : Segment
+        A ``rudder_step`` (``input_before`` is the hold's level [rad]).
+    """
+    t = trial.t
+    delta = trial.data["delta"].to_numpy(dtype=float)
+    i0 = int(np.searchsorted(t, segment.t_start))
+    lo = int(np.searchsorted(t, segment.t_start - segment.duration))
+    noise = noise_sigma(delta[lo:i0]) if i0 - lo > 4 else 0.0
+    tol = max(4 * (noise if math.isfinite(noise) else 0.0),
+              0.05 * abs(segment.input_after - segment.input_before), 1e-9)
+    k = i0 - 1
+    while k >= lo and np.isfinite(delta[k]) and abs(delta[k] - segment.input_before) <= tol and \
+            not any(g.t_start <= t[k] <= g.t_end for g in trial.gaps):
+        k -= 1
+    return float(t[min(k + 1, i0)]) if i0 > 0 else float(segment.t_start)
+
+
+#: Extra Nomoto coefficients a segment fit may carry: parameter -> (estimate name, unit).
+EXTRA_COEFFICIENTS = {"T1": ("T1_nomoto", "s"), "T2": ("T2_nomoto", "s"), "T3": ("T3_nomoto", "s"),
+                      "T12": ("T12_nomoto", "s"), "T1T2": ("T1T2_nomoto", "s^2"),
+                      "t_servo": ("T_servo", "s"), "rate_servo": ("rate_servo", "rad/s")}
+
+
+def structure_note(fits: Sequence[SegmentFit]) -> str:
+    """What the model structures chosen per segment say, when they differ ('' when they agree).
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Successful Nomoto segment fits.
+    """
+    second = [segment_label(f.segment) for f in fits if "T3" in f.params]
+    first = [segment_label(f.segment) for f in fits if "T3" not in f.params]
+    if second and first:
+        return (f"model structure differs between segments: second-order Nomoto chosen by held-out error on "
+                f"{len(second)} ({', '.join(second[:3])}{', ...' if len(second) > 3 else ''}), first order on "
+                f"{len(first)}; K and T combine the first-order equivalents, and a disagreement between the "
+                f"segments points at the unmodelled pole-zero pair")
+    return ""

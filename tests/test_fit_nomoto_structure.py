@@ -1,0 +1,177 @@
+"""The Nomoto models written once, the discretisation, the rudder servo, measured-rudder segmentation,
+and the whole-record segment fit that estimates the servo and chooses the model order."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import scipy.linalg
+import scipy.signal
+
+from pipeline.fit.nomoto_oe import NomotoRecord, fit_nomoto
+from pipeline.fit.nomoto_segment import fit_nomoto_window, structure_note
+from pipeline.model import discretise
+from pipeline.model.nomoto import (ORDER2_SUM_PRODUCT, Nomoto2Params, NomotoParams, nomoto2_rhs, nomoto_matrices,
+                                   nomoto_rhs, pole_time_constants, servo_response)
+from pipeline.records import Segment, Trial
+from pipeline.segment import detect_segments
+from pipeline.segment.rudder import classify_changes, find_holds, is_command_like, zigzag_runs
+
+K_TRUE, T_TRUE = 0.15, 20.0
+H = 0.2
+
+
+# --------------------------------------------------------------------------- model and discretisation
+def test_zoh_matches_scipy_and_fast_path():
+    a, b = nomoto_matrices(1, (K_TRUE, T_TRUE))
+    ad, bd, *_ = scipy.signal.cont2discrete((a, b, np.eye(2), np.zeros((2, 1))), H, method="zoh")
+    for f in (discretise.zoh, discretise.zoh_fast):
+        ad2, bd2 = f(a, b, H)
+        np.testing.assert_allclose(ad2, ad, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(bd2, bd, rtol=1e-12, atol=1e-15)
+    m = np.array([[0.3, -2.0], [1.5, -0.7]]) * 7
+    np.testing.assert_allclose(discretise.expm_small(m), scipy.linalg.expm(m), rtol=1e-12)
+
+
+def test_noise_integral_against_quadrature():
+    a = np.array([[0.0, 1.0], [-0.5, -0.3]])
+    g = np.diag([0.0, 2.0])
+    _, qd = discretise.noise_integral(a, g, 0.5)
+    s = np.linspace(0, 0.5, 2001)
+    vals = np.array([scipy.linalg.expm(a * x) @ g @ scipy.linalg.expm(a * x).T for x in s])
+    np.testing.assert_allclose(qd, np.trapezoid(vals, s, axis=0), rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(discretise.noise_integral_fast(a, g, 0.5)[1], qd, rtol=1e-12)
+
+
+def test_second_order_forms_agree():
+    K, T1, T2, T3 = 0.1, 12.0, 3.0, 5.0
+    a2, b2 = nomoto_matrices(2, (K, T1, T2, T3))
+    a3, b3 = nomoto_matrices(ORDER2_SUM_PRODUCT, (K, T1 + T2, T1 * T2, T3))
+    np.testing.assert_allclose(a2, a3)
+    np.testing.assert_allclose(b2, b3)
+    assert pole_time_constants(T1 + T2, T1 * T2) == pytest.approx((T1, T2))
+    assert pole_time_constants(10.0, 60.0) is None  # complex pair
+    x = np.array([0.0, 0.01, 0.002])
+    np.testing.assert_allclose(nomoto2_rhs(0, x, [0.1], Nomoto2Params(K, T1, T2, T3)), a2 @ x + b2[:, 0] * 0.1)
+    assert Nomoto2Params(K, T1, T2, T3).T_equivalent == pytest.approx(T1 + T2 - T3)
+
+
+def test_norrbin_term():
+    r = 0.05
+    xd = nomoto_rhs(0, np.array([0.0, r]), [0.1], NomotoParams(K_TRUE, T_TRUE, n3=2.0))
+    assert xd[1] == pytest.approx((-r - 2.0 * r**3 + K_TRUE * 0.1) / T_TRUE)
+
+
+def _servo_reference(u, h, tau, rate, sub=4000):
+    d, out = u[0], []
+    for uk in u:
+        acc = 0.0
+        for _ in range(sub):
+            v = min(max((uk - d) / tau, -rate), rate)
+            dn = d + h / sub * v
+            acc += 0.5 * (d + dn)
+            d = dn
+        out.append(acc / sub)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("rate", [math.inf, math.radians(5.0)])
+def test_servo_response_lag_and_rate_limit(rate):
+    u = np.r_[np.zeros(5), np.full(30, math.radians(20)), np.full(25, -math.radians(10))]
+    got = servo_response(u, H, 1.0, rate)
+    ref = _servo_reference(u, H, 1.0, rate)
+    np.testing.assert_allclose(got, ref, atol=2e-4 if math.isfinite(rate) else 1e-5)
+    if math.isfinite(rate):
+        assert np.max(np.abs(np.diff(got))) <= rate * H * 1.01
+
+
+# --------------------------------------------------------------------------- ship records
+def _ship_log(delta_c, tau=1.0, rate=math.inf, measured=False, seed=0, order1=True):
+    """Heading and yaw rate of a Nomoto ship behind a servo, simulated on a 20x finer grid."""
+    sub = 20
+    h = H / sub
+    fine_c = np.repeat(delta_c, sub)
+    d = servo_response(fine_c, h, tau, rate) if tau > 0 else fine_c
+    if order1:
+        a, b = nomoto_matrices(1, (K_TRUE, T_TRUE))
+    else:
+        a, b = nomoto_matrices(ORDER2_SUM_PRODUCT, (0.09, 13.5, 64.0, 10.8))
+    ad, bd = discretise.zoh(a, b, h)
+    x = np.zeros(a.shape[0])
+    xs = np.empty((fine_c.size, a.shape[0]))
+    for k, dk in enumerate(d):
+        xs[k] = x
+        x = ad @ x + bd[:, 0] * dk
+    rng = np.random.default_rng(seed)
+    n = delta_c.size
+    psi = xs[::sub, 0] + math.radians(0.1) * rng.standard_normal(n)
+    r = xs[::sub, 1] + math.radians(0.03) * rng.standard_normal(n)
+    rudder = d[::sub] + math.radians(0.1) * rng.standard_normal(n) if measured else delta_c
+    t = np.arange(n) * H
+    return Trial("ship", pd.DataFrame({"t": t, "psi": (psi + np.pi) % (2 * np.pi) - np.pi, "r": r, "delta": rudder}),
+                 1 / H)
+
+
+def _steps(levels_deg, hold_s):
+    return np.concatenate([np.full(int(hold_s / H), math.radians(v)) for v in levels_deg])
+
+
+def test_measured_rudder_steps_sized_between_steady_holds():
+    trial = _ship_log(_steps([0, 20, 0, -20, 0], 60.0), tau=1.0, rate=math.radians(5.0), measured=True)
+    u = trial.data["delta"].to_numpy()
+    assert not is_command_like(u)
+    segs = detect_segments(trial).of("rudder_step")
+    assert len(segs) == 4
+    for seg, (a, b) in zip(segs, [(0, 20), (20, 0), (0, -20), (-20, 0)]):
+        # The size comes from the holds before and after the whole 4 s ramp, not from its tail.
+        assert seg.input_before == pytest.approx(math.radians(a), abs=math.radians(0.1))
+        assert seg.input_after == pytest.approx(math.radians(b), abs=math.radians(0.1))
+        # The window runs to the next rudder change, not to a settle-time guess.
+        assert seg.duration > 55.0
+
+
+def test_measured_zigzag_and_sinusoid_are_recognised():
+    fs = 1 / H
+    rng = np.random.default_rng(3)
+    cmd = _steps([0, 10, -10, 10, -10, 0], 30.0)
+    u = servo_response(cmd, H, 1.0) + math.radians(0.1) * rng.standard_normal(cmd.size)
+    holds = find_holds(u, fs, math.radians(0.1))
+    steps, varying = classify_changes(holds, fs, math.radians(2.0))
+    (run,) = zigzag_runs(steps)
+    assert len(run) == 4 and not varying
+    t = np.arange(1500) * H
+    sine = math.radians(10) * np.sin(0.05 * t) + math.radians(0.1) * rng.standard_normal(t.size)
+    steps, varying = classify_changes(find_holds(sine, fs, math.radians(0.1)), fs, math.radians(2.0))
+    assert not steps and varying and (varying[0][1] - varying[0][0]) * H > 0.6 * 300
+
+
+@pytest.mark.slow
+def test_commanded_step_fit_estimates_the_servo_lag():
+    trial = _ship_log(_steps([0, 15, 0, -15], 80.0), tau=1.5)
+    seg = Segment("zigzag", "yaw", 0.0, float(trial.t[-1]), "delta", 0.0, math.radians(15))
+    sf = fit_nomoto_window(trial, seg, seg.t_start, seg.t_end)
+    assert sf.success, sf.message
+    assert "servo lag estimated" in sf.message
+    assert abs(sf.params["K"] - K_TRUE) < max(3 * sf.stderr["K"], 0.003 * K_TRUE)
+    assert abs(sf.params["T"] - T_TRUE) < max(3 * sf.stderr["T"], 0.01 * T_TRUE)
+    assert sf.params["t_servo"] == pytest.approx(1.5, rel=0.1)
+    # Without the servo the same record biases T by about the lag.
+    rows = trial.data
+    plain = fit_nomoto(NomotoRecord(t=rows["t"].to_numpy(), delta=rows["delta"].to_numpy(),
+                                    psi=rows["psi"].to_numpy(), r=rows["r"].to_numpy()), noise="white")
+    assert plain.T - T_TRUE > 1.0
+
+
+@pytest.mark.slow
+def test_second_order_ship_selects_second_order_by_held_out_error():
+    trial = _ship_log(_steps([0, 10, -10, 10, -10, 10], 40.0), tau=0.0, order1=False)
+    seg = Segment("zigzag", "yaw", 0.0, float(trial.t[-1]), "delta", 0.0, math.radians(10))
+    sf = fit_nomoto_window(trial, seg, seg.t_start, seg.t_end)
+    assert "second-order Nomoto (T1, T2, T3) selected" in sf.message and "first order" in sf.message
+    assert sf.params["K"] == pytest.approx(0.09, rel=0.02)
+    assert sf.params["T"] == pytest.approx(13.5 - 10.8, rel=0.1)
+    assert "complex pole pair" in sf.message
+    assert structure_note([sf, sf]) == ""
