@@ -129,10 +129,10 @@ _NOT_USED = {"GSV": "satellites in view", "GSA": "DOP and active satellites", "G
              "APB": "autopilot", "XTE": "cross-track error", "BWC": "bearing to waypoint",
              "VLW": "distance log", "RSA": "rudder angle (instrument)", "VDM": "AIS", "VDO": "AIS"}
 
-# A sentence anywhere in a line: '$' (or '!' for AIS), an address of two to six characters
+# A sentence anywhere in a line: '$' (or '!' for AIS), an address of two to ten characters
 # (talker + id, digits allowed: '$02MWV'; or a proprietary 'P...' address), fields, '*hh'.
 # Printable ASCII only, so binary noise cannot extend a match across a corrupted stretch.
-_SENTENCE_RE = re.compile(rb"[$!]([A-Z0-9]{2,6}),([\x20-\x23\x25-\x29\x2b-\x7e]*)\*([0-9A-Fa-f]{2})")
+_SENTENCE_RE = re.compile(rb"[$!]([A-Z0-9]{2,10})(?:,([\x20-\x23\x25-\x29\x2b-\x7e]*))?\*([0-9A-Fa-f]{2})")
 _SENSOR_RE = re.compile(r"[A-Za-z0-9_]+")
 #: Files above this size get a progress bar when stderr is a terminal [bytes].
 _PROGRESS_MIN_BYTES = 4 * 1024 * 1024
@@ -431,7 +431,7 @@ def parse_nmea(lines, path_text: str = "NMEA") -> NmeaParse:
                 skipped["bad checksum"] += 1
                 continue
             addr = m.group(1).decode()
-            f = m.group(2).decode().split(",")
+            f = (m.group(2) or b"").decode().split(",")
             if m.group(0)[:1] == b"!":
                 sid = addr[2:] or addr       # AIS (!AIVDM): other ships, not this one
             elif addr[0] == "P":

@@ -27,7 +27,7 @@ import numpy as np
 #: Bytes looked at [bytes].
 HEAD_BYTES = 256 * 1024
 _ULOG = b"ULog\x01\x12\x35"
-_NMEA_RE = re.compile(rb"[$!]([A-Z0-9]{2,6}),([\x20-\x23\x25-\x29\x2b-\x7e]*)\*([0-9A-Fa-f]{2})")
+_NMEA_RE = re.compile(rb"[$!]([A-Z0-9]{2,10})(?:,([\x20-\x23\x25-\x29\x2b-\x7e]*))?\*([0-9A-Fa-f]{2})")
 
 
 def _crc24q_table() -> list[int]:

@@ -28,6 +28,7 @@ NAV-PVAT       lat, lon, gSpeed, motHeading -> lat, lon, sog, cog (``@pvat`` whe
                vehRoll, vehPitch, vehHeading -> phi, theta, psi (each only with its valid flag)
 HNR-PVT        lat, lon, gSpeed, headMot -> lat@hnr, lon@hnr, sog@hnr, cog@hnr; headVeh -> psi@hnr (with
                headVehValid); plain names when the log has no NAV-PVT/NAV-PVAT
+HNR-ATT        roll, pitch, heading -> phi, theta, psi (``@hnr`` when NAV-ATT or NAV-PVAT give them too)
 NMEA           sentences between the frames are read by :func:`pipeline.ingest.nmea.parse_nmea` and
                put on the UBX clock through their UTC date and time (``@nmea`` when UBX messages give
                the same channel; plain names when the log has no UBX channels at all)
@@ -84,8 +85,9 @@ ESF_MEAS = (0x10, 0x02)
 NAV_ATT = (0x01, 0x05)
 NAV_PVAT = (0x01, 0x17)
 HNR_PVT = (0x28, 0x00)
+HNR_ATT = (0x28, 0x01)
 #: Messages decoded one at a time through pyubx2 (lower rates than NAV-PVT/ESF-RAW), with iTOW.
-_PARSED = {NAV_ATT: "NAV-ATT", NAV_PVAT: "NAV-PVAT", HNR_PVT: "HNR-PVT"}
+_PARSED = {NAV_ATT: "NAV-ATT", NAV_PVAT: "NAV-PVAT", HNR_PVT: "HNR-PVT", HNR_ATT: "HNR-ATT"}
 WEEK_MS = 604_800_000
 #: Leap seconds GPS - UTC [s] (since 2017-01-01); only used to find the GPS week from the UTC date.
 GPS_LEAP_S = 18
@@ -505,7 +507,11 @@ def _pvt_channels(pvt: np.ndarray, t_ms: np.ndarray, suffix: str, src_note: str,
 
 def _relposned_channels(rel: list, t_ms: np.ndarray, itow: np.ndarray, suffix: str, src_note: str, chans: dict,
                         read: Counter, skipped: Counter, warnings: list[str]) -> None:
-    decoded = [m for m in rel if m is not None]
+    decoded = [m for m in rel if m is not None and hasattr(m, "relPosHeading")]
+    no_heading = sum(1 for m in rel if m is not None and not hasattr(m, "relPosHeading"))
+    if no_heading:
+        # Version 0 (u-blox M8P) has no heading field: the baseline only.
+        skipped["NAV-RELPOSNED without a heading field (version 0)"] += no_heading
     if not decoded:
         return
     head = np.array([float(m.relPosHeading) for m in decoded])
@@ -695,7 +701,7 @@ def _parsed_channels(parsed: list, names: list, t_ms: np.ndarray, suffix: str, s
             skipped[f"{name} undecodable"] += 1
             continue
         got: dict[str, float] = {}
-        if name == "NAV-ATT":
+        if name in ("NAV-ATT", "HNR-ATT"):
             got = {"phi": m.roll * _DEG, "theta": m.pitch * _DEG, "psi": m.heading * _DEG}
         elif name == "NAV-PVAT":
             if m.gnssFixOK and m.fixType in (2, 3, 4):
@@ -724,6 +730,8 @@ def _parsed_channels(parsed: list, names: list, t_ms: np.ndarray, suffix: str, s
                 tag = "@att"
             elif name == "NAV-PVAT" and base in ("lat", "lon", "sog", "cog") and have_pvt:
                 tag = "@pvat"
+            elif name == "HNR-ATT" and ("NAV-ATT" in kinds or "NAV-PVAT" in kinds):
+                tag = "@hnr"
             elif name == "HNR-PVT" and (have_pvt or "NAV-PVAT" in kinds or base == "psi" and "NAV-ATT" in kinds):
                 tag = "@hnr"
             else:
