@@ -14,6 +14,7 @@ from ..records import CHANNEL_UNITS, INPUT_UNITS, Channel, RawLog, Trial
 from ..vessel import Vessel
 from .antenna import apply_sensors
 from .clock import estimate_offsets
+from .plausibility import check_duration, plausibility_notes
 from .resample import find_gaps, resample_channel
 
 #: Highest rate the aligner resamples to by default [Hz]; faster sensors are decimated by
@@ -107,6 +108,7 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
     if fs is None:
         rates = [_native_rate(c) for c in (states or chans.values())]
         fs = min(max(rates), MAX_DEFAULT_RATE)
+    check_duration(chans.values(), fs)
     if not fs > 0:
         raise AlignError(f"align: expected a positive sample rate [Hz], found {fs}")
     n = int(np.floor((t1 - t0) * fs + 1e-9)) + 1
@@ -126,6 +128,7 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
         notes += sensor_notes
     frame, derived = _derive(frame, {k: _native_rate(c) for k, c in chans.items()})
     notes += derived
+    notes += plausibility_notes(frame, fs)
     shifted = tuple(type(g)(g.channel, g.t_start - t0, g.t_end - t0) for g in gaps)
     return Trial(name=name, data=frame, fs=float(fs), gaps=shifted, sources=tuple(l.source for l in logs),
                  notes=tuple(notes), summaries=tuple(l.summary for l in logs))
