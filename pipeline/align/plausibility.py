@@ -91,6 +91,32 @@ def check_duration(chans: Iterable, fs: float | None = None) -> None:
                          f"days without a common clock)")
 
 
+#: Shortest trial segment detection can work on [s]: a decay or coast-down spans several seconds.
+MIN_SEGMENT_S = 5.0
+
+
+def check_segmentable(trial) -> None:
+    """Raise when a trial is too short for segment detection, naming its duration and the minimum.
+
+    Parameters
+    ----------
+    trial : pipeline.records.Trial
+        Aligned trial.
+
+    Raises
+    ------
+    SegmentError
+        The trial spans less than ``MIN_SEGMENT_S`` seconds.
+    """
+    from ..errors import SegmentError
+
+    t = trial.t
+    span = float(t[-1] - t[0]) if len(t) else 0.0
+    if span < MIN_SEGMENT_S:
+        raise SegmentError(f"segment: expected a trial of at least {MIN_SEGMENT_S:g} s (a decay, step or coast-down "
+                           f"spans several seconds), found {span:.3g} s ({len(t)} sample(s) at {trial.fs:.3g} Hz)")
+
+
 def _rolling_median(x: np.ndarray, n: int) -> np.ndarray:
     return pd.Series(x).rolling(max(n, 1), center=True, min_periods=max(n // 4, 1)).median().to_numpy()
 

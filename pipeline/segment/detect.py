@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..align.plausibility import without_implausible
+from ..align.plausibility import check_segmentable, without_implausible
 from ..records import DOF_CHANNELS, INPUT_UNITS, Segment, Segments, Trial
 from .inputs import Level, split_levels
 from .speed_events import coast_down_segments
@@ -272,6 +272,7 @@ def detect_segments(trial: Trial) -> Segments:
     Segments
         In time order, ``origin='detected'``.
     """
+    check_segmentable(trial)
     trial = without_implausible(trial)
     segs = _input_segments(trial)
     if not _has_input_for(trial, "surge"):
