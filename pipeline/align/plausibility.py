@@ -13,7 +13,9 @@ starting with ``plausibility: FAIL [<channels>]:`` and the channels named there 
    the IMU is mounted rotated (or upside down) relative to the body axes: its accelerations and
    rates of that sensor fail.
 2. **Constant or zero channels.** An IMU or attitude channel whose every sample is the same value
-   (all zeros is the common case: a sensor that is configured but not sampled) fails.
+   (all zeros is the common case: a sensor that is configured but not sampled) fails; so does a
+   roll or pitch whose median magnitude no floating vessel holds (``MAX_ROLL_DEG``,
+   ``MAX_PITCH_DEG``: a board mounted upside down reads roll +-180 deg).
 3. **Attitude contradicting the IMU.** Where the accelerometer is plausible, the roll and pitch
    it implies, ``phi_f = atan2(-f_y, -f_z)``, ``theta_f = atan2(f_x, sqrt(f_y^2 + f_z^2))``,
    are compared over 10 s medians with the logged ``phi``/``theta``; a median disagreement above
@@ -40,6 +42,9 @@ from ..errors import AlignError
 G = 9.80665
 #: Largest median disagreement between logged and accelerometer roll/pitch [deg].
 ATTITUDE_TOL_DEG = 20.0
+#: Median |roll| and |pitch| above which a vessel cannot be floating upright [deg].
+MAX_ROLL_DEG = 60.0
+MAX_PITCH_DEG = 45.0
 #: Speed below which the vessel counts as at rest [m/s].
 REST_SPEED = 0.1
 #: Fewest samples a channel needs before it is judged constant.
@@ -158,6 +163,21 @@ def plausibility_notes(frame: pd.DataFrame, fs: float) -> list[str]:
             notes.append(f"plausibility: FAIL [{c}]: {what} over {len(v)} samples (a sensor logged but not sampled)")
             failed.add(c)
     checked.append("constant channels")
+
+    # 2b. Roll or pitch a floating vessel cannot hold (capsized, or the board mounted upside down).
+    for c in cols:
+        if _base(c) not in ("phi", "theta") or c in failed:
+            continue
+        v = finite(c)
+        if len(v) < MIN_SAMPLES:
+            continue
+        typical = math.degrees(float(np.median(np.abs(v))))
+        limit = MAX_ROLL_DEG if _base(c) == "phi" else MAX_PITCH_DEG
+        if typical > limit:
+            notes.append(f"plausibility: FAIL [{c}]: median |{c}| is {typical:.0f} deg, expected below {limit:.0f} deg "
+                         f"for a floating vessel (upside-down mounting or a capsized log)")
+            failed.add(c)
+    checked.append("attitude range")
 
     # 1. Gravity on the wrong axis, per accelerometer (suffix group).
     good_acc: list[str] = []
