@@ -83,6 +83,24 @@ def test_ulog_every_sample_accounted_and_euler_as_scipy():
     assert any(w.startswith("parameters:") for w in log.summary.warnings)
 
 
+def test_ulog_actuator_outputs_through_the_vessel_map():
+    import dataclasses
+
+    from pyulog import ULog
+
+    from pipeline.vessel import ActuatorMap, load_vessel
+
+    path = DATA / "pyulog" / "sample_appended_multiple.ulg"
+    vessel = dataclasses.replace(load_vessel(Path(__file__).parents[1] / "vessel_configs" / "aauship.toml"),
+                                 actuators=(ActuatorMap("servo", 1, "delta", full_scale=0.5),))
+    out = next(d for d in ULog(str(path)).data_list if d.name == "actuator_outputs" and d.multi_id == 0).data
+    pwm = out["output[0]"].astype(float)
+    log = read_log(path, vessel=vessel)
+    ok = pwm > 0
+    np.testing.assert_allclose(log.channels["delta"].values, 0.5 * (pwm[ok] - 1500.0) / 400.0)
+    np.testing.assert_allclose(log.channels["delta"].t, out["timestamp"][ok] * 1e-6)
+
+
 def test_ulog_bad_input(tmp_path):
     cut = tmp_path / "cut.ulg"
     cut.write_bytes((DATA / "pyulog" / "sample_appended_multiple.ulg").read_bytes()[:10])
@@ -204,18 +222,22 @@ def test_esf_meas_on_gps_time_against_pyubx2(tmp_path):
         read_ubx(DATA / "pyubx2" / "pygpsdata-ESF.log")   # no epoch to put the sensor time tags on
     with open(DATA / "pyubx2" / "pygpsdata-ESF.log", "rb") as fh:
         frames = [(raw, m) for raw, m in UBXReader(fh, protfilter=2, quitonerror=0) if m is not None]
-    tags = [m.timeTag for _, m in frames]
     pvt = [UBXMessage("NAV", "NAV-PVT", GET, iTOW=1000 * k, fixType=3, gnssFixOk=1, lat=57.0, lon=9.9).serialize()
            for k in range(3)]
     p = tmp_path / "esf.ubx"
     p.write_bytes(pvt[0] + b"".join(raw for raw, _ in frames) + pvt[1] + pvt[2])
     log = read_ubx(p)
-    assert log.summary.read["ESF-MEAS"] + log.summary.skipped.get("ESF-MEAS", 0) == 19
-    gyro_z = [(m.timeTag, m.dataField_01) for _, m in frames if getattr(m, "dataType_01", None) == 5]
-    if "r@esf" in log.channels:
-        assert len(log.channels["r@esf"].t) >= 1
-        assert np.ptp(np.diff(log.channels["r@esf"].t)) >= 0
-    assert min(tags) >= 0 and gyro_z is not None
+    assert log.summary.read["ESF-MEAS"] + log.summary.skipped.get("ESF-MEAS", 0) == len(frames) == 19
+    # pyubx2's fields: gyro x (data type 14) in 2^-12 deg/s as a signed 24-bit integer, first of each time tag kept.
+    ref, last = [], -1
+    for _, m in frames:
+        for i in range(1, m.numMeas + 1):
+            if getattr(m, f"dataType_{i:02d}") == 14 and m.timeTag > last:
+                v = getattr(m, f"dataField_{i:02d}")
+                ref.append((v - (1 << 24) if v & 0x800000 else v) * 2.0**-12 * np.pi / 180)
+                last = m.timeTag
+    np.testing.assert_allclose(log.channels["p@esf"].values, ref)
+    assert np.all(np.diff(log.channels["p@esf"].t) > 0)
 
 
 def test_rtcm_only_and_unknown_content_say_what_they_found():
