@@ -34,6 +34,7 @@ import contextlib
 import io
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -67,6 +68,8 @@ REMOTE = [
     ("ntpsec/gpsd", "46977faa8f94eb036ca68c24a3fc0d233732e707", "test/daemon/ublox-glo.log", "BSD-2-Clause"),
     ("ntpsec/gpsd", "46977faa8f94eb036ca68c24a3fc0d233732e707", "test/daemon/quectel-l76k-nmea.log", "BSD-2-Clause"),
 ]
+#: Summary keys that count bytes or lines, not messages.
+_NOT_MESSAGES = ("garbage", "bad checksum", "bad_checksum", "incomplete sentence")
 _EXC_NAME = re.compile(r"^error: [A-Z][A-Za-z]*(Error|Exception|Warning)\b")
 
 
@@ -93,8 +96,8 @@ def fetch_remote(repo: str, commit: str, path: str, mirror: Path, cache: Path) -
         return None
 
 
-def library_count(path: Path, fmt: str | None) -> str:
-    """Messages in the file as the format's own library counts them (by protocol where mixed)."""
+def library_count(path: Path, fmt: str | None) -> tuple[str, int | None]:
+    """Messages in the file as the format's own library counts them (by protocol where mixed), and the total."""
     try:
         if fmt in ("ubx", "nmea", "rtcm3"):
             from pyubx2 import UBXReader
@@ -106,12 +109,13 @@ def library_count(path: Path, fmt: str | None) -> str:
                         continue
                     kind = "UBX" if raw[:2] == b"\xb5\x62" else "RTCM" if raw[:1] == b"\xd3" else "NMEA"
                     counts[kind] += 1
-            return ", ".join(f"{k} {v}" for k, v in sorted(counts.items())) + " (pyubx2)"
+            return ", ".join(f"{k} {v}" for k, v in sorted(counts.items())) + " (pyubx2)", sum(counts.values())
         if fmt == "ulog":
             from pyulog import ULog
 
             u = ULog(str(path))
-            return f"{sum(len(d.data['timestamp']) for d in u.data_list)} samples in {len(u.data_list)} topics (pyulog)"
+            n = sum(len(d.data['timestamp']) for d in u.data_list)
+            return f"{n} samples in {len(u.data_list)} topics (pyulog)", n
         if fmt == "dataflash":
             from pymavlink.DFReader import DFReader_binary
 
@@ -119,7 +123,7 @@ def library_count(path: Path, fmt: str | None) -> str:
             n = 0
             while r.recv_msg() is not None:
                 n += 1
-            return f"{n} records (pymavlink)"
+            return f"{n} records (pymavlink)", n
         if fmt == "tlog":
             from pymavlink import mavutil
 
@@ -127,10 +131,10 @@ def library_count(path: Path, fmt: str | None) -> str:
             n = 0
             while m.recv_match() is not None:
                 n += 1
-            return f"{n} messages (pymavlink)"
+            return f"{n} messages (pymavlink)", n
     except Exception as exc:  # the library's own failure is a finding, not a crash of this script
-        return f"library failed: {type(exc).__name__}"
-    return "-"
+        return f"library failed: {type(exc).__name__}", None
+    return "-", None
 
 
 def run_cli(argv: list[str]) -> tuple[int, str, float, bool]:
@@ -156,13 +160,20 @@ def run_cli(argv: list[str]) -> tuple[int, str, float, bool]:
 def fit_subprocess(path: Path) -> tuple[int, str, float, bool]:
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
+        # Own process group: on a timeout the compiler a JIT may have started is stopped too.
+        proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "fit", "--vessel", str(VESSEL), str(path),
+                                 "--json", str(Path(d) / "fit.json")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, cwd=ROOT, start_new_session=True,
+                                # Its own temporary folder, so a killed JIT leaves nothing behind.
+                                env={**os.environ, "PYTHONPATH": str(ROOT), "CI": "1", "TMPDIR": d})
         try:
-            res = subprocess.run([sys.executable, "-m", "pipeline.cli", "fit", "--vessel", str(VESSEL), str(path),
-                                  "--json", str(Path(d) / "fit.json")], capture_output=True, text=True,
-                                 timeout=FIT_LIMIT_S, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT), "CI": "1"})
+            out, err = proc.communicate(timeout=FIT_LIMIT_S)
         except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
             return 124, f"timeout after {FIT_LIMIT_S:g} s", time.perf_counter() - t0, False
         dt = time.perf_counter() - t0
+        res = subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
     first = next((ln for ln in res.stderr.splitlines() if ln.startswith("error:")), "")
     return res.returncode, first, dt, "Traceback" in res.stderr + res.stdout
 
@@ -197,9 +208,9 @@ def main(argv=None) -> int:
     print(f"Real files: {len(files)} from {len({r.split(' ')[0] for r, _ in files})} repositories"
           + (f"; not available (no mirror, no network): {', '.join(skipped_remote)}" if skipped_remote else ""))
     print()
-    print("| repository | file | bytes | format (sniffed) | messages (library) | read | skipped | ingest | align | "
-          "segment | fit | fit [s] |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| repository | file | bytes | format (sniffed) | messages (library) | read | skipped | read + skipped "
+          "messages - library | ingest | align | segment | fit | fit [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     problems = []
     outcome: Counter = Counter()
     for repo, path in files:
@@ -207,10 +218,17 @@ def main(argv=None) -> int:
             fmt, _ = sniff(path)
         except OSError:
             fmt = None
-        lib = library_count(path, fmt)
+        lib, lib_n = library_count(path, fmt)
+        accounted = "-"
         try:
             log = read_log(path)
             n_read, n_skip = sum(log.summary.read.values()), sum(log.summary.skipped.values())
+            # Messages only: bytes and lines that hold no message (garbage, bad checksums) are
+            # counted by the reader but not by the libraries.
+            n_msgs = n_read + sum(v for k, v in log.summary.skipped.items()
+                                  if not any(w in k.lower() for w in _NOT_MESSAGES))
+            if lib_n is not None:
+                accounted = "=" if n_msgs == lib_n else f"{n_msgs - lib_n:+d}"
         except VesselidError:
             n_read = n_skip = "-"
         except Exception as exc:  # noqa: BLE001 - counted as a defect below
@@ -255,6 +273,7 @@ def main(argv=None) -> int:
         outcome["ingest ok" if cells[0] == "ok" else "ingest error"] += 1
         outcome["fit ok" if code == 0 else "fit error"] += 1
         print(f"| {repo} | `{path.name}` | {path.stat().st_size} | {fmt or '-'} | {lib} | {n_read} | {n_skip} | "
+              f"{accounted} | "
               f"{' | '.join(cells)} | {fit_cell} | {dt:.1f} |")
     print()
     print(f"Outcome: {dict(sorted(outcome.items()))}; problems: {len(problems)}")
