@@ -248,7 +248,7 @@ def test_rtcm_only_and_unknown_content_say_what_they_found():
         n = sum(1 for _, m in RTCMReader(fh) if m is not None)
     with pytest.raises(IngestError, match=rf"found RTCM 3 correction frames only \(1230 x{n}\)"):
         read_log(path)
-    with pytest.raises(IngestError, match=r"expected a log in a known format .* found binary data .* beginning 23 20 4e"):
+    with pytest.raises(IngestError, match=r"content in a known format .* found '.log' holding binary data .* beginning 23 20 4e"):
         read_log(DATA / "gpsd" / "trimble-smtx.log")
 
 

@@ -143,7 +143,8 @@ def read_log(path: str | Path, vessel=None, **options: Any) -> RawLog:
     reader = CONTENT_READERS.get(fmt) if fmt else READERS.get(suffix)
     if reader is None:
         known = "ULog, DataFlash, MAVLink .tlog, u-blox UBX, NMEA 0183, ROS bag, CSV"
-        raise IngestError(f"{p}: expected a log in a known format ({known}), found {what}")
+        raise IngestError(f"{p}: expected a log with extension {sorted(READERS)} or content in a known format "
+                          f"({known}), found {p.suffix or 'no extension'!r} holding {what}")
     return reader(p, vessel=vessel, **options)
 
 
