@@ -19,6 +19,7 @@ from pipeline.sim import chain, default_sensors, free_decay, rest, rudder_step, 
 from pipeline.vessel import load_vessel
 
 VESSEL = "vessel_configs/aauship.toml"
+pytestmark = pytest.mark.slow   # simulates and aligns minute-long trials (about a minute in all)
 
 
 @pytest.fixture(scope="module")
