@@ -8,6 +8,8 @@ accelerometer implies, a vessel lying at rest.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -18,7 +20,7 @@ from pipeline.segment import detect_segments
 from pipeline.sim import chain, default_sensors, free_decay, rest, rudder_step, simulate
 from pipeline.vessel import load_vessel
 
-VESSEL = "vessel_configs/aauship.toml"
+VESSEL = Path(__file__).resolve().parents[1] / "vessel_configs" / "aauship.toml"
 pytestmark = pytest.mark.slow   # simulates and aligns minute-long trials (about a minute in all)
 
 
