@@ -213,7 +213,7 @@ def test_errors_name_expected_and_found(tmp_path):
         read_nmea(binary)
     gsv = tmp_path / "gsv.nmea"
     gsv.write_text(_line("GPGSV,1,1,01,03,03,111,00") + "\n")
-    with pytest.raises(IngestError, match=r"expected usable GGA/RMC/VTG/HDT/THS.*GSV 1"):
+    with pytest.raises(IngestError, match=r"expected usable GGA/RMC/.*HDG/HDM/VHW/ROT.*GSV 1"):
         read_nmea(gsv)
     untimed = tmp_path / "vtg.nmea"
     untimed.write_text(_line("GPVTG,010.0,T,,M,1.0,N,1.852,K,A") + "\n" + _line("HEHDT,10.0,T") + "\n")

@@ -184,7 +184,7 @@ def test_crc_error_garbage_nmea_duplicate_and_truncation(files, tmp_path):
     frames = [data[i:i + size] for i in range(0, len(data), size)]
     bad = bytearray(frames[10])
     bad[40] ^= 0xFF  # payload byte: checksum no longer matches
-    nmea = b"$GNGGA,100000.00,5703.0,N,00955.2,E,1,12,0.8,10.0,M,40.0,M,,*5B\r\n"
+    nmea = b"$GNGGA,100000.00,5703.0,N,00955.2,E,1,12,0.8,10.0,M,40.0,M,,*47\r\n"
     body = (b"".join(frames[:10]) + bytes(bad) + b"\x00\x01garbage" + b"".join(frames[11:30]) + nmea
             + frames[29] + b"".join(frames[30:]))
     p = tmp_path / "bad.ubx"
@@ -192,7 +192,8 @@ def test_crc_error_garbage_nmea_duplicate_and_truncation(files, tmp_path):
     log = read_ubx(p)
     s = log.summary
     assert s.skipped["BAD_CHECKSUM"] == 1
-    assert s.skipped["NMEA"] == 1
+    # A GGA has no date: it cannot be put on the UBX (GPS week) clock, so it is counted, not used.
+    assert s.skipped["NMEA GGA (no date to place it on the UBX clock)"] == 1
     assert s.skipped["GARBAGE_BYTES"] == size + 9  # the bad frame's bytes and the junk
     assert any(w == "truncated: 63 trailing bytes (an incomplete last frame) ignored" for w in s.warnings)
     assert any("1 message(s) with a duplicate or out-of-order iTOW" in w for w in s.warnings)
@@ -212,7 +213,7 @@ def test_no_fix_samples_are_counted(tmp_path):
     assert log.summary.skipped["NAV-PVT"] == 3
     assert any("fix types: no fix 3, 3D 3" in w for w in log.summary.warnings)
     p.write_bytes(b"".join(frames[:3]))
-    with pytest.raises(IngestError, match="expected NAV-PVT, NAV-RELPOSNED or ESF-RAW messages with usable samples"):
+    with pytest.raises(IngestError, match="expected UBX NAV-PVT, NAV-PVAT, NAV-ATT, HNR-PVT, NAV-RELPOSNED, ESF-RAW/MEAS messages or NMEA fixes with usable samples"):
         read_ubx(p)
 
 

@@ -18,6 +18,7 @@ from .antenna import apply_sensors
 from .clock import ClockOffset
 from .gnss import collapse_held_fixes
 from .runs import RunGroup, group_runs
+from .plausibility import check_duration, plausibility_notes
 from .resample import find_gaps, resample_channel
 
 #: Highest rate the aligner resamples to by default [Hz]; faster sensors are decimated by
@@ -208,6 +209,7 @@ def _align_run(logs: Sequence[RawLog], group: RunGroup, fs: float, gap_threshold
         raise AlignError(f"align: expected channels with samples, found none in {[l.source for l in logs]}")
     t0 = min(float(c.t[0]) for c in chans.values())
     t1 = max(float(c.t[-1]) for c in chans.values())
+    check_duration(chans.values(), fs)
     n = int(np.floor((t1 - t0) * fs + 1e-9)) + 1
     grid = t0 + np.arange(n) / fs
     data = {"t": grid - t0}
@@ -238,6 +240,7 @@ def _align_run(logs: Sequence[RawLog], group: RunGroup, fs: float, gap_threshold
         notes += sensor_notes
     frame, derived = _derive(frame, {k: _native_rate(c) for k, c in chans.items()})
     notes += derived
+    notes += plausibility_notes(frame, fs)
     shifted = [Gap(g.channel, g.t_start - t0, g.t_end - t0) for g in gaps]
     return frame, shifted, notes, kinds, t0
 

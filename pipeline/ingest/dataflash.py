@@ -33,7 +33,13 @@ RCOU   C1..C14 [us]                      -> inputs through the vessel's ``[[actu
 RCIN   C1..C14 [us]                      -> inputs through the actuator maps with source rc; an input
        that a servo map also gives is named ``<input>@rc``
 
-Time: ``time_reference='boot'``; ``t`` [s] = TimeUS * 1e-6 of each record (autopilot boot clock).
+Time: ``time_reference='boot'``; ``t`` [s] = TimeUS * 1e-6 of each record (autopilot boot clock);
+logs before 2015 stamp records with TimeMS [ms], read as TimeUS = 1000 TimeMS.
+
+Corrupted records (DataFlash has no checksum) are dropped and counted per type in a warning:
+a TimeUS far outside the span the bulk of the log lies in (:func:`plausible_span`), an instance
+number above ``MAX_INSTANCE``, a value beyond ``VALUE_LIMITS`` (40 rad/s, 40 g, |lat| > 90 deg
+...). So one bad record can never stretch the log to 5e12 s.
 ``RawLog.start_time`` is the UTC of boot [s, Unix]: the median over GPS records with a fix of
 (GWk, GMS as GPS time) - TimeUS, less the leap seconds; it carries the receiver-to-autopilot
 latency of the GPS record's TimeUS (tens of ms on real autopilots). NaN without such records.
@@ -363,6 +369,9 @@ def _message_types(reader: _IndexedDFReader) -> dict[str, tuple[str, tuple[str, 
         fields = tuple(f for f in wanted[canon] if f in fmt.colhash and fmt.format[fmt.colhash[f]] not in "nNZa")
         if "TimeUS" in fields:
             out[name] = (canon, fields)
+        elif "TimeMS" in fmt.colhash and fmt.format[fmt.colhash["TimeMS"]] not in "nNZa":
+            # Logs before ArduPilot 3.3 (2015) stamp records in milliseconds (TimeMS).
+            out[name] = (canon, ("TimeMS",) + fields)
     return out
 
 
@@ -399,8 +408,10 @@ def _decode_vectorised(reader: _IndexedDFReader, types: Mapping[str, tuple[str, 
             for i in range(0, len(offs), step):
                 rows[i:i + step] = buf[(offs[i:i + step] + 3)[:, None] + cols]
             rec = rows.view(dtype).reshape(len(offs))
-            out[name] = {f: (rec[f].astype(np.int64) if f == "TimeUS" else _scale(rec[f], fmt.format[fmt.colhash[f]]))
+            out[name] = {f: (rec[f].astype(np.int64) if f in ("TimeUS", "TimeMS")
+                             else _scale(rec[f], fmt.format[fmt.colhash[f]]))
                          for f in fields}
+            _time_us(out[name])
             tick(len(offs))
     finally:
         del buf
@@ -423,10 +434,55 @@ def _decode_slow(reader: _IndexedDFReader, types: Mapping[str, tuple[str, tuple[
     for name, (_, fields) in types.items():
         arr = rows[name]
         # TimeUS through uint64 so a corrupted stamp wraps exactly as in the vectorised path.
-        out[name] = {f: (np.array([r[i] for r in arr], dtype=np.uint64).astype(np.int64) if f == "TimeUS"
+        out[name] = {f: (np.array([r[i] for r in arr], dtype=np.uint64).astype(np.int64) if f in ("TimeUS", "TimeMS")
                          else np.array([r[i] for r in arr], dtype=np.float64))
                      for i, f in enumerate(fields)}
+        _time_us(out[name])
     return out
+
+
+def _time_us(cols: dict[str, np.ndarray]) -> None:
+    """Put a TimeMS column on the TimeUS scale (in place), so one code path serves both eras."""
+    if "TimeMS" in cols:
+        cols["TimeUS"] = cols.pop("TimeMS") * 1000
+
+
+#: Largest instance number of a message that real autopilots log (IMU, GPS, EKF cores); a larger
+#: one is a corrupted instance byte and its records are dropped.
+MAX_INSTANCE = 9
+#: Physical limits beyond which a value is a corrupted record, not a measurement [SI].
+VALUE_LIMITS: dict[str, float] = {"p": 40.0, "q": 40.0, "r": 40.0,                  # rad/s (> 2000 deg/s)
+                                  "ax": 400.0, "ay": 400.0, "az": 400.0,            # m/s^2 (> 40 g)
+                                  "lat": 90.0, "lon": 180.0, "sog": 400.0,          # deg, deg, m/s
+                                  "phi": 2 * math.pi, "theta": 2 * math.pi, "psi": 4 * math.pi,
+                                  "cog": 4 * math.pi}
+
+
+def plausible_span(times_us: list[np.ndarray]) -> tuple[float, float]:
+    """The span of the log's boot clock [us] that its records can lie in.
+
+    DataFlash has no checksum: a corrupted TimeUS (5e12 s where the log lasts an hour) would
+    stretch any grid built over the log. From the 10th and 90th percentiles of every record
+    time pooled (which hold 80 % of a uniformly logged flight), the span reaches five times
+    their distance plus 60 s beyond each: a real record is never that far out, a corrupted one
+    almost always is, and fewer than 10 % of corrupted records cannot move the percentiles.
+
+    Parameters
+    ----------
+    times_us : list of numpy.ndarray
+        TimeUS of every decoded message type [us].
+
+    Returns
+    -------
+    (float, float)
+        Lowest and highest plausible TimeUS [us].
+    """
+    parts = [np.asarray(t, float) for t in times_us if len(t)]
+    if not parts:
+        return -math.inf, math.inf
+    p10, p90 = np.percentile(np.concatenate(parts), [10.0, 90.0])
+    margin = 5.0 * (p90 - p10) + 60e6
+    return float(max(p10 - margin, 0.0)), float(p90 + margin)
 
 
 def _check_units(p: Path, reader: _IndexedDFReader, types: Mapping[str, tuple[str, tuple[str, ...]]]) -> None:
@@ -557,19 +613,29 @@ def _build(p: Path, decoded: Mapping[str, Mapping[str, np.ndarray]],
 
     maps = tuple(vessel.actuators) if vessel is not None else ()
     produced: dict[str, Channel] = {}
+    lo_us, hi_us = plausible_span([decoded[name]["TimeUS"] for name in types])
+    impossible: Counter = Counter()
+    if any("TimeMS" in decoded_fields for _, decoded_fields in types.values()):
+        warnings.append("time stamps: TimeMS (milliseconds, logs before 2015) read as TimeUS = 1000 TimeMS")
     for name, (canon, _) in types.items():
         cols = decoded[name]
         n_msgs = len(cols["TimeUS"])
         used = np.zeros(n_msgs, bool)
         for inst, rows in _split_instances(name, canon, cols):
+            if inst > MAX_INSTANCE or inst < 0:
+                impossible[f"{name} instance {inst}"] += int(rows.sum())
+                continue
             sub = {f: v[rows] for f, v in cols.items()}
-            keep = _clean_times(sub["TimeUS"])
+            in_span = (sub["TimeUS"] >= lo_us) & (sub["TimeUS"] <= hi_us)
+            if (~in_span).any():
+                impossible[f"{name} time"] += int((~in_span).sum())
+            keep = _clean_times(sub["TimeUS"]) & in_span
             bad = int((~keep).sum())
             if bad:
                 warnings.append(f"{name}{'' if inst == 0 and canon == name else f'[{inst}]'}: {bad} record(s) with a "
                                 "duplicate, out-of-order or isolated out-of-range TimeUS skipped (first kept)")
             t = sub["TimeUS"] * 1e-6
-            chans, ok = _channels(name, canon, inst, t, sub, keep, maps, warnings)
+            chans, ok = _channels(name, canon, inst, t, sub, keep, maps, warnings, impossible)
             used[np.flatnonzero(rows)[ok]] = True
             for ch_name, ch in chans.items():
                 if ch_name in produced:
@@ -579,6 +645,11 @@ def _build(p: Path, decoded: Mapping[str, Mapping[str, np.ndarray]],
                 produced[ch_name] = ch
         read[name] += int(used.sum())
         skipped[name] += int(n_msgs - used.sum())
+    if impossible:
+        warnings.append(f"corrupted records dropped (no checksum in DataFlash): "
+                        + ", ".join(f"{k} {v}" for k, v in sorted(impossible.items()))
+                        + f" (plausible TimeUS span {lo_us * 1e-6:.1f}-{hi_us * 1e-6:.1f} s; instance <= "
+                        f"{MAX_INSTANCE}; values within physical limits)")
     for msg, (src, _, _) in INPUT_MESSAGES.items():
         if msg in types or not any(a.source == src for a in maps):
             continue
@@ -633,7 +704,8 @@ def _start_time(decoded: Mapping[str, Mapping[str, np.ndarray]], types: Mapping[
 
 
 def _channels(name: str, canon: str, inst: int, t: np.ndarray, cols: Mapping[str, np.ndarray], keep: np.ndarray,
-              maps: tuple[ActuatorMap, ...], warnings: list[str]) -> tuple[dict[str, Channel], np.ndarray]:
+              maps: tuple[ActuatorMap, ...], warnings: list[str], impossible: Counter | None = None
+              ) -> tuple[dict[str, Channel], np.ndarray]:
     """Channels of one message type and instance; returns them and which records gave a sample."""
     where = name if canon == name and inst == 0 else f"{name}[{inst}]"
     if canon in INPUT_MESSAGES:
@@ -679,7 +751,14 @@ def _channels(name: str, canon: str, inst: int, t: np.ndarray, cols: Mapping[str
     chans: dict[str, Channel] = {}
     used = np.zeros(len(t), bool)
     for ch_name, v in values.items():
+        limit = VALUE_LIMITS.get(ch_name.split("@")[0])
         ok = valid[ch_name] & np.isfinite(v)
+        if limit is not None:
+            wild = ok & (np.abs(v) > limit)
+            if wild.any():
+                ok &= ~wild
+                if impossible is not None:
+                    impossible[f"{where} {ch_name.split('@')[0]} value"] += int(wild.sum())
         if not ok.any():
             continue
         used |= ok

@@ -1,36 +1,56 @@
-"""NMEA 0183 logs: GGA, RMC, VTG, HDT and THS sentences from a GNSS receiver or heading sensor.
+"""NMEA 0183 logs: position, speed, heading, rate of turn and attitude from GNSS receivers and marine instruments.
 
-A log is a text file of sentences ``$ttSSS,field,...*hh``, one a line, from any talker (GP, GN,
-GL, GA, HE, ...). Real logs are messy, and the reader is tolerant of what loggers do to them:
+A log is a text file of sentences ``$<address>,field,...*hh``, one a line, from any talker: two
+letters (GP, GN, HE, II, ...), two digits (``$02MWV``, ``$24HDG``, instrument bus addresses) or a
+proprietary address (``$PASHR``, ``$PTNL,AVR``). Real logs are messy, and the reader is tolerant
+of what loggers do to them:
 
 - a leading column (a PC timestamp, a line number, ``t`` or binary noise from a serial port that
   was opened mid-sentence) before the ``$`` is ignored, as is anything after the checksum;
 - lines without a complete sentence (fragments, blank lines, garbage) are counted and skipped;
 - every sentence's ``*hh`` checksum (XOR of the bytes between ``$`` and ``*``) is checked; bad
   ones are counted, skipped and reported in a warning;
-- repeated sentences (same epoch twice) and steps back in time are dropped and counted.
+- a sentence repeating its own epoch, or stepping back in time, is dropped and counted once (not
+  once per channel it carries).
 
-Time comes from the sentences, not from the PC: GGA and RMC carry the UTC time of day (RMC also
-the date); VTG, HDT and THS carry none and take the time of the latest GGA/RMC before them (a
-receiver sends an epoch's sentences together, GGA or RMC first). A time of day that falls back by
-more than 12 h is a midnight rollover; an RMC date overrides the day count, so a log that spans
-days or pauses over midnight stays on one clock. ``t`` is seconds from the first fix and
-``time_reference`` is ``gps`` (UTC from the receiver); the UTC of ``t = 0`` is in the summary and,
-when an RMC date makes it absolute, in ``RawLog.start_time``.
+Time comes from the sentences, not from the PC. Time-bearing sentences are GGA, RMC, GLL, GNS,
+ZDA, PASHR and PTNL,AVR (UTC time of day; RMC and ZDA also the date); the others (VTG, HDT, THS,
+HDG, HDM, VHW, ROT) take the time of the latest time-bearing sentence before them (an instrument
+bus sends an epoch's sentences together). A time of day that falls back by more than 12 h is a
+midnight rollover; an RMC/ZDA date overrides the day count, so a log that spans days or pauses
+over midnight stays on one clock. ``t`` is seconds from the first sample and ``time_reference``
+is ``gps`` (UTC from the receiver); the UTC of ``t = 0`` is in the summary and, when a date makes
+it absolute, in ``RawLog.start_time``.
 
 Mapping (``VARIABLE_MAP``; SI units, radians, NED: course and heading clockwise from true north)
 ------------------------------------------------------------------------------------------------
 GGA  lat, lon [ddmm.mmmm + N/S, E/W] -> lat, lon [deg]  (fix quality 0 is skipped and counted)
+GNS  lat, lon -> lat, lon  (mode N for every constellation skipped)
+GLL  lat, lon -> lat, lon  (status V or mode N skipped)
 RMC  lat, lon -> lat, lon; spd [knots] -> sog [m/s]; cog [deg] -> cog [rad]  (status V skipped)
 VTG  sogk [km/h] (or sogn [knots]) -> sog [m/s]; cogt [deg true] -> cog [rad]  (mode N skipped)
 HDT  heading [deg true] -> psi [rad]
 THS  headt [deg true] -> psi [rad]  (mode V, invalid, skipped and counted)
+HDG  heading [deg magnetic] + deviation + variation (E positive) -> psi [rad, true]
+HDM  heading [deg magnetic] + the latest variation (HDG or RMC) -> psi [rad, true]
+VHW  speed through water [km/h or knots] -> u [m/s] (log speed, relative to the water); true
+     heading -> psi
+ROT  rate of turn [deg/min, positive to starboard] -> r [rad/s]  (status V skipped)
+PASHR  heading [deg true], roll [deg, starboard down positive], pitch [deg, bow up positive]
+       -> psi, phi, theta [rad]
+PTNL,AVR  yaw [deg true] of the two-antenna baseline -> psi [rad]  (quality 0 skipped)
+ZDA  time and date only (sets the clock)
 
-When GGA and RMC (or VTG and RMC) give the same quantity at the same epoch, one sample is kept
-(GGA before RMC for position, VTG before RMC for speed and course). The field names are those of
-pynmeagps (``nmeatypes_get``), so the map can be read next to its documentation.
+A magnetic heading (HDG without variation, HDM) with no variation anywhere in the log is kept as
+``psi`` and flagged in a warning: it differs from the true heading by the local variation, a
+constant that does not change yaw rate, but does change the comparison with course over ground.
+When two sentences give the same quantity at the same epoch one sample is kept (GGA/GNS before
+GLL before RMC for position; VTG before RMC for speed and course; HDT before THS/PASHR/PTNL
+before HDG before VHW before HDM for heading). The summary's warnings name every sentence type
+seen and what became of it. The field names are those of pynmeagps (``nmeatypes_get``), so the
+map can be read next to its documentation.
 
-Parsing is done here by hand, not with ``pynmeagps.NMEAReader.parse``: the five sentences have
+Parsing is done here by hand, not with ``pynmeagps.NMEAReader.parse``: the sentences have
 fixed, simple layouts, and the hand parser is about ten times faster (measured on the CE6
 Limfjord logs: ~6 us against ~60 us a sentence; an hour of 20 Hz GGA+VTG is 144 000 sentences,
 so 1 s against 9 s), and it can count each kind of defect separately. pynmeagps is used by the
@@ -45,6 +65,7 @@ import os
 import re
 import sys
 from collections import Counter, defaultdict
+from dataclasses import dataclass
 from datetime import date, datetime, timedelta, timezone
 from functools import reduce
 from operator import xor
@@ -64,6 +85,10 @@ _KMH = 1.0 / 3.6          # [m/s] per km/h
 VARIABLE_MAP: dict[tuple[str, str], tuple[str, float]] = {
     ("GGA", "lat"): ("lat", 1.0),
     ("GGA", "lon"): ("lon", 1.0),
+    ("GNS", "lat"): ("lat", 1.0),
+    ("GNS", "lon"): ("lon", 1.0),
+    ("GLL", "lat"): ("lat", 1.0),
+    ("GLL", "lon"): ("lon", 1.0),
     ("RMC", "lat"): ("lat", 1.0),
     ("RMC", "lon"): ("lon", 1.0),
     ("RMC", "spd"): ("sog", _KNOT),
@@ -73,18 +98,41 @@ VARIABLE_MAP: dict[tuple[str, str], tuple[str, float]] = {
     ("VTG", "cogt"): ("cog", _DEG),
     ("HDT", "heading"): ("psi", _DEG),
     ("THS", "headt"): ("psi", _DEG),
+    ("HDG", "heading"): ("psi", _DEG),
+    ("HDM", "heading"): ("psi", _DEG),
+    ("VHW", "hdgT"): ("psi", _DEG),
+    ("VHW", "spdwK"): ("u", _KMH),
+    ("VHW", "spdwN"): ("u", _KNOT),
+    ("ROT", "rot"): ("r", _DEG / 60.0),
+    ("PASHR", "heading"): ("psi", _DEG),
+    ("PASHR", "roll"): ("phi", _DEG),
+    ("PASHR", "pitch"): ("theta", _DEG),
+    ("PTNL,AVR", "yaw"): ("psi", _DEG),
 }
-#: Sentences the reader uses.
-SENTENCES = ("GGA", "RMC", "VTG", "HDT", "THS")
+#: Sentences the reader uses (ZDA only for the clock).
+SENTENCES = ("GGA", "RMC", "GNS", "GLL", "VTG", "HDT", "THS", "HDG", "HDM", "VHW", "ROT", "ZDA", "PASHR",
+             "PTNL,AVR")
+#: Sentences that carry their own UTC time of day.
+TIMED = ("GGA", "RMC", "GNS", "GLL", "ZDA", "PASHR", "PTNL,AVR")
+#: Sentences that give a heading.
+HEADINGS = ("HDT", "THS", "PASHR", "PTNL,AVR", "HDG", "VHW", "HDM")
 #: Which sentence wins when two give a channel at the same epoch (lower first).
-_PRIORITY = {"GGA": 0, "VTG": 0, "HDT": 0, "THS": 1, "RMC": 2}
+_PRIORITY = {"GGA": 0, "GNS": 0, "VTG": 0, "HDT": 0, "ROT": 0, "GLL": 1, "THS": 1, "PASHR": 1, "PTNL,AVR": 1,
+             "RMC": 2, "HDG": 2, "VHW": 3, "HDM": 4}
 #: GGA fix quality indicator -> name (NMEA 0183 v4.11).
 FIX_QUALITY = {0: "invalid", 1: "GPS", 2: "DGPS", 3: "PPS", 4: "RTK fixed", 5: "RTK float",
                6: "estimated", 7: "manual", 8: "simulation"}
+#: Why common sentence types carry nothing for the vessel's motion (for the summary).
+_NOT_USED = {"GSV": "satellites in view", "GSA": "DOP and active satellites", "GST": "error statistics",
+             "TXT": "text", "DBT": "depth", "DPT": "depth", "MWV": "wind", "MWD": "wind", "VWR": "wind",
+             "MTW": "water temperature", "XDR": "transducer values", "RMB": "navigation to waypoint",
+             "APB": "autopilot", "XTE": "cross-track error", "BWC": "bearing to waypoint",
+             "VLW": "distance log", "RSA": "rudder angle (instrument)", "VDM": "AIS", "VDO": "AIS"}
 
-# A sentence anywhere in a line: '$', two-character talker, three-letter id, fields, '*hh'.
+# A sentence anywhere in a line: '$' (or '!' for AIS), an address of two to ten characters
+# (talker + id, digits allowed: '$02MWV'; or a proprietary 'P...' address), fields, '*hh'.
 # Printable ASCII only, so binary noise cannot extend a match across a corrupted stretch.
-_SENTENCE_RE = re.compile(rb"\$([A-Z][A-Z0-9])([A-Z]{3}),([\x20-\x23\x25-\x29\x2b-\x7e]*)\*([0-9A-Fa-f]{2})")
+_SENTENCE_RE = re.compile(rb"[$!]([A-Z0-9]{2,10})(?:,([\x20-\x23\x25-\x29\x2b-\x7e]*))?\*([0-9A-Fa-f]{2})")
 _SENSOR_RE = re.compile(r"[A-Za-z0-9_]+")
 #: Files above this size get a progress bar when stderr is a terminal [bytes].
 _PROGRESS_MIN_BYTES = 4 * 1024 * 1024
@@ -129,7 +177,7 @@ def looks_like_nmea(path: str | Path, nbytes: int = 4096) -> bool:
             head = fh.read(nbytes)
     except OSError:
         return False
-    return any(nmea_checksum(m.group(0)[1:-3]) == int(m.group(4), 16) for m in _SENTENCE_RE.finditer(head))
+    return any(nmea_checksum(m.group(0)[1:-3]) == int(m.group(3), 16) for m in _SENTENCE_RE.finditer(head))
 
 
 def _want_progress(progress: bool | None, size: int) -> bool:
@@ -232,8 +280,436 @@ class _UtcClock:
         return (when + timedelta(seconds=seconds)).isoformat(timespec="milliseconds")
 
 
+def _zda_date(f: list[str]) -> int | None:
+    """ZDA day, month, year (4 digits) -> proleptic ordinal; None when absent or invalid."""
+    try:
+        yy = int(f[3])
+        if yy < 100:   # some instruments write two digits; receivers are post-1980
+            yy += 1900 if yy >= 80 else 2000
+        return date(yy, int(f[2]), int(f[1])).toordinal()
+    except (ValueError, IndexError):
+        return None
+
+
+def _signed(s: str, limit: float) -> float:
+    x = float(s)
+    if not (math.isfinite(x) and abs(x) <= limit):
+        raise ValueError(s)
+    return x
+
+
+def _east(value: str, letter: str) -> float:
+    """A deviation or variation with its E/W letter -> degrees, east positive; 0 when empty."""
+    if not value:
+        return 0.0
+    x = _signed(value, 180.0)
+    if letter == "W":
+        return -x
+    if letter == "E":
+        return x
+    raise ValueError(letter)
+
+
+@dataclass
+class NmeaParse:
+    """What :func:`parse_nmea` found: per-channel samples on the absolute UTC clock and the counts.
+
+    Attributes
+    ----------
+    merged : dict
+        Channel -> (t [s, UTC seconds from day 0 of ``clock``], values [SI], sentence ids).
+    clock : _UtcClock
+        The clock that turned times of day into seconds (``clock.unix(t)`` gives Unix time).
+    read, skipped : Counter
+        Sentences used per type; sentences not used per type and reason.
+    warnings : list of str
+        Notes for the summary (counts of every defect, sentence types seen and their fate).
+    n_sentences : int
+        Sentences found (checksum good or bad).
+    """
+
+    merged: dict
+    clock: "_UtcClock"
+    read: Counter
+    skipped: Counter
+    warnings: list
+    n_sentences: int
+    n_lines: int
+
+
+def _open(epoch: float | None, fresh: bool, t: float, in_epoch: Counter, epochs: list) -> tuple[float, bool]:
+    """A time-bearing sentence at ``t`` [s]: open a new epoch when time moved forward."""
+    if epoch is None or t > epoch:
+        in_epoch.clear()
+        epochs.append(t)
+        return t, True
+    if t == epoch:
+        return epoch, fresh
+    return epoch, False   # a step back: untimed sentences after it cannot be placed
+
+
+def _spread_untimed(untimed: dict, epochs: np.ndarray, samples: dict) -> dict[str, int]:
+    """Give untimed sentences times: the k-th of n in an epoch at e + k/n (e_next - e).
+
+    A heading sensor at 10 Hz between 1 Hz GNSS fixes keeps its rate instead of nine in ten
+    sentences being dropped as repeats. Returns the largest count per epoch of each type
+    that was spread (types with one per epoch are not listed).
+    """
+    out: dict[str, int] = {}
+    if len(epochs) > 1:
+        last_step = float(np.median(np.diff(epochs)))
+    else:
+        last_step = 0.0
+    for (name, sid), rows in untimed.items():
+        e = np.array([r[0] for r in rows])
+        k = np.array([r[1] for r in rows], float)
+        v = np.array([r[2] for r in rows])
+        # n per epoch: the count of this type in the epoch of each sample.
+        _, inv, counts = np.unique(e, return_inverse=True, return_counts=True)
+        n = counts[inv].astype(float)
+        j = np.searchsorted(epochs, e, side="right")
+        nxt = np.where(j < len(epochs), epochs[np.minimum(j, len(epochs) - 1)], e + last_step)
+        t = e + k / n * (nxt - e)
+        if counts.max() > 1:
+            out[sid] = max(out.get(sid, 0), int(counts.max()))
+        ts, vs = samples[(name, sid)]
+        ts.extend(t.tolist())
+        vs.extend(v.tolist())
+    return out
+
+
+def parse_nmea(lines, path_text: str = "NMEA") -> NmeaParse:
+    """Parse NMEA 0183 lines (bytes) into channels on one UTC clock, counting every sentence.
+
+    Parameters
+    ----------
+    lines : iterable of bytes
+        Text lines, each holding zero or more sentences.
+    path_text : str
+        Name of the source for messages.
+
+    Returns
+    -------
+    NmeaParse
+        Samples per channel (absolute UTC seconds; ``merged`` may be empty) and the counts.
+    """
+    clock = _UtcClock()
+    # (channel, sentence id) -> lists of absolute UTC seconds and SI values, in file order.
+    samples: dict[tuple[str, str], tuple[list[float], list[float]]] = defaultdict(lambda: ([], []))
+    read: Counter = Counter()
+    skipped: Counter = Counter()
+    seen: Counter = Counter()
+    n_sentences = 0
+    n_lines = 0
+    quality: Counter = Counter()
+    nsat: list[int] = []
+    hdop: list[float] = []
+    epoch: float | None = None   # time of the latest time-bearing sentence: untimed sentences take it
+    fresh = False                # the latest epoch moved time forward (not a repeat or a step back)
+    in_epoch: Counter = Counter()  # untimed sentences of each type since the epoch opened
+    untimed: dict[tuple[str, str], list[tuple[float, int, float]]] = defaultdict(list)
+    last_t: dict[str, float] = {}  # per sentence id, the latest epoch used
+    epochs: list[float] = []       # every epoch that moved time forward, in order
+    variation: float | None = None  # latest magnetic variation [deg, E positive] from HDG or RMC
+    magnetic_only: Counter = Counter()
+
+    for line in lines:
+        n_lines += 1
+        matches = list(_SENTENCE_RE.finditer(line))
+        if not matches:
+            if not line.strip():
+                pass
+            elif b"$" in line:
+                skipped["incomplete sentence"] += 1
+            else:
+                skipped["garbage line"] += 1
+            continue
+        for m in matches:
+            n_sentences += 1
+            body = m.group(0)[1:-3]
+            if nmea_checksum(body) != int(m.group(3), 16):
+                skipped["bad checksum"] += 1
+                continue
+            addr = m.group(1).decode()
+            f = (m.group(2) or b"").decode().split(",")
+            if m.group(0)[:1] == b"!":
+                sid = addr[2:] or addr       # AIS (!AIVDM): other ships, not this one
+            elif addr[0] == "P":
+                sid = f"{addr},{f[0]}" if addr in ("PTNL", "PSXN", "PGRM") and f else addr
+                if sid == "PTNL,AVR":
+                    f = f[1:]
+            else:
+                sid = addr[2:]
+            seen[sid] += 1
+            if sid not in SENTENCES:
+                skipped[sid] += 1
+                continue
+            try:
+                t_own: float | None = None
+                put_list: list[tuple[str, float]] = []
+                if sid == "GGA":
+                    # time, lat, N/S, lon, E/W, quality, numSV, HDOP, alt, M, sep, M, diffAge, diffStation
+                    tod = _time_of_day(f[0])
+                    q = int(f[5]) if f[5] else 0
+                    if q == 0 or not f[1] or not f[3]:
+                        epoch, fresh = _open(epoch, fresh, clock.stamp(tod), in_epoch, epochs)
+                        skipped["GGA no fix"] += 1
+                        quality[0] += 1
+                        continue
+                    put_list = [("lat", _angle(f[1], f[2], "N", "S", 90.0)),
+                                ("lon", _angle(f[3], f[4], "E", "W", 180.0))]
+                    t_own = clock.stamp(tod)
+                    quality[q] += 1
+                    if len(f) > 6 and f[6].isdigit():
+                        nsat.append(int(f[6]))
+                    if len(f) > 7 and f[7]:
+                        with contextlib.suppress(ValueError):
+                            hdop.append(float(f[7]))
+                elif sid == "GNS":
+                    # time, lat, N/S, lon, E/W, mode (one letter per constellation), numSV, HDOP, ...
+                    tod = _time_of_day(f[0])
+                    mode = f[5] if len(f) > 5 else ""
+                    if not f[1] or not f[3] or (mode and set(mode) <= {"N"}):
+                        epoch, fresh = _open(epoch, fresh, clock.stamp(tod), in_epoch, epochs)
+                        skipped["GNS no fix"] += 1
+                        continue
+                    put_list = [("lat", _angle(f[1], f[2], "N", "S", 90.0)),
+                                ("lon", _angle(f[3], f[4], "E", "W", 180.0))]
+                    t_own = clock.stamp(tod)
+                elif sid == "GLL":
+                    # lat, N/S, lon, E/W, time, status, posMode
+                    tod = _time_of_day(f[4])
+                    if f[5] != "A" or (len(f) > 6 and f[6] == "N") or not f[0] or not f[2]:
+                        epoch, fresh = _open(epoch, fresh, clock.stamp(tod), in_epoch, epochs)
+                        skipped["GLL void"] += 1
+                        continue
+                    put_list = [("lat", _angle(f[0], f[1], "N", "S", 90.0)),
+                                ("lon", _angle(f[2], f[3], "E", "W", 180.0))]
+                    t_own = clock.stamp(tod)
+                elif sid == "ZDA":
+                    # time, day, month, year, local zone hours, minutes: the clock only.
+                    tod = _time_of_day(f[0])
+                    epoch, fresh = _open(epoch, fresh, clock.stamp(tod, _zda_date(f)), in_epoch, epochs)
+                    read[sid] += 1
+                    continue
+                elif sid == "RMC":
+                    # time, status, lat, N/S, lon, E/W, spd [kn], cog [deg], date, mv, mvEW, posMode
+                    tod = _time_of_day(f[0])
+                    ordinal = _rmc_date(f[8]) if len(f) > 8 else None
+                    t_rmc = clock.stamp(tod, ordinal)
+                    if len(f) > 10 and f[9]:
+                        with contextlib.suppress(ValueError):
+                            variation = _east(f[9], f[10])
+                    if f[1] != "A":
+                        epoch, fresh = _open(epoch, fresh, t_rmc, in_epoch, epochs)
+                        skipped["RMC void"] += 1
+                        continue
+                    if not (f[2] and f[4]) and not f[6] and not f[7]:
+                        epoch, fresh = _open(epoch, fresh, t_rmc, in_epoch, epochs)
+                        skipped["RMC empty"] += 1
+                        continue
+                    if f[2] and f[4]:
+                        put_list += [("lat", _angle(f[2], f[3], "N", "S", 90.0)),
+                                     ("lon", _angle(f[4], f[5], "E", "W", 180.0))]
+                    if f[6]:
+                        put_list.append(("sog", _nonneg(f[6], 1e4) * _KNOT))
+                    if f[7]:
+                        put_list.append(("cog", _nonneg(f[7], 360.0) * _DEG))
+                    t_own = t_rmc
+                elif sid == "PASHR":
+                    # time, heading, T, roll, pitch, heave, acc roll, acc pitch, acc heading, GPS flag, IMU flag
+                    if len(f) < 5 or f[2] != "T":
+                        skipped["PASHR other layout"] += 1
+                        continue
+                    t_own = clock.stamp(_time_of_day(f[0]))
+                    if len(f) > 10 and f[10] == "0":
+                        epoch, fresh = _open(epoch, fresh, t_own, in_epoch, epochs)
+                        skipped["PASHR IMU not aligned"] += 1
+                        continue
+                    put_list = [("psi", _nonneg(f[1], 360.0) * _DEG), ("phi", _signed(f[3], 180.0) * _DEG),
+                                ("theta", _signed(f[4], 90.0) * _DEG)]
+                elif sid == "PTNL,AVR":
+                    # time, yaw, 'Yaw', tilt, 'Tilt', roll, 'Roll', range, quality, PDOP, numSV
+                    t_own = clock.stamp(_time_of_day(f[0]))
+                    if len(f) > 8 and f[8] in ("", "0"):
+                        epoch, fresh = _open(epoch, fresh, t_own, in_epoch, epochs)
+                        skipped["PTNL,AVR no solution"] += 1
+                        continue
+                    put_list = [("psi", _signed(f[1], 360.0) * _DEG)]
+                else:
+                    if epoch is None:
+                        skipped[f"{sid} before the first time-bearing sentence"] += 1
+                        continue
+                    if sid == "VTG":
+                        if len(f) >= 8 and f[1] == "T":
+                            # cogt, T, cogm, M, sogn, N, sogk, K[, posMode]
+                            cogt, sogn, sogk = f[0], f[4], f[6]
+                            mode = f[8] if len(f) > 8 else ""
+                        else:
+                            # NMEA 0183 v1.5 form without unit letters: cogt, cogm, sogn, sogk.
+                            cogt, sogn, sogk, mode = f[0], f[2], f[3], ""
+                        if mode == "N":
+                            skipped["VTG not valid"] += 1
+                            continue
+                        if not (sogk or sogn or cogt):
+                            # Receivers send an all-empty VTG while they have no velocity solution.
+                            skipped["VTG empty"] += 1
+                            continue
+                        # km/h first: at the usual three decimals it resolves 0.3 mm/s, knots 0.5 mm/s.
+                        if sogk:
+                            put_list.append(("sog", _nonneg(sogk, 2e4) * _KMH))
+                        elif sogn:
+                            put_list.append(("sog", _nonneg(sogn, 1e4) * _KNOT))
+                        if cogt:
+                            put_list.append(("cog", _nonneg(cogt, 360.0) * _DEG))
+                    elif sid in ("HDT", "THS"):
+                        if sid == "THS" and (len(f) < 2 or f[1] == "V"):
+                            skipped["THS invalid"] += 1
+                            continue
+                        if not f[0]:
+                            skipped[f"{sid} empty"] += 1
+                            continue
+                        put_list.append(("psi", _nonneg(f[0], 360.0) * _DEG))
+                    elif sid == "HDG":
+                        # heading [deg magnetic], deviation, E/W, variation, E/W
+                        if not f[0]:
+                            skipped["HDG empty"] += 1
+                            continue
+                        hdg = _nonneg(f[0], 360.0) + _east(f[1] if len(f) > 1 else "", f[2] if len(f) > 2 else "")
+                        if len(f) > 4 and f[3]:
+                            variation = _east(f[3], f[4])
+                        if variation is None:
+                            magnetic_only[sid] += 1
+                        put_list.append(("psi", (hdg + (variation or 0.0)) * _DEG))
+                    elif sid == "HDM":
+                        if not f[0]:
+                            skipped["HDM empty"] += 1
+                            continue
+                        if variation is None:
+                            magnetic_only[sid] += 1
+                        put_list.append(("psi", (_nonneg(f[0], 360.0) + (variation or 0.0)) * _DEG))
+                    elif sid == "VHW":
+                        # hdgT, T, hdgM, M, spdwN, N, spdwK, K
+                        if len(f) > 0 and f[0]:
+                            put_list.append(("psi", _nonneg(f[0], 360.0) * _DEG))
+                        if len(f) > 6 and f[6]:
+                            put_list.append(("u", _signed(f[6], 200.0) * _KMH))
+                        elif len(f) > 4 and f[4]:
+                            put_list.append(("u", _signed(f[4], 100.0) * _KNOT))
+                        if not put_list:
+                            skipped["VHW empty"] += 1
+                            continue
+                    elif sid == "ROT":
+                        if len(f) > 1 and f[1] == "V":
+                            skipped["ROT invalid"] += 1
+                            continue
+                        if not f[0]:
+                            skipped["ROT empty"] += 1
+                            continue
+                        put_list.append(("r", _signed(f[0], 1e4) * _DEG / 60.0))
+                if t_own is not None:
+                    epoch, fresh = _open(epoch, fresh, t_own, in_epoch, epochs)
+                if t_own is None:
+                    # No own time: the k-th sentence of its type in this epoch; spread later.
+                    if not fresh:
+                        skipped[f"{sid} repeated or out of order"] += 1
+                        continue
+                    k = in_epoch[sid]
+                    in_epoch[sid] += 1
+                    for name, value in put_list:
+                        untimed[(name, sid)].append((epoch, k, value))
+                    read[sid] += 1
+                    continue
+                prev = last_t.get(sid)
+                if prev is not None and t_own <= prev:
+                    # Once per sentence, whatever number of channels it carries; the untimed
+                    # sentences that follow it belong to the repeated epoch and are dropped too.
+                    skipped[f"{sid} repeated or out of order"] += 1
+                    fresh = False
+                    continue
+                last_t[sid] = t_own
+                for name, value in put_list:
+                    ts, vs = samples[(name, sid)]
+                    ts.append(t_own)
+                    vs.append(value)
+            except (ValueError, IndexError):
+                skipped[f"{sid} malformed"] += 1
+                continue
+            read[sid] += 1
+
+    warnings: list[str] = []
+    spread = _spread_untimed(untimed, np.asarray(epochs, float), samples)
+    if spread:
+        warnings.append("sentences without their own time, several per epoch, spread evenly between the "
+                        "time-bearing sentences around them: " + ", ".join(f"{k} up to {v} an epoch"
+                                                                         for k, v in sorted(spread.items())))
+    merged: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
+    for name in ("lat", "lon", "sog", "cog", "psi", "phi", "theta", "u", "r"):
+        parts = [(np.asarray(ts), np.asarray(vs), sid) for (ch, sid), (ts, vs) in samples.items() if ch == name]
+        if not parts:
+            continue
+        t_all = np.concatenate([x[0] for x in parts])
+        v_all = np.concatenate([x[1] for x in parts])
+        prio = np.concatenate([np.full(len(x[0]), _PRIORITY[x[2]]) for x in parts])
+        order = np.lexsort((prio, t_all))
+        t_all, v_all = t_all[order], v_all[order]
+        # Same quantity from two sentences at one epoch (GGA and RMC): keep the preferred one.
+        keep = np.ones(len(t_all), bool)
+        keep[1:] = np.diff(t_all) > 0
+        merged[name] = (t_all[keep], v_all[keep], "+".join(sorted({x[2] for x in parts})))
+
+    if quality:
+        total = sum(quality.values())
+        q_text = ", ".join(f"{FIX_QUALITY.get(q, str(q))} {100.0 * c / total:.1f}%" for q, c in sorted(quality.items()))
+        s_text = (f"; satellites {min(nsat)}-{max(nsat)} (median {float(np.median(nsat)):g})" if nsat else "")
+        h_text = (f"; HDOP {min(hdop):g}-{max(hdop):g} (median {float(np.median(hdop)):g})" if hdop else "")
+        warnings.append(f"fix stats (GGA): quality {q_text}{s_text}{h_text}")
+    if skipped["bad checksum"]:
+        warnings.append(f"bad checksum: {skipped['bad checksum']} of {n_sentences} sentence(s) skipped")
+    if skipped["garbage line"] or skipped["incomplete sentence"]:
+        warnings.append(f"unreadable lines skipped: {skipped['garbage line']} without a sentence, "
+                        f"{skipped['incomplete sentence']} with an incomplete sentence or no checksum")
+    if skipped["THS invalid"]:
+        warnings.append(f"THS: {skipped['THS invalid']} heading(s) flagged invalid (mode V) skipped")
+    if skipped["GGA no fix"]:
+        warnings.append(f"GGA: {skipped['GGA no fix']} sentence(s) without a fix (quality 0) skipped")
+    empty = {k.split()[0]: v for k, v in skipped.items() if k.endswith(" empty") and v}
+    if empty:
+        warnings.append("sentences with empty fields (no solution) skipped: "
+                        + ", ".join(f"{k} {v}" for k, v in sorted(empty.items())))
+    if skipped["RMC void"]:
+        warnings.append(f"RMC: {skipped['RMC void']} sentence(s) with status V (void) skipped")
+    repeats = {k.split()[0]: v for k, v in skipped.items() if k.endswith("repeated or out of order") and v}
+    if repeats:
+        warnings.append("sentences repeating an earlier epoch of their type or stepping back in time dropped "
+                        "(each counted once): " + ", ".join(f"{k} {v}" for k, v in sorted(repeats.items())))
+    bad = {k: v for k, v in skipped.items() if k.endswith("malformed")}
+    if bad:
+        warnings.append("malformed fields: " + ", ".join(f"{k} {v}" for k, v in sorted(bad.items())))
+    if magnetic_only:
+        warnings.append("magnetic heading without a variation anywhere before it (no HDG variation, no RMC mv): "
+                        + ", ".join(f"{k} {v}" for k, v in sorted(magnetic_only.items()))
+                        + " heading(s) kept as psi = magnetic heading (+ deviation); true heading differs by "
+                        "the local variation, a constant offset")
+    if clock.rollovers:
+        warnings.append(f"UTC day rollover(s) handled: {clock.rollovers}")
+    if seen:
+        parts = []
+        for sid, n in sorted(seen.items()):
+            fate = []
+            if read[sid]:
+                fate.append(f"read {read[sid]}")
+            for k, v in sorted(skipped.items()):
+                if v and (k == sid or k.startswith(sid + " ")):
+                    fate.append(f"{k[len(sid):].strip() or 'not used' + (': ' + _NOT_USED[sid] if sid in _NOT_USED else '')} {v}")
+            parts.append(f"{sid} {n} ({', '.join(fate)})")
+        warnings.append("sentence types: " + "; ".join(parts))
+    return NmeaParse(merged=merged, clock=clock, read=read, skipped=skipped, warnings=warnings,
+                     n_sentences=n_sentences, n_lines=n_lines)
+
+
 def read_nmea(path: str | Path, sensor: str = "", progress: bool | None = None) -> RawLog:
-    """Read an NMEA 0183 log (GGA, RMC, VTG, HDT, THS) into canonical channels.
+    """Read an NMEA 0183 log (GNSS and marine instrument sentences) into canonical channels.
 
     Parameters
     ----------
@@ -249,17 +725,18 @@ def read_nmea(path: str | Path, sensor: str = "", progress: bool | None = None) 
     -------
     RawLog
         Channels ``lat``, ``lon`` [deg], ``sog`` [m/s], ``cog`` [rad, wrapped to (-pi, pi]],
-        ``psi`` [rad, wrapped] (each only when the log has it), on ``t`` [s] from the first fix;
-        ``format='nmea'``, ``time_reference='gps'``; ``start_time`` is the UTC of the first fix
-        [s, Unix] when an RMC gives the date, NaN for a log of time of day only (GGA/VTG). The summary counts sentences used and
-        skipped (per id, bad checksums, fragments, no-fix, invalid heading, repeats) and gives
-        fix-quality, satellite and HDOP statistics.
+        ``psi``, ``phi``, ``theta`` [rad, wrapped], ``u`` [m/s, through the water], ``r``
+        [rad/s] (each only when the log has it), on ``t`` [s] from the first sample;
+        ``format='nmea'``, ``time_reference='gps'``; ``start_time`` is the UTC of the first
+        sample [s, Unix] when an RMC or ZDA gives the date, NaN for a log of time of day only.
+        The summary counts sentences used and skipped (per type and reason) and names every
+        sentence type seen and what became of it.
 
     Raises
     ------
     IngestError
-        Missing or empty file; no NMEA sentence in it; no usable GGA/RMC/VTG/HDT/THS; only
-        untimed sentences (VTG/HDT/THS without GGA or RMC); a malformed ``sensor``.
+        Missing or empty file; no NMEA sentence in it; no usable sentence; only untimed
+        sentences (no time-bearing sentence before them); a malformed ``sensor``.
     """
     p = check_file(path, "NMEA 0183 log")
     if sensor and not _SENSOR_RE.fullmatch(sensor):
@@ -276,203 +753,43 @@ def read_nmea(path: str | Path, sensor: str = "", progress: bool | None = None) 
         from tqdm import tqdm
 
         it = tqdm(lines, desc=p.name, unit="line", leave=False)
-
-    clock = _UtcClock()
-    # (channel, sentence id) -> lists of absolute UTC seconds and SI values, in file order.
-    samples: dict[tuple[str, str], tuple[list[float], list[float]]] = defaultdict(lambda: ([], []))
-    read: Counter = Counter()
-    skipped: Counter = Counter()
-    n_sentences = 0
-    n_blank = 0
-    quality: Counter = Counter()
-    nsat: list[int] = []
-    hdop: list[float] = []
-    epoch: float | None = None   # time of the latest GGA/RMC: untimed sentences take it
-
-    def put(name: str, sid: str, t_abs: float, value: float) -> None:
-        ts, vs = samples[(name, sid)]
-        ts.append(t_abs)
-        vs.append(value)
-
-    for line in it:
-        matches = list(_SENTENCE_RE.finditer(line))
-        if not matches:
-            if not line.strip():
-                n_blank += 1
-            elif b"$" in line:
-                skipped["incomplete sentence"] += 1
-            else:
-                skipped["garbage line"] += 1
-            continue
-        for m in matches:
-            n_sentences += 1
-            body = m.group(0)[1:-3]
-            if nmea_checksum(body) != int(m.group(4), 16):
-                skipped["bad checksum"] += 1
-                continue
-            talker = m.group(1).decode()
-            sid = m.group(2).decode()
-            if talker[0] == "P":
-                skipped["proprietary"] += 1
-                continue
-            if sid not in SENTENCES:
-                skipped[sid] += 1
-                continue
-            f = m.group(3).decode().split(",")
-            try:
-                if sid == "GGA":
-                    # time, lat, N/S, lon, E/W, quality, numSV, HDOP, alt, M, sep, M, diffAge, diffStation
-                    tod = _time_of_day(f[0])
-                    q = int(f[5]) if f[5] else 0
-                    if q == 0 or not f[1] or not f[3]:
-                        t_abs = clock.stamp(tod)
-                        epoch = t_abs
-                        skipped["GGA no fix"] += 1
-                        quality[0] += 1
-                        continue
-                    lat = _angle(f[1], f[2], "N", "S", 90.0)
-                    lon = _angle(f[3], f[4], "E", "W", 180.0)
-                    epoch = t_abs = clock.stamp(tod)
-                    put("lat", sid, t_abs, lat)
-                    put("lon", sid, t_abs, lon)
-                    quality[q] += 1
-                    if len(f) > 6 and f[6].isdigit():
-                        nsat.append(int(f[6]))
-                    if len(f) > 7 and f[7]:
-                        with contextlib.suppress(ValueError):
-                            hdop.append(float(f[7]))
-                elif sid == "RMC":
-                    # time, status, lat, N/S, lon, E/W, spd [kn], cog [deg], date, mv, mvEW, posMode
-                    tod = _time_of_day(f[0])
-                    ordinal = _rmc_date(f[8]) if len(f) > 8 else None
-                    epoch = t_abs = clock.stamp(tod, ordinal)
-                    if f[1] != "A":
-                        skipped["RMC void"] += 1
-                        continue
-                    if not (f[2] and f[4]) and not f[6] and not f[7]:
-                        skipped["RMC empty"] += 1
-                        continue
-                    if f[2] and f[4]:
-                        put("lat", sid, t_abs, _angle(f[2], f[3], "N", "S", 90.0))
-                        put("lon", sid, t_abs, _angle(f[4], f[5], "E", "W", 180.0))
-                    if f[6]:
-                        put("sog", sid, t_abs, _nonneg(f[6], 1e4) * VARIABLE_MAP[("RMC", "spd")][1])
-                    if f[7]:
-                        put("cog", sid, t_abs, _nonneg(f[7], 360.0) * _DEG)
-                elif sid == "VTG":
-                    if epoch is None:
-                        skipped["VTG before the first GGA/RMC time"] += 1
-                        continue
-                    if len(f) >= 8 and f[1] == "T":
-                        # cogt, T, cogm, M, sogn, N, sogk, K[, posMode]
-                        cogt, sogn, sogk = f[0], f[4], f[6]
-                        mode = f[8] if len(f) > 8 else ""
-                    else:
-                        # NMEA 0183 v1.5 form without unit letters: cogt, cogm, sogn, sogk.
-                        cogt, sogn, sogk, mode = f[0], f[2], f[3], ""
-                    if mode == "N":
-                        skipped["VTG not valid"] += 1
-                        continue
-                    if not (sogk or sogn or cogt):
-                        # Receivers send an all-empty VTG while they have no velocity solution.
-                        skipped["VTG empty"] += 1
-                        continue
-                    # km/h first: at the usual three decimals it resolves 0.3 mm/s, knots 0.5 mm/s.
-                    if sogk:
-                        put("sog", sid, epoch, _nonneg(sogk, 2e4) * VARIABLE_MAP[("VTG", "sogk")][1])
-                    elif sogn:
-                        put("sog", sid, epoch, _nonneg(sogn, 1e4) * VARIABLE_MAP[("VTG", "sogn")][1])
-                    if cogt:
-                        put("cog", sid, epoch, _nonneg(cogt, 360.0) * _DEG)
-                else:  # HDT, THS
-                    if epoch is None:
-                        skipped[f"{sid} before the first GGA/RMC time"] += 1
-                        continue
-                    if sid == "THS" and (len(f) < 2 or f[1] == "V"):
-                        skipped["THS invalid"] += 1
-                        continue
-                    if not f[0]:
-                        skipped[f"{sid} empty"] += 1
-                        continue
-                    put("psi", sid, epoch, _nonneg(f[0], 360.0) * _DEG)
-            except (ValueError, IndexError):
-                skipped[f"{sid} malformed"] += 1
-                continue
-            read[sid] += 1
-
-    if n_sentences == 0:
+    res = parse_nmea(it, str(p))
+    if res.n_sentences == 0:
         raise IngestError(f"{p}: expected NMEA 0183 sentences ($GPGGA, $GPRMC, ...), found none in "
                           f"{len(lines)} line(s)")
-    if not samples:
-        found = ", ".join(f"{k} {v}" for k, v in sorted(skipped.items())) or "nothing"
-        raise IngestError(f"{p}: expected usable {'/'.join(SENTENCES)} sentences with a time (GGA or RMC), "
-                          f"found none usable among {n_sentences} sentence(s) ({found})")
+    if not res.merged:
+        found = ", ".join(f"{k} {v}" for k, v in sorted(res.skipped.items()) if v) or "nothing"
+        raise IngestError(f"{p}: expected usable {'/'.join(SENTENCES)} sentences with a time "
+                          f"({'/'.join(TIMED)}), found none usable among {res.n_sentences} sentence(s) ({found})")
+    return nmea_rawlog(res, str(p), suffix)
 
-    warnings: list[str] = []
+
+def nmea_rawlog(res: NmeaParse, source: str, suffix: str = "") -> RawLog:
+    """Build the RawLog of a :func:`parse_nmea` result (t = 0 at the first sample).
+
+    Parameters
+    ----------
+    res : NmeaParse
+        Parsed sentences with at least one channel.
+    source : str
+        File name for the summary.
+    suffix : str
+        Channel suffix (``@gps2``) or empty.
+    """
+    warnings = list(res.warnings)
+    t0 = min(float(v[0][0]) for v in res.merged.values())
     chans: dict[str, Channel] = {}
-    merged: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
-    for name in ("lat", "lon", "sog", "cog", "psi"):
-        parts = []
-        for (ch, sid), (ts, vs) in samples.items():
-            if ch != name:
-                continue
-            tc, vc, dropped = increasing(np.asarray(ts), np.asarray(vs))
-            if dropped and name in ("lat", "sog", "psi"):
-                # One count per sentence (lat stands for lat/lon, sog for sog/cog).
-                skipped[f"{sid} repeated or out of order"] += dropped
-                warnings.append(f"{sid}: {dropped} sentence(s) repeating an earlier epoch or stepping back in "
-                                f"time dropped")
-            parts.append((tc, vc, sid))
-        if not parts:
-            continue
-        t_all = np.concatenate([x[0] for x in parts])
-        v_all = np.concatenate([x[1] for x in parts])
-        prio = np.concatenate([np.full(len(x[0]), _PRIORITY[x[2]]) for x in parts])
-        order = np.lexsort((prio, t_all))
-        t_all, v_all = t_all[order], v_all[order]
-        # Same quantity from two sentences at one epoch (GGA and RMC): keep the preferred one.
-        keep = np.ones(len(t_all), bool)
-        keep[1:] = np.diff(t_all) > 0
-        merged[name] = (t_all[keep], v_all[keep], "+".join(sorted({x[2] for x in parts})))
-    if not merged:
-        raise IngestError(f"{p}: expected GGA or RMC fixes to give the time, found none usable")
-    t0 = min(float(v[0][0]) for v in merged.values())
-    for name, (t_abs, values, sids) in merged.items():
+    for name, (t_abs, values, sids) in res.merged.items():
         if name in ANGLE_CHANNELS:
             values = np.pi - np.mod(np.pi - values, 2 * np.pi)
         chans[name + suffix] = Channel(name + suffix, t_abs - t0, values, source=f"nmea:{sids}")
-
-    warnings.insert(0, f"time origin: t = 0 is the first fix, {clock.utc(t0)}")
-    if quality:
-        total = sum(quality.values())
-        q_text = ", ".join(f"{FIX_QUALITY.get(q, str(q))} {100.0 * c / total:.1f}%" for q, c in sorted(quality.items()))
-        s_text = (f"; satellites {min(nsat)}-{max(nsat)} (median {float(np.median(nsat)):g})" if nsat else "")
-        h_text = (f"; HDOP {min(hdop):g}-{max(hdop):g} (median {float(np.median(hdop)):g})" if hdop else "")
-        warnings.insert(1, f"fix stats (GGA): quality {q_text}{s_text}{h_text}")
-    if skipped["bad checksum"]:
-        warnings.append(f"bad checksum: {skipped['bad checksum']} of {n_sentences} sentence(s) skipped")
-    if skipped["garbage line"] or skipped["incomplete sentence"]:
-        warnings.append(f"unreadable lines skipped: {skipped['garbage line']} without a sentence, "
-                        f"{skipped['incomplete sentence']} with an incomplete sentence or no checksum")
-    if skipped["THS invalid"]:
-        warnings.append(f"THS: {skipped['THS invalid']} heading(s) flagged invalid (mode V) skipped")
-    if skipped["GGA no fix"]:
-        warnings.append(f"GGA: {skipped['GGA no fix']} sentence(s) without a fix (quality 0) skipped")
-    empty = {k.split()[0]: v for k, v in skipped.items() if k.endswith(" empty") and v}
-    if empty:
-        warnings.append("sentences with empty fields (no solution) skipped: "
-                        + ", ".join(f"{k} {v}" for k, v in sorted(empty.items())))
-    if skipped["RMC void"]:
-        warnings.append(f"RMC: {skipped['RMC void']} sentence(s) with status V (void) skipped")
-    bad = {k: v for k, v in skipped.items() if k.endswith("malformed")}
-    if bad:
-        warnings.append("malformed fields: " + ", ".join(f"{k} {v}" for k, v in sorted(bad.items())))
-    if clock.rollovers:
-        warnings.append(f"UTC day rollover(s) handled: {clock.rollovers}")
-    if "psi" not in merged:
-        warnings.append("no heading (HDT/THS): yaw only from course over ground, which includes sideslip")
-    summary = IngestSummary(path=str(p), format="nmea", read=dict(read),
-                            skipped={k: v for k, v in skipped.items() if v}, warnings=tuple(warnings))
-    return RawLog(source=str(p), format="nmea", channels=chans, summary=summary, time_reference="gps",
-                  start_time=clock.unix(t0), time_of_day=float(t0 % 86400.0))
-
+    warnings.insert(0, f"time origin: t = 0 is the first sample, {res.clock.utc(t0)}")
+    if "psi" not in res.merged:
+        warnings.append(f"no heading ({'/'.join(HEADINGS)}): yaw only from course over ground, which "
+                        f"includes sideslip")
+    if "u" in res.merged:
+        warnings.append("u is the VHW log speed through the water (not over ground)")
+    summary = IngestSummary(path=source, format="nmea", read=dict(res.read),
+                            skipped={k: v for k, v in res.skipped.items() if v}, warnings=tuple(warnings))
+    return RawLog(source=source, format="nmea", channels=chans, summary=summary, time_reference="gps",
+                  start_time=res.clock.unix(t0), time_of_day=float(t0 % 86400.0))

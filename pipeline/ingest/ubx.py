@@ -8,7 +8,8 @@ any byte range come from two running uint8 cumulative sums), and overlapping can
 decoded with a numpy structured dtype over its fixed payload; NAV-RELPOSNED (version 1) and
 ESF-RAW (4 reserved bytes + 8-byte blocks) likewise by one gather each, other RELPOSNED versions
 through pyubx2 (``UBXReader.parse``); every other message is counted by its pyubx2 name.
-NMEA sentences interleaved with UBX (receivers often output both) are counted, not parsed.
+NMEA sentences interleaved with UBX (receivers often output both) are parsed and read; RTCM 3
+frames are recognised and counted.
 
 Mapping (``VARIABLE_MAP``; SI units, radians; ``<s>`` is ``@<sensor>`` or empty)
 --------------------------------------------------------------------------------
@@ -20,6 +21,19 @@ NAV-RELPOSNED  relPosHeading [deg]   -> psi@<sensor or 'dual'> [rad], only with 
 ESF-RAW        gyro x/y/z [2^-12 deg/s]   -> p@esf, q@esf, r@esf [rad/s]
                accel x/y/z [2^-10 m/s^2]  -> ax@esf, ay@esf, az@esf [m/s^2]
                (``@esf_<sensor>`` when a sensor name is given)
+ESF-MEAS       the same data types and scales as ESF-RAW (``@esfmeas`` when the log has ESF-RAW too)
+NAV-ATT        roll, pitch, heading [1e-5 deg] -> phi<s>, theta<s>, psi<s> [rad] (``@att`` when NAV-PVAT
+               gives them too)
+NAV-PVAT       lat, lon, gSpeed, motHeading -> lat, lon, sog, cog (``@pvat`` when NAV-PVT gives them);
+               vehRoll, vehPitch, vehHeading -> phi, theta, psi (each only with its valid flag)
+HNR-PVT        lat, lon, gSpeed, headMot -> lat@hnr, lon@hnr, sog@hnr, cog@hnr; headVeh -> psi@hnr (with
+               headVehValid); plain names when the log has no NAV-PVT/NAV-PVAT
+HNR-ATT        roll, pitch, heading -> phi, theta, psi (``@hnr`` when NAV-ATT or NAV-PVAT give them too)
+NMEA           sentences between the frames are read by :func:`pipeline.ingest.nmea.parse_nmea` and
+               put on the UBX clock through their UTC date and time (``@nmea`` when UBX messages give
+               the same channel; plain names when the log has no UBX channels at all)
+RTCM 3         correction frames between the frames are recognised (CRC-24Q) and counted per
+               message number in ``summary.skipped`` (``RTCM3-1005`` ...)
 
 Time
 ----
@@ -59,12 +73,21 @@ from ..errors import IngestError
 from ..records import Channel, IngestSummary, RawLog
 from ._common import check_file
 from ._gpstime import GPS_EPOCH_UNIX, WEEK_S, leap_seconds, unix_text
+from .nmea import nmea_rawlog, parse_nmea
+from .sniff import rtcm3_frames
 
 _DEG = math.pi / 180.0
 SYNC = b"\xb5\x62"
 NAV_PVT = (0x01, 0x07)
 NAV_RELPOSNED = (0x01, 0x3C)
 ESF_RAW = (0x10, 0x03)
+ESF_MEAS = (0x10, 0x02)
+NAV_ATT = (0x01, 0x05)
+NAV_PVAT = (0x01, 0x17)
+HNR_PVT = (0x28, 0x00)
+HNR_ATT = (0x28, 0x01)
+#: Messages decoded one at a time through pyubx2 (lower rates than NAV-PVT/ESF-RAW), with iTOW.
+_PARSED = {NAV_ATT: "NAV-ATT", NAV_PVAT: "NAV-PVAT", HNR_PVT: "HNR-PVT", HNR_ATT: "HNR-ATT"}
 WEEK_MS = 604_800_000
 #: Leap seconds GPS - UTC [s] (since 2017-01-01); only used to find the GPS week from the UTC date.
 GPS_LEAP_S = 18
@@ -292,9 +315,19 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
         skipped["NAV-PVT"] += int((is_pvt & ~pvt_ok_len).sum())
     is_rel = (cls == NAV_RELPOSNED[0]) & (mid == NAV_RELPOSNED[1])
     is_esf = (cls == ESF_RAW[0]) & (mid == ESF_RAW[1])
-    for (c_, i_), count in Counter(zip(cls[~(is_pvt | is_rel | is_esf)].tolist(),
-                                       mid[~(is_pvt | is_rel | is_esf)].tolist())).items():
+    is_meas = (cls == ESF_MEAS[0]) & (mid == ESF_MEAS[1])
+    is_parsed = np.zeros(len(cls), bool)
+    for c_, i_ in _PARSED:
+        is_parsed |= (cls == c_) & (mid == i_)
+    known = is_pvt | is_rel | is_esf | is_meas | is_parsed
+    for (c_, i_), count in Counter(zip(cls[~known].tolist(), mid[~known].tolist())).items():
         skipped[UBX_MSGIDS.get(bytes((c_, i_)), f"UBX-0x{c_:02X}-0x{i_:02X}")] += count
+    parsed_idx = np.flatnonzero(is_parsed)
+    parsed = _parse_many(data, starts, fr["ends"], parsed_idx, None)
+    parsed_name = [_PARSED[(int(cls[i]), int(mid[i]))] for i in parsed_idx.tolist()]
+    for name, m in zip(parsed_name, parsed):
+        if m is None:
+            skipped[f"{name} undecodable"] += 1
 
     # Frames whose time is iTOW, in stream order, unwrapped together.
     pvt_idx = np.flatnonzero(pvt_ok_len)
@@ -329,15 +362,21 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
         skipped["UNDECODABLE"] += undecodable
 
     rel_itow = np.array([m.iTOW if m is not None else -1 for m in rel], np.int64)
-    timed_idx = np.concatenate([pvt_idx, rel_idx[rel_itow >= 0]])
-    timed_ms = np.concatenate([pvt["iTOW"].astype(np.int64), rel_itow[rel_itow >= 0]])
+    par_itow = np.array([int(m.iTOW) if m is not None else -1 for m in parsed], np.int64)
+    n_rel = int((rel_itow >= 0).sum())
+    timed_idx = np.concatenate([pvt_idx, rel_idx[rel_itow >= 0], parsed_idx[par_itow >= 0]])
+    timed_ms = np.concatenate([pvt["iTOW"].astype(np.int64), rel_itow[rel_itow >= 0], par_itow[par_itow >= 0]])
     order = np.argsort(timed_idx, kind="stable")
     t_ms = np.empty(len(order), np.int64)
     t_ms[order] = _unwrap_itow(timed_ms[order])
     t_pvt_ms = t_ms[:len(pvt_idx)]
-    t_rel_ms = t_ms[len(pvt_idx):]
+    t_rel_ms = t_ms[len(pvt_idx):len(pvt_idx) + n_rel]
+    t_par_ms = np.full(len(parsed), -1, np.int64)
+    t_par_ms[par_itow >= 0] = t_ms[len(pvt_idx) + n_rel:]
 
     week, _, leap = _week_of(pvt, t_pvt_ms) if len(pvt) else (None, -1, None)
+    if week is None:
+        week, leap = _week_of_parsed(parsed, t_par_ms)
     start_time = math.nan
     if week is not None:
         day = (GPS_EPOCH + timedelta(weeks=week)).date().isoformat()
@@ -360,24 +399,50 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
     if len(rel_idx):
         _relposned_channels(rel, t_rel_ms, rel_itow, f"@{sensor or 'dual'}", src_note, chans, read, skipped,
                             warnings)
+    if len(parsed):
+        _parsed_channels(parsed, parsed_name, t_par_ms, suffix, src_note, chans, read, skipped, warnings)
+    # ESF time tags go on GPS time through the NAV-PVT (or, without it, NAV-PVAT/HNR-PVT) epochs around them.
+    anchor_idx, anchor_ms = pvt_idx, t_pvt_ms
+    if len(anchor_idx) < 2:
+        ok_par = par_itow >= 0
+        anchor_idx, anchor_ms = parsed_idx[ok_par], t_par_ms[ok_par]
+    esf_suffix = f"@esf_{sensor}" if sensor else "@esf"
     if len(esf_idx):
-        _esf_channels(esf_rows, esf_ok, esf_idx, pvt_idx, t_pvt_ms, f"@esf_{sensor}" if sensor else "@esf", src_note, chans, read,
+        _esf_channels(esf_rows, esf_ok, esf_idx, anchor_idx, anchor_ms, esf_suffix, src_note, chans, read,
                       skipped, warnings)
+    meas_idx = np.flatnonzero(is_meas)
+    if len(meas_idx):
+        meas_rows, meas_ok = _esf_meas_rows(buf, starts, fr["ends"], meas_idx)
+        if (~meas_ok).any():
+            skipped["ESF-MEAS undecodable"] += int((~meas_ok).sum())
+        _esf_channels(meas_rows, meas_ok, meas_idx, anchor_idx, anchor_ms,
+                      esf_suffix.replace("@esf", "@esfmeas") if len(esf_idx) else esf_suffix, src_note, chans,
+                      read, skipped, warnings, msg="ESF-MEAS")
 
     if fr["bad_crc"]:
         skipped["BAD_CHECKSUM"] += fr["bad_crc"]
         warnings.append(f"bad checksum: {fr['bad_crc']} frame(s) skipped")
     nmea_count = nmea_bytes = garbage = 0
+    nmea_lines: list[bytes] = []
+    rtcm: Counter = Counter()
     for a, b in fr["gaps"]:
         chunk = data[a:b]
         hits = _NMEA.findall(chunk)
         nmea_count += len(hits)
+        nmea_lines += hits
         nb = sum(len(h) for h in hits)
         nmea_bytes += nb
-        garbage += len(chunk) - nb
+        rest = _NMEA.sub(b"", chunk) if hits else chunk
+        frames = rtcm3_frames(rest) if b"\xd3" in rest else {}
+        rtcm.update(frames)
+        garbage += len(rest) - _rtcm_bytes(rest, frames)
+    for msg_no, count in rtcm.items():
+        skipped[f"RTCM3-{msg_no}"] += count
+    if rtcm:
+        warnings.append("RTCM 3 correction frames between UBX frames counted, not used: "
+                        + ", ".join(f"{k} x{v}" for k, v in sorted(rtcm.items())))
     if nmea_count:
-        skipped["NMEA"] += nmea_count
-        warnings.append(f"{nmea_count} NMEA sentence(s) between UBX frames skipped ({nmea_bytes} bytes)")
+        start_time = _nmea_inside(nmea_lines, chans, read, skipped, warnings, start_time, suffix)
     if garbage:
         skipped["GARBAGE_BYTES"] += garbage
         warnings.append(f"garbage: {garbage} byte(s) between frames skipped")
@@ -386,7 +451,8 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
 
     if not chans:
         found = ", ".join(f"{k} {v}" for k, v in sorted((read + skipped).items())) or "none"
-        raise IngestError(f"{p}: expected NAV-PVT, NAV-RELPOSNED or ESF-RAW messages with usable samples, found "
+        raise IngestError(f"{p}: expected UBX NAV-PVT, NAV-PVAT, NAV-ATT, HNR-PVT, NAV-RELPOSNED, ESF-RAW/MEAS "
+                          f"messages or NMEA fixes with usable samples, found "
                           f"none (messages: {found})")
     summary = IngestSummary(path=str(p), format="ubx", read=dict(read), skipped={k: v for k, v in skipped.items() if v},
                             warnings=tuple(warnings))
@@ -441,7 +507,11 @@ def _pvt_channels(pvt: np.ndarray, t_ms: np.ndarray, suffix: str, src_note: str,
 
 def _relposned_channels(rel: list, t_ms: np.ndarray, itow: np.ndarray, suffix: str, src_note: str, chans: dict,
                         read: Counter, skipped: Counter, warnings: list[str]) -> None:
-    decoded = [m for m in rel if m is not None]
+    decoded = [m for m in rel if m is not None and hasattr(m, "relPosHeading")]
+    no_heading = sum(1 for m in rel if m is not None and not hasattr(m, "relPosHeading"))
+    if no_heading:
+        # Version 0 (u-blox M8P) has no heading field: the baseline only.
+        skipped["NAV-RELPOSNED without a heading field (version 0)"] += no_heading
     if not decoded:
         return
     head = np.array([float(m.relPosHeading) for m in decoded])
@@ -533,32 +603,32 @@ def _esf_rows(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, which: np.n
 
 def _esf_channels(rows: np.ndarray, decoded: np.ndarray, esf_idx: np.ndarray, pvt_idx: np.ndarray,
                   t_pvt_ms: np.ndarray, suffix: str, src_note: str, chans: dict, read: Counter, skipped: Counter,
-                  warnings: list[str]) -> None:
+                  warnings: list[str], msg: str = "ESF-RAW") -> None:
     n_msgs = int(decoded.sum())
     if not len(rows):
-        skipped["ESF-RAW"] += n_msgs
+        skipped[msg] += n_msgs
         return
     msg_no, dtype_, value, tag = rows.T
     # sTag [ms] wraps at 2**32; unwrap in stream order.
     step = np.diff(tag)
     tag_ms = tag + np.concatenate(([0], np.cumsum(step < -(2**31)))) * 2**32
     if len(pvt_idx) < 2:
-        warnings.append(f"ESF-RAW: {n_msgs} message(s) not used: no NAV-PVT to put the sensor time tags on GPS time")
-        skipped["ESF-RAW"] += n_msgs
+        warnings.append(f"{msg}: {n_msgs} message(s) not used: no NAV-PVT to put the sensor time tags on GPS time")
+        skipped[msg] += n_msgs
         return
-    # Each ESF-RAW lies in the stream between two NAV-PVT epochs; the midpoint of those is its
+    # Each ESF message lies in the stream between two NAV-PVT epochs; the midpoint of those is its
     # output time to within half an epoch, and the median over all messages is much better.
     msgs, first = np.unique(msg_no, return_index=True)
     k = np.searchsorted(pvt_idx, esf_idx[msgs])
     inner = (k > 0) & (k < len(pvt_idx))
     if not inner.any():
-        warnings.append(f"ESF-RAW: {n_msgs} message(s) not used: none lies between two NAV-PVT messages, so the "
+        warnings.append(f"{msg}: {n_msgs} message(s) not used: none lies between two NAV-PVT messages, so the "
                         "sensor time tags cannot be put on GPS time")
-        skipped["ESF-RAW"] += n_msgs
+        skipped[msg] += n_msgs
         return
     mid = 0.5 * (t_pvt_ms[k[inner] - 1] + t_pvt_ms[k[inner]])
     offset_ms = float(np.median(mid - tag_ms[first][inner]))
-    warnings.append(f"ESF-RAW: sensor time tags put on GPS time with an offset of {offset_ms / 1000:.3f} s, "
+    warnings.append(f"{msg}: sensor time tags put on GPS time with an offset of {offset_ms / 1000:.3f} s, "
                     "estimated from message order")
     used_msgs = np.zeros(len(decoded), bool)
     for (m, dt), (base, scale) in VARIABLE_MAP.items():
@@ -571,12 +641,185 @@ def _esf_channels(rows: np.ndarray, decoded: np.ndarray, esf_idx: np.ndarray, pv
         ok = _increasing(t)
         bad = int((~ok).sum())
         if bad:
-            warnings.append(f"ESF-RAW {base}: {bad} sample(s) with a duplicate or out-of-order sensor time tag "
+            warnings.append(f"{msg} {base}: {bad} sample(s) with a duplicate or out-of-order sensor time tag "
                             "skipped (first kept)")
-        chans[base + suffix] = Channel(base + suffix, t[ok], value[sel][ok] * scale, source=f"ESF-RAW ({src_note})")
+        chans[base + suffix] = Channel(base + suffix, t[ok], value[sel][ok] * scale, source=f"{msg} ({src_note})")
         used_msgs[msg_no[sel][ok]] = True
-    read["ESF-RAW"] += int(used_msgs.sum())
-    skipped["ESF-RAW"] += int(n_msgs - used_msgs.sum())
+    read[msg] += int(used_msgs.sum())
+    skipped[msg] += int(n_msgs - used_msgs.sum())
+
+
+def _rtcm_bytes(rest: bytes, frames: Mapping[int, int]) -> int:
+    """Bytes of ``rest`` inside valid RTCM 3 frames (so they are not counted as garbage)."""
+    if not frames:
+        return 0
+    total = 0
+    i = rest.find(b"\xd3")
+    while 0 <= i < len(rest) - 5:
+        length = ((rest[i + 1] & 0x03) << 8) | rest[i + 2]
+        end = i + 6 + length
+        if rest[i + 1] & 0xFC == 0 and end <= len(rest):
+            from .sniff import crc24q
+
+            if crc24q(rest[i:end - 3]) == int.from_bytes(rest[end - 3:end], "big"):
+                total += end - i
+                i = rest.find(b"\xd3", end)
+                continue
+        i = rest.find(b"\xd3", i + 1)
+    return total
+
+
+def _week_of_parsed(parsed: list, t_ms: np.ndarray) -> tuple[int | None, int | None]:
+    """GPS week at t = 0 from the UTC date of a NAV-PVAT or HNR-PVT (when the log has no NAV-PVT)."""
+    for m, tm in zip(parsed, t_ms.tolist()):
+        if m is None or tm < 0 or not hasattr(m, "year"):
+            continue
+        try:
+            sec = int(getattr(m, "sec", getattr(m, "second", 0)))
+            if not (getattr(m, "validDate", 0) and getattr(m, "validTime", 0)) or m.year < 1980:
+                continue
+            utc = datetime(int(m.year), int(m.month), int(m.day), int(m.hour), int(m.min), min(sec, 59),
+                           tzinfo=timezone.utc)
+        except (ValueError, AttributeError):
+            continue
+        utc_s = (utc - GPS_EPOCH).total_seconds() + int(getattr(m, "nano", 0)) * 1e-9
+        return int(round((utc_s + GPS_LEAP_S - tm / 1000.0) / 604800.0)), None
+    return None, None
+
+
+def _parsed_channels(parsed: list, names: list, t_ms: np.ndarray, suffix: str, src_note: str, chans: dict,
+                     read: Counter, skipped: Counter, warnings: list[str]) -> None:
+    """Channels of NAV-ATT, NAV-PVAT and HNR-PVT (decoded by pyubx2, which scales the fields)."""
+    have_pvt = "lat" + suffix in chans
+    kinds = set(names)
+    rows: dict[str, dict[str, list]] = {}
+    t = t_ms * 1e-3
+    for name, m, tk in zip(names, parsed, t.tolist()):
+        if m is None:
+            continue
+        if tk < 0:
+            skipped[f"{name} undecodable"] += 1
+            continue
+        got: dict[str, float] = {}
+        if name in ("NAV-ATT", "HNR-ATT"):
+            got = {"phi": m.roll * _DEG, "theta": m.pitch * _DEG, "psi": m.heading * _DEG}
+        elif name == "NAV-PVAT":
+            if m.gnssFixOK and m.fixType in (2, 3, 4):
+                got.update(lat=m.lat, lon=m.lon, sog=m.gSpeed * 1e-3, cog=m.motHeading * _DEG)
+            if m.vehRollValid:
+                got["phi"] = m.vehRoll * _DEG
+            if m.vehPitchValid:
+                got["theta"] = m.vehPitch * _DEG
+            if m.vehHeadingValid:
+                got["psi"] = m.vehHeading * _DEG
+        elif name == "HNR-PVT":
+            if m.GPSfixOK and m.gpsFix in (2, 3, 4):
+                got.update(lat=m.lat, lon=m.lon, sog=m.gSpeed * 1e-3, cog=m.headMot * _DEG)
+            if m.headVehValid:
+                got["psi"] = m.headVeh * _DEG
+        if not got:
+            skipped[f"{name} no valid solution"] += 1
+            continue
+        r = rows.setdefault(name, {})
+        for k, v in got.items():
+            r.setdefault(k, []).append((tk, float(v)))
+        read[name] += 1
+    for name, r in rows.items():
+        for base, tv in r.items():
+            if name == "NAV-ATT" and "NAV-PVAT" in kinds:
+                tag = "@att"
+            elif name == "NAV-PVAT" and base in ("lat", "lon", "sog", "cog") and have_pvt:
+                tag = "@pvat"
+            elif name == "HNR-ATT" and ("NAV-ATT" in kinds or "NAV-PVAT" in kinds):
+                tag = "@hnr"
+            elif name == "HNR-PVT" and (have_pvt or "NAV-PVAT" in kinds or base == "psi" and "NAV-ATT" in kinds):
+                tag = "@hnr"
+            else:
+                tag = suffix
+            arr = np.array(tv)
+            ok = _increasing(arr[:, 0])
+            if (~ok).any():
+                warnings.append(f"{name} {base}: {int((~ok).sum())} sample(s) with a duplicate or out-of-order "
+                                "iTOW skipped (first kept)")
+            v = arr[ok, 1]
+            if base in ("phi", "theta", "psi", "cog"):
+                v = _wrap(v)
+            chans[base + tag] = Channel(base + tag, arr[ok, 0], v, source=f"{name} ({src_note})")
+
+
+def _esf_meas_rows(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, which: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """ESF-MEAS blocks as rows (message number, data type, value, timeTag) like :func:`_esf_rows`.
+
+    Payload: timeTag u4, flags x2 (numMeas in bits 11-15), id u2, numMeas u4 data words (bits 0-23
+    a signed value, bits 24-29 the data type), then an optional calibTtag u4.
+    """
+    out = []
+    ok = np.zeros(len(which), bool)
+    for j, i in enumerate(which.tolist()):
+        s = int(starts[i]) + 6
+        plen = int(ends[i]) - int(starts[i]) - 8
+        if plen < 8:
+            continue
+        tag = int(buf[s]) | int(buf[s + 1]) << 8 | int(buf[s + 2]) << 16 | int(buf[s + 3]) << 24
+        flags = int(buf[s + 4]) | int(buf[s + 5]) << 8
+        n = flags >> 11
+        if plen not in (8 + 4 * n, 12 + 4 * n):
+            continue
+        ok[j] = True
+        for k in range(n):
+            a = s + 8 + 4 * k
+            word = int(buf[a]) | int(buf[a + 1]) << 8 | int(buf[a + 2]) << 16 | int(buf[a + 3]) << 24
+            value = word & 0xFFFFFF
+            if value & 0x800000:
+                value -= 1 << 24
+            out.append((j, (word >> 24) & 0x3F, value, tag))
+    return (np.array(out, np.int64).reshape(-1, 4), ok)
+
+
+def _nmea_inside(lines: list[bytes], chans: dict, read: Counter, skipped: Counter, warnings: list[str],
+                 start_time: float, suffix: str) -> float:
+    """Read NMEA sentences found between UBX frames onto the UBX clock; return the start time.
+
+    With no UBX channel at all the NMEA clock becomes the log's (t = 0 at the first sentence's
+    fix, ``start_time`` from its date). Otherwise each NMEA sample is placed by its UTC date
+    and time: t = UTC - start_time; without a date (or a UBX GPS week) they cannot be placed and
+    are counted as skipped.
+    """
+    res = parse_nmea(lines)
+    n = sum(res.read.values())
+    for k, v in res.skipped.items():
+        if v:
+            skipped[f"NMEA {k}"] += v
+    if not res.merged:
+        return start_time
+    if not chans:
+        log = nmea_rawlog(res, "", suffix)
+        chans.update(log.channels)
+        for k, v in res.read.items():
+            read[f"NMEA {k}"] += v
+        warnings.append(f"no UBX message gives a channel: NMEA sentences inside the stream give the clock "
+                        f"({log.summary.warnings[0]})")
+        warnings.extend(f"NMEA: {w}" for w in log.summary.warnings[1:])
+        return log.start_time
+    t0 = min(float(v[0][0]) for v in res.merged.values())
+    if math.isnan(res.clock.unix(t0)) or math.isnan(start_time):
+        for k, v in res.read.items():
+            skipped[f"NMEA {k} (no date to place it on the UBX clock)"] += v
+        warnings.append(f"NMEA: {n} sentence(s) inside the UBX stream not used: "
+                        + ("no RMC/ZDA date" if math.isnan(res.clock.unix(t0)) else "no UBX GPS week")
+                        + " to put them on the UBX clock")
+        return start_time
+    for k, v in res.read.items():
+        read[f"NMEA {k}"] += v
+    for name, (t_abs, values, sids) in res.merged.items():
+        key = name + suffix if name + suffix not in chans else f"{name}@nmea"
+        if name in ("phi", "theta", "psi", "cog"):
+            values = _wrap(values)
+        chans[key] = Channel(key, np.array([res.clock.unix(x) for x in t_abs]) - start_time, values,
+                             source=f"NMEA inside UBX ({sids})")
+    warnings.extend(f"NMEA: {w}" for w in res.warnings if w.startswith(("sentence types", "fix stats")))
+    return start_time
 
 
 __all__ = ["read_ubx", "VARIABLE_MAP", "NAV_PVT_DTYPE"]

@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..align.plausibility import check_segmentable, without_implausible
 from ..records import DOF_CHANNELS, INPUT_UNITS, Segment, Segments, Trial
 from .decays import equilibrium, release_decays, release_index
 from .inputs import Level, split_levels
@@ -358,6 +359,8 @@ def detect_segments(trial: Trial) -> Segments:
     Segments
         In time order, ``origin='detected'``.
     """
+    check_segmentable(trial)
+    trial = without_implausible(trial)
     # A released heeling moment (tau_k/tau_m back to zero) starts a free decay at the release.
     segs = release_decays(trial, _input_segments(trial))
     if not _has_input_for(trial, "surge"):

@@ -1,0 +1,302 @@
+"""PX4 ULog files (``.ulg``), as the PX4 autopilot logs them (boats and rovers run PX4 too).
+
+The file is parsed by pyulog (``pyulog.ULog``), the PX4 project's own reader. A ULog holds
+topics (uORB messages), each possibly in several instances (``multi_id``), every sample with a
+``timestamp`` [us since boot]; plus parameters, logged text messages and "dropouts" (gaps where
+the logger could not keep up).
+
+Mapping (``VARIABLE_MAP``; SI units, radians; PX4's body frame is FRD and its world frame NED,
+the same as Fossen's, so no frame change is needed)
+-------------------------------------------------------------------------------------------
+vehicle_attitude            q[0..3] (w, x, y, z; body FRD -> NED)  -> phi, theta, psi [rad] (ZYX Euler)
+vehicle_angular_velocity    xyz[0..2] [rad/s]                        -> p, q, r
+sensor_combined             gyro_rad[0..2] [rad/s]                   -> p, q, r (only when the log has no
+                                                                        vehicle_angular_velocity)
+                            accelerometer_m_s2[0..2] [m/s^2]         -> ax, ay, az (specific force)
+vehicle_gps_position / sensor_gps   lat, lon [1e-7 deg] or latitude_deg, longitude_deg [deg]
+                                                                     -> lat, lon; vel_m_s -> sog;
+                                    cog_rad -> cog (samples with fix_type < 2 dropped)
+vehicle_local_position      x, y [m] -> x_n, y_e (when xy_valid); vx, vy [m/s] -> sog@ekf, cog@ekf
+                            (when v_xy_valid)
+actuator_outputs            output[0..15] [us]   -> inputs through the vessel's ``[[actuators]]``
+                            (source servo, channel k = output[k-1])
+
+Instance ``multi_id`` 0 gives the plain names; instance k >= 1 gives ``name@<topic-short>k``
+(``p@imu1`` style: ``lat@gps1``, ``p@rate1``); when a log has both ``vehicle_gps_position``
+(PX4's selected or blended receiver) and ``sensor_gps`` (each receiver), the latter are
+``lat@sensor_gps<k>``. Topics not in the map (actuator_motors,
+actuator_servos normalised to [-1, 1], battery, estimator internals, ...) are counted per topic
+in ``summary.skipped``; every sample of a used topic is either read or counted as skipped with
+the reason (no fix, invalid flag, repeated or out-of-order timestamp).
+
+Time: ``time_reference='boot'``; ``t`` [s] = timestamp * 1e-6. ``RawLog.start_time`` [s, Unix]
+is the UTC of boot: the median over GPS samples with ``time_utc_usec > 0`` of
+(time_utc_usec - timestamp); NaN without. Parameters (count and the changed ones), logged
+messages of level warning or worse, and dropouts are in ``summary.warnings``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import IngestError
+from ..records import Channel, IngestSummary, RawLog
+from ..vessel import Vessel
+from ._common import check_file
+
+#: (topic, field) -> (canonical channel, scale to SI). Euler angles come from the quaternion.
+VARIABLE_MAP: dict[tuple[str, str], tuple[str, float]] = {
+    ("vehicle_attitude", "q"): ("phi theta psi", 1.0),
+    ("vehicle_angular_velocity", "xyz[0]"): ("p", 1.0),
+    ("vehicle_angular_velocity", "xyz[1]"): ("q", 1.0),
+    ("vehicle_angular_velocity", "xyz[2]"): ("r", 1.0),
+    ("sensor_combined", "gyro_rad[0]"): ("p", 1.0),
+    ("sensor_combined", "gyro_rad[1]"): ("q", 1.0),
+    ("sensor_combined", "gyro_rad[2]"): ("r", 1.0),
+    ("sensor_combined", "accelerometer_m_s2[0]"): ("ax", 1.0),
+    ("sensor_combined", "accelerometer_m_s2[1]"): ("ay", 1.0),
+    ("sensor_combined", "accelerometer_m_s2[2]"): ("az", 1.0),
+    ("vehicle_gps_position", "lat"): ("lat", 1e-7),
+    ("vehicle_gps_position", "lon"): ("lon", 1e-7),
+    ("vehicle_gps_position", "vel_m_s"): ("sog", 1.0),
+    ("vehicle_gps_position", "cog_rad"): ("cog", 1.0),
+    ("vehicle_local_position", "x"): ("x_n", 1.0),
+    ("vehicle_local_position", "y"): ("y_e", 1.0),
+    ("vehicle_local_position", "vx vy"): ("sog@ekf cog@ekf", 1.0),
+}
+_GPS_TOPICS = ("vehicle_gps_position", "sensor_gps")
+_USED = ("vehicle_attitude", "vehicle_angular_velocity", "sensor_combined", *_GPS_TOPICS, "vehicle_local_position",
+         "actuator_outputs")
+_SHORT = {"vehicle_attitude": "att", "vehicle_angular_velocity": "rate", "sensor_combined": "imu",
+          "vehicle_gps_position": "gps", "sensor_gps": "gps", "vehicle_local_position": "ekf"}
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return math.pi - np.mod(math.pi - np.asarray(angle, float), 2 * math.pi)
+
+
+def quaternion_to_euler(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ZYX Euler angles of unit quaternions (Fossen 2021, eq. 2.86 inverted).
+
+    Parameters
+    ----------
+    q : numpy.ndarray
+        Shape (n, 4): w, x, y, z of the rotation body -> NED.
+
+    Returns
+    -------
+    (phi, theta, psi) : numpy.ndarray
+        Roll, pitch, yaw [rad]; psi in (-pi, pi].
+    """
+    q = np.asarray(q, float)
+    norm = np.linalg.norm(q, axis=1, keepdims=True)
+    q = q / np.where(norm > 0, norm, 1.0)
+    w, x, y, z = q.T
+    phi = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    theta = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+    psi = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return phi, theta, _wrap(psi)
+
+
+def _strict(t: np.ndarray) -> np.ndarray:
+    """Mask of samples whose time is above every earlier one."""
+    ok = np.ones(len(t), bool)
+    if len(t) > 1:
+        ok[1:] = t[1:] > np.maximum.accumulate(t)[:-1]
+    return ok
+
+
+def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
+    """Read a PX4 ULog into canonical channels on the autopilot's boot clock.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.ulg`` file (opened read-only).
+    vessel : Vessel, optional
+        Its ``[[actuators]]`` with source ``servo`` map ``actuator_outputs`` channels to inputs.
+
+    Returns
+    -------
+    RawLog
+        ``format='ulog'``, ``time_reference='boot'``; channels as in ``VARIABLE_MAP``.
+
+    Raises
+    ------
+    IngestError
+        Missing, empty, truncated-header or unreadable file; no topic that gives a channel.
+    """
+    p = check_file(path, "PX4 ULog")
+    with open(p, "rb") as fh:
+        head = fh.read(16)
+    if not head.startswith(b"ULog\x01\x12\x35"):
+        raise IngestError(f"{p}: expected a PX4 ULog (magic 'ULog' 01 12 35), found {head[:8]!r}")
+    if len(head) < 16:
+        raise IngestError(f"{p}: expected a PX4 ULog header of 16 bytes, found {len(head)} (truncated)")
+    from pyulog import ULog
+
+    try:
+        ulog = ULog(str(p))
+    except Exception as exc:  # pyulog raises bare exceptions of many kinds on a corrupt file
+        raise IngestError(f"{p}: expected a readable PX4 ULog, found a file pyulog cannot parse "
+                          f"({type(exc).__name__}: {exc})") from None
+
+    read: Counter = Counter()
+    skipped: Counter = Counter()
+    warnings: list[str] = []
+    chans: dict[str, Channel] = {}
+    topics = {(d.name, d.multi_id): d for d in ulog.data_list}
+    has_rates = any(name == "vehicle_angular_velocity" for name, _ in topics)
+    maps = tuple(a for a in vessel.actuators if a.source == "servo") if vessel is not None else ()
+    inputs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    has_vgps = any(name == "vehicle_gps_position" for name, _ in topics)
+
+    def name_of(base: str, topic: str, inst: int) -> str:
+        if topic == "sensor_gps" and has_vgps:
+            # The receiver itself, next to PX4's selected/blended vehicle_gps_position.
+            return f"{base}@sensor_gps{inst}"
+        if inst == 0:
+            return base
+        if "@" in base:
+            return f"{base}{inst}"
+        return f"{base}@{_SHORT.get(topic, topic)}{inst}"
+
+    def add(base: str, topic: str, inst: int, t: np.ndarray, v: np.ndarray, src: str) -> None:
+        ok = np.isfinite(v)
+        chans[name_of(base, topic, inst)] = Channel(name_of(base, topic, inst), t[ok], np.asarray(v[ok], float),
+                                                    source=f"ulog:{src}")
+
+    gps_offsets: list[np.ndarray] = []
+    for (topic, inst), d in sorted(topics.items()):
+        data = d.data
+        n = len(data["timestamp"])
+        if topic not in _USED or (topic == "sensor_combined" and has_rates and "accelerometer_m_s2[0]" not in data):
+            skipped[topic] += n
+            continue
+        t_us = data["timestamp"].astype(np.int64)
+        keep = _strict(t_us) & (t_us > 0)
+        if (~keep).any():
+            skipped[f"{topic} repeated, out-of-order or zero timestamp"] += int((~keep).sum())
+        t = t_us * 1e-6
+        used = np.zeros(n, bool)
+        if topic == "vehicle_attitude" and "q[0]" in data:
+            q = np.column_stack([data[f"q[{i}]"] for i in range(4)])
+            good = keep & (np.linalg.norm(q, axis=1) > 0.5)
+            phi, theta, psi = quaternion_to_euler(q[good])
+            for base, v in (("phi", phi), ("theta", theta), ("psi", psi)):
+                add(base, topic, inst, t[good], v, f"{topic}.q")
+            used |= good
+        elif topic == "vehicle_angular_velocity" and "xyz[0]" in data:
+            for i, base in enumerate(("p", "q", "r")):
+                add(base, topic, inst, t[keep], data[f"xyz[{i}]"][keep], f"{topic}.xyz[{i}]")
+            used |= keep
+        elif topic == "sensor_combined":
+            if not has_rates and "gyro_rad[0]" in data:
+                for i, base in enumerate(("p", "q", "r")):
+                    add(base, topic, inst, t[keep], data[f"gyro_rad[{i}]"][keep], f"{topic}.gyro_rad[{i}]")
+                used |= keep
+            if "accelerometer_m_s2[0]" in data:
+                for i, base in enumerate(("ax", "ay", "az")):
+                    add(base, topic, inst, t[keep], data[f"accelerometer_m_s2[{i}]"][keep],
+                        f"{topic}.accelerometer_m_s2[{i}]")
+                used |= keep
+        elif topic in _GPS_TOPICS:
+            if "latitude_deg" in data:
+                lat, lon = data["latitude_deg"].astype(float), data["longitude_deg"].astype(float)
+            elif "lat" in data:
+                lat, lon = data["lat"] * 1e-7, data["lon"] * 1e-7
+            else:
+                skipped[topic] += n
+                continue
+            fix = data["fix_type"] if "fix_type" in data else np.full(n, 3)
+            good = keep & (fix >= 2) & (np.abs(lat) <= 90) & (np.abs(lon) <= 180) & ((lat != 0) | (lon != 0))
+            if (keep & ~good).any():
+                skipped[f"{topic} no fix"] += int((keep & ~good).sum())
+            add("lat", topic, inst, t[good], lat[good], f"{topic}.lat")
+            add("lon", topic, inst, t[good], lon[good], f"{topic}.lon")
+            if "vel_m_s" in data:
+                add("sog", topic, inst, t[good], data["vel_m_s"][good], f"{topic}.vel_m_s")
+            if "cog_rad" in data:
+                add("cog", topic, inst, t[good], _wrap(data["cog_rad"][good]), f"{topic}.cog_rad")
+            if "time_utc_usec" in data:
+                utc = data["time_utc_usec"].astype(np.int64)
+                ok = good & (utc > 0)
+                if ok.any():
+                    gps_offsets.append((utc[ok] - t_us[ok]) * 1e-6)
+            used |= good
+        elif topic == "vehicle_local_position":
+            xy_ok = keep & (data["xy_valid"].astype(bool) if "xy_valid" in data else True)
+            v_ok = keep & (data["v_xy_valid"].astype(bool) if "v_xy_valid" in data else True)
+            if xy_ok.any():
+                add("x_n", topic, inst, t[xy_ok], data["x"][xy_ok], f"{topic}.x")
+                add("y_e", topic, inst, t[xy_ok], data["y"][xy_ok], f"{topic}.y")
+            if v_ok.any():
+                vx, vy = data["vx"][v_ok].astype(float), data["vy"][v_ok].astype(float)
+                add("sog@ekf", topic, inst, t[v_ok], np.hypot(vx, vy), f"{topic}.vx,vy")
+                add("cog@ekf", topic, inst, t[v_ok], _wrap(np.arctan2(vy, vx)), f"{topic}.vx,vy")
+            used |= xy_ok | v_ok
+            if (keep & ~(xy_ok | v_ok)).any():
+                skipped[f"{topic} invalid (xy_valid and v_xy_valid false)"] += int((keep & ~(xy_ok | v_ok)).sum())
+        elif topic == "actuator_outputs":
+            if not maps:
+                skipped[f"{topic} (no actuator map with source 'servo')"] += int(keep.sum())
+                continue
+            sums: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+            for a in maps:
+                field_name = f"output[{a.channel - 1}]"
+                if field_name not in data:
+                    warnings.append(f"actuator map servo channel {a.channel} ({a.target}): {topic} has no "
+                                    f"{field_name}; not read")
+                    continue
+                pwm = data[field_name].astype(float)
+                ok = keep & (pwm > 0)
+                value = a.to_input(pwm)
+                if a.target in sums:
+                    # Several outputs on one target (twin thrusters) add up to the generalised force.
+                    sums[a.target] = (sums[a.target][0] + value, sums[a.target][1] & ok)
+                else:
+                    sums[a.target] = (value, ok)
+            for target, (value, ok) in sums.items():
+                inputs[name_of(target, topic, inst)] = (t[ok], value[ok])
+                used |= ok
+        else:
+            skipped[topic] += n
+            continue
+        read[topic] += int(used.sum())
+        left = keep & ~used
+        if left.any() and topic not in _GPS_TOPICS and topic != "vehicle_local_position":
+            skipped[f"{topic} unusable"] += int(left.sum())
+    for key, (t_in, v_in) in inputs.items():
+        chans[key] = Channel(key, t_in, v_in, source="ulog:actuator_outputs")
+
+    start_time = math.nan
+    if gps_offsets:
+        off = np.concatenate(gps_offsets)
+        start_time = float(np.median(off))
+        warnings.append(f"boot time from {len(off)} GPS sample(s) with UTC: t = 0 at Unix {start_time:.3f} s")
+    params = ulog.initial_parameters
+    changed = getattr(ulog, "changed_parameters", [])
+    warnings.append(f"parameters: {len(params)} logged at start, {len(changed)} change(s) during the log")
+    n_bad_msgs = sum(1 for m in ulog.logged_messages if int(getattr(m, "log_level", 7)) <= 4)
+    if n_bad_msgs:
+        warnings.append(f"{n_bad_msgs} logged message(s) of level warning or worse")
+    if ulog.dropouts:
+        total_ms = sum(int(d.duration) for d in ulog.dropouts)
+        warnings.append(f"logger dropouts: {len(ulog.dropouts)} totalling {total_ms} ms (samples lost there)")
+    if getattr(ulog, "file_corruption", False):
+        warnings.append("pyulog reports file corruption: the parts it could not parse are not read")
+    chans = {k: c for k, c in chans.items() if len(c.t)}
+    if not chans:
+        found = ", ".join(f"{k} {v}" for k, v in sorted((read + skipped).items())) or "no topics"
+        raise IngestError(f"{p}: expected ULog topics that give channels ({', '.join(_USED)}), found none "
+                          f"usable ({found})")
+    summary = IngestSummary(path=str(p), format="ulog", read={k: v for k, v in read.items() if v},
+                            skipped={k: v for k, v in skipped.items() if v}, warnings=tuple(warnings))
+    return RawLog(source=str(p), format="ulog", channels=chans, summary=summary, time_reference="boot",
+                  start_time=start_time)
