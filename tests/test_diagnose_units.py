@@ -12,7 +12,8 @@ import pandas as pd
 import pytest
 
 from pipeline.diagnose.candidates import delay_input, rate_limit
-from pipeline.diagnose.models import GridData, LinearSpec, effective_forcing, predict_linear, solve_linear
+from pipeline.diagnose.gridfit import GridData, LinearSpec, predict_linear, solve_linear
+from pipeline.model.first_order_blocks import effective_forcing
 from pipeline.diagnose.problem import Window, block_average, block_noise, input_moments
 from pipeline.records import CandidateResult, EffectParam, GapReport
 from pipeline.diagnose.waves import fit_wave_spectrum, smooth_waves

@@ -24,7 +24,8 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.optimize
 
-from .models import (GridData, LinearSpec, effective_forcing, fit_linear, initial_states, outputs_from_response,
+from ..model.first_order_blocks import effective_forcing
+from .gridfit import (GridData, LinearSpec, fit_linear, initial_states, outputs_from_response,
                      predict_linear, refine_initial_states, refit_linear,
                      simulate_quadratic, solve_linear, weighted_residuals)
 from .problem import DofProblem, block_average, input_moments

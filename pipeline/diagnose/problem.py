@@ -9,7 +9,7 @@ cross-validation has enough independent pieces.
 Signals are block-averaged from the trial rate to an analysis step ``dt`` of about a twentieth of
 the DOF's time constant (capped so that the wave band stays resolved), which keeps the refits fast
 on long trials without losing the dynamics: averaging is a proper anti-alias filter, and the
-models predict block averages exactly (see :mod:`pipeline.diagnose.models`).
+models predict block averages exactly (see :mod:`pipeline.diagnose.gridfit`).
 """
 
 from __future__ import annotations
@@ -192,7 +192,7 @@ def block_average(x: np.ndarray, windows: tuple[Window, ...], m: int, n: int, tr
 def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) -> np.ndarray:
     """Moments of a held input within each block: ``sum u_j``, ``sum (m-1-j) u_j``, ``sum (m-1-j)^2 u_j``.
 
-    They let :mod:`pipeline.diagnose.models` weight the samples of a block by how long each acts
+    They let :mod:`pipeline.diagnose.gridfit` weight the samples of a block by how long each acts
     before the block ends (an input switching inside a block, as a zig-zag's does), to second order
     in ``h / T``, for any time constant T.
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..records import Trial
 from . import waves as wave_model
-from .models import GridData, grid_data
+from .gridfit import GridData, grid_data
 from .problem import DofProblem, Window, block_average
 from ..records import Place, Spectrum, Trace
 

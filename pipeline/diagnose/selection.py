@@ -35,7 +35,7 @@ import scipy.stats
 
 from ..records import CandidateResult, EffectParam, Place, SelectedEffect, Trial, Unexplained
 from . import significance as sig
-from .models import GridData
+from .gridfit import GridData
 from .problem import DofProblem, block_average
 from .replay import band_split, default_band, pooled_psd
 

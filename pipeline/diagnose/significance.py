@@ -35,7 +35,7 @@ from typing import Mapping
 import numpy as np
 import scipy.stats
 
-from .models import GridData
+from .gridfit import GridData
 
 #: Family-wise p-value threshold per candidate and DOF (calibrated, see module docstring).
 ALPHA = 1e-4

@@ -20,7 +20,7 @@ from . import significance as sig
 from . import selection as sel
 from .candidates import Candidate, candidate_label, candidates_for
 from .crossval import CandidateRun, cross_validate, jackknife_stderr
-from .models import grid_data
+from .gridfit import grid_data
 from .problem import DofProblem, build_problems
 from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
 from .replay import default_band, rank_places, replay, traces, where
@@ -253,7 +253,7 @@ def _score_dof(p: DofProblem, d, cs: list[Candidate], tick) -> tuple[list[Candid
 
 
 def _replay_sim(candidate: Candidate, fitted, data) -> dict[str, np.ndarray]:
-    from .models import predict_linear
+    from .gridfit import predict_linear
 
     spec, theta = fitted.state
     return predict_linear(data, spec, fitted.params["T"], theta)
