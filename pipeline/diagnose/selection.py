@@ -20,7 +20,8 @@ in the actuators: :func:`sensor_or_actuator` renames it ``sensor_delay``.
 Unexplained (:func:`unexplained`): a channel whose held-out gap ``g`` (noise units) after the
 selected effects fails the test "only noise is left", ``n_eff g^2 ~ chi^2(n_eff)``, at
 ``ALPHA_UNEXPLAINED`` and exceeds ``UNEXPLAINED_GAP`` (a model error of at least
-``sqrt(UNEXPLAINED_GAP^2 - 1)`` noise units RMS), is reported with where its gap lives, the
+``sqrt(UNEXPLAINED_GAP^2 - 1)`` noise units RMS) and ``MIN_UNEXPLAINED_SCALE`` of the channel's
+scale, is reported with where its gap lives, the
 frequency band holding its power and its correlation with speed, inputs and heading.
 """
 
@@ -46,6 +47,11 @@ ALPHA_UNEXPLAINED = 1e-4
 #: Smallest final gap [noise units] called unexplained: below it the model error is under one
 #: noise unit RMS, which the noise estimate itself cannot tell apart from 1 reliably.
 UNEXPLAINED_GAP = 1.5
+#: Smallest model error called unexplained, relative to the channel's scale (its standard deviation
+#: over the DOF's own manoeuvres) [-]: ``sqrt(g^2 - 1)`` noise units must be at least this share of
+#: the signal, so that a first-order baseline's slight misfit of a large, clean heading record
+#: (statistically visible at low noise) is not called a gap.
+MIN_UNEXPLAINED_SCALE = 0.01
 #: Sensor groups by channel: a delay in one group that another group does not show is the sensor's.
 SENSOR_GROUPS: Mapping[str, str] = {
     "sog": "gnss", "cog": "gnss", "x_n": "gnss", "y_e": "gnss", "lat": "gnss", "lon": "gnss",
@@ -339,8 +345,8 @@ def residual_character(p: DofProblem, resid: np.ndarray, trial: Trial) -> tuple[
     om, psd = pooled_psd(resid, p.dt)
     peak = float(om[1:][np.argmax(psd[1:])]) if len(psd) > 2 else math.nan
     total = float(np.nansum(resid**2))
-    means = np.nanmean(np.where(np.isfinite(resid), resid, np.nan), axis=1, keepdims=True) if resid.size else resid
     cnt = np.isfinite(resid).sum(axis=1, keepdims=True)
+    means = np.where(cnt > 0, np.nansum(resid, axis=1, keepdims=True) / np.maximum(cnt, 1), 0.0)
     mean_share = float(np.nansum(means**2 * cnt) / total) if total > 0 else 0.0
     corr: dict[str, float] = {}
     speed = "sog" if trial.has("sog") else ("u" if trial.has("u") else None)
@@ -388,7 +394,8 @@ def unexplained(states: Mapping[str, DofState], places: tuple[Place, ...], trial
             if not (math.isfinite(g) and math.isfinite(n_eff) and n_eff > 1):
                 continue
             pv = float(scipy.stats.chi2.sf(n_eff * g**2, n_eff))
-            if not (pv < ALPHA_UNEXPLAINED and g >= UNEXPLAINED_GAP):
+            rel = math.sqrt(max(g * g - 1.0, 0.0)) * units.get(key, math.nan)
+            if not (pv < ALPHA_UNEXPLAINED and g >= UNEXPLAINED_GAP and not rel < MIN_UNEXPLAINED_SCALE):
                 continue
             r = resid.get(key)
             r = r / units[key] if r is not None and math.isfinite(units.get(key, math.nan)) else r
@@ -407,7 +414,8 @@ def unexplained(states: Mapping[str, DofState], places: tuple[Place, ...], trial
 UNEXPLAINED_TEST = (
     f"a channel is unexplained when its held-out gap g after the selected effects fails the test 'only "
     f"sensor noise is left' (n_eff g^2 against chi^2(n_eff), p < {ALPHA_UNEXPLAINED:g}, n_eff corrected for "
-    f"the residual's lag-1 autocorrelation) and g >= {UNEXPLAINED_GAP:g} noise units")
+    f"the residual's lag-1 autocorrelation), g >= {UNEXPLAINED_GAP:g} noise units, and the model error "
+    f"sqrt(g^2 - 1) noise units is at least {100 * MIN_UNEXPLAINED_SCALE:g}% of the channel's scale")
 
 
 def channel_gaps_of(base_score: sig.Score) -> tuple[dict, dict]:

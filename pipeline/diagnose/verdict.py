@@ -17,6 +17,7 @@ from ..errors import DiagnoseError
 from ..records import CHANNEL_UNITS, Fits, Segments, Trial
 from ..vessel import Vessel
 from . import significance as sig
+from . import oscillatory as osc
 from . import selection as sel
 from .candidates import Candidate, candidate_label, candidates_for
 from .crossval import CandidateRun, cross_validate, jackknife_stderr
@@ -104,7 +105,8 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
                             f"{[c for c in trial.data.columns if c != 't']}")
     t_consts = _refine_time_constants(trial, segs, vessel)
     problems = build_problems(trial, segs, vessel, time_constants=t_consts)
-    if not problems:
+    osc_problems = [q for q in (osc.build_oscillatory(trial, segs, dof) for dof in ("roll", "pitch")) if q is not None]
+    if not problems and not osc_problems:
         raise DiagnoseError(f"{trial.name}: expected a DOF whose response (u, v or r, or sog) is measured and "
                             f"excited by the segments, found none (channels "
                             f"{[c for c in trial.data.columns if c != 't']}, {len(segs.items)} segments)")
@@ -138,12 +140,26 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             gap=base_score.gap_before, noise_floor=float(floor), replay_gap=math.nan))
         per_dof[p.dof]["resid"] = resid
 
+    for q in osc_problems:
+        res, base_run, cand_run, summary, state = _oscillatory_dof(q)
+        results.append(res)
+        summaries.append(summary)
+        states[q.dof] = state
+        per_dof[q.dof] = {"problem": q, "data": q.data, "runs": [base_run], "scored": [(res, cand_run, None)],
+                          "names": {"y": q.channel, "angle": q.angle}, "channel_gaps": dict(state.channel_gaps),
+                          "oscillatory": True}
+
     ranked = sorted(results, key=sel.rank_key)
     run_of = {(res.dof, res.label): r for v in per_dof.values() for res, r, _ in v["scored"]}
 
     def rescore(state: sel.DofState) -> None:
         """Cross-validate a DOF again on its corrected data (the next selection step)."""
         p = state.problem
+        if isinstance(p, osc.OscProblem):
+            # One candidate only: once it is selected nothing is left to test in this DOF, and the
+            # old baseline's prediction on the corrected data leaves exactly the candidate's residual.
+            state.results = []
+            return
         cs = [c for c in candidates_for(p, state.data) if candidate_label(c) not in state.selected]
         runs2, scored2, bs = _score_dof(p, state.data, cs, None)
         for res, r, _ in scored2:
@@ -175,6 +191,8 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     spectra = []
     all_traces: list[Trace] = []
     for i, (dof, v) in enumerate(per_dof.items()):
+        if v.get("oscillatory"):
+            continue
         p, d = v["problem"], v["data"]
         waves_run = next(((res, r) for res, r, _ in v["scored"] if res.effect == "waves"), None)
         band = default_band(p)
@@ -214,12 +232,17 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             e = fits.estimates.get(key)
             if e is not None and e.success:
                 notes.append(f"fit stage: {key} = {e.value:.4g} {e.unit}")
+    for q in osc_problems:
+        notes.append(f"{q.dof}: {len(q.windows)} windows ({', '.join(dict.fromkeys(w.label for w in q.windows))}), "
+                     f"channels {', '.join(q.outputs)}, second-order baseline (natural frequency, damping ratio"
+                     + (f", gain of {q.inputs[0]}" if q.inputs else ", free decays") + f"), analysis step {q.dt:.3g} s")
     for p in problems:
         notes.append(f"{p.dof}: {len(p.windows)} windows, response {p.channel}"
                      + (f" and heading {p.angle}" if p.angle else "")
                      + (f", inputs {', '.join(p.inputs)}" if p.inputs else ", no input (free decays)")
                      + f", analysis step {p.dt:.3g} s")
     thresholds = {"alpha_unexplained": sel.ALPHA_UNEXPLAINED, "unexplained_gap": sel.UNEXPLAINED_GAP,
+                  "min_unexplained_scale": sel.MIN_UNEXPLAINED_SCALE,
                   "alpha": sig.ALPHA, "alpha_robust": sig.ALPHA_ROBUST, "min_shrink_percent": sig.MIN_SHRINK,
                   "min_explained": sig.MIN_EXPLAINED}
     return GapReport(
@@ -229,6 +252,35 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         dofs=tuple(summaries), traces=tuple(all_traces), spectra=tuple(spectra), thresholds=thresholds,
         notes=tuple(notes), effects=effects, gap_final=gap_final, unexplained=unexplained,
         ranking_rule=RANKING_RULE, unexplained_test=sel.UNEXPLAINED_TEST)
+
+
+def _oscillatory_dof(q):
+    """Cross-validate and score roll or pitch (:mod:`pipeline.diagnose.oscillatory`)."""
+    base_run, cand_run = osc.cross_validate(q)
+    names = {"y": q.channel, "angle": q.angle}
+    s = sig.score(q.data, base_run.heldout, cand_run.heldout, 1, names, folds=base_run.fold_of)
+
+    def eparams(run, keys):
+        se = jackknife_stderr(run.full, run.fold_params)
+        return tuple(EffectParam(k, float(run.full[k]), float(se.get(k, math.nan)), osc.UNITS.get(k, ""))
+                     for k in keys if k in run.full)
+
+    res = CandidateResult(
+        effect="nonlinear_damping", dof=q.dof, label="nonlinear_damping", input_channel=None,
+        gap_before=s.gap_before, gap_after=s.gap_after, shrink=s.shrink, explained=s.explained,
+        p_value=s.p_value, significant=s.significant, params=eparams(cand_run, ("d2",)),
+        model=eparams(cand_run, tuple(cand_run.full)),
+        channels=tuple(ChannelGap(c.channel, c.gap_before, c.gap_after, c.p_value, c.n_eff) for c in s.channels),
+        gain=s.gain)
+    bs = sig.score(q.data, base_run.heldout, base_run.heldout, 1, names)
+    gaps, neff = sel.channel_gaps_of(bs)
+    summary = DofSummary(dof=q.dof, channels=q.outputs, inputs=q.inputs, dt=q.dt, n_windows=len(q.windows),
+                         n_folds=int(base_run.fold_of.max()) + 1,
+                         baseline=eparams(base_run, tuple(base_run.full)), gap=bs.gap_before,
+                         noise_floor=float(q.data.sigma_y if q.rate else q.data.sigma_angle), replay_gap=math.nan)
+    state = sel.DofState(problem=q, data=q.data, results=[(res, cand_run)], base_heldout=base_run.heldout,
+                         channel_gaps=dict(gaps), channel_neff=dict(neff), selected=[])
+    return res, base_run, cand_run, summary, state
 
 
 def _score_dof(p: DofProblem, d, cs: list[Candidate], tick) -> tuple[list[CandidateRun], list, sig.Score]:
