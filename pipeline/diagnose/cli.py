@@ -4,9 +4,17 @@ Writes the diagnosis contract (:meth:`pipeline.diagnose.records.GapReport.to_dic
 
     {"verdict": {"effect": name or null, "dof": name or null}, "gap_before": number,
      "gap_after": number, "shrink": number,
-     "candidates": [{"effect", "dof", "gap_before", "gap_after", "shrink", "significant", ...}], ...}
+     "candidates": [{"effect", "dof", "gap_before", "gap_after", "shrink", "significant", ...}],
+     "effects": [{"step", "effect", "dof", "gap_before", "gap_after", "shrink", "trial_gap_after", ...}],
+     "gap_final": number, "unexplained": [{"dof", "channel", "gap", "share", "place", "band",
+     "correlations", "looks_like", ...}], "status": "model fine" | "explained" | "partly explained" |
+     "unexplained", "ranking_rule": text, "unexplained_test": text, ...}
 
-and prints the verdict, the candidates that count and where the gap lives. Every error is a
+``verdict`` is the first of ``effects`` (forward selection). Effect names: the candidates'
+(``nonlinear_damping``, ``current``, ``actuator_delay``, ``actuator_rate_limit``, ``thrust_asymmetry``,
+``waves``, ``coupling``) and ``sensor_delay`` (an input delay that another channel driven by the same
+inputs does not show). It prints what is unexplained first, then the verdict and the further
+effects, the candidates that count and where the gap lives. Every error is a
 :class:`pipeline.errors.DiagnoseError` naming what was expected and what was found.
 """
 
