@@ -896,14 +896,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--realdata", metavar="DIR", help="diagnose the measured sets; figures into DIR")
     ap.add_argument("--random", type=int, metavar="N", help="N randomised trials (issue 12 calibration)")
     ap.add_argument("--seed", type=int, default=12, help="seed of the randomised draw")
+    ap.add_argument("--report", metavar="JSONL", help="print the randomised report from a --random --save file")
     args = ap.parse_args(argv)
+    if args.report:
+        results = [json.loads(line) for line in Path(args.report).read_text().splitlines() if line.strip()]
+        print(f"report of {len(results)} randomised trials saved in {args.report} (a partial run reports what finished)")
+        random_report(results)
+        return 0
     if args.random:
+        from concurrent.futures import as_completed
+
         todo_r = random_cases(args.random, args.seed)
         t0 = time.perf_counter()
+        results = []
+        # One JSON line per finished trial, so that an interrupted run still reports what it measured.
+        sink = open(args.save, "w") if args.save else None
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-            results = list(pool.map(run_random_case, todo_r))
-        if args.save:
-            Path(args.save).write_text(json.dumps(results, indent=1, default=float))
+            for fut in as_completed([pool.submit(run_random_case, c) for c in todo_r]):
+                results.append(fut.result())
+                if sink:
+                    sink.write(json.dumps(results[-1], default=float) + "\n")
+                    sink.flush()
+        if sink:
+            sink.close()
         print(f"{len(results)} randomised trials in {time.perf_counter() - t0:.0f} s with {args.jobs} workers")
         print(f"command: .venv/bin/python benchmarks/diagnose.py --random {args.random} --seed {args.seed}")
         random_report(results)
