@@ -543,6 +543,348 @@ def realdata(out_dir: Path) -> None:
             print("\nFigures: " + ", ".join(f"`{out_dir.name}/{name}/{p.name}`" for p in figs.values()) + "\n")
 
 
+# ----------------------------------------------------------------------------- randomised calibration
+# Issue 12: trials drawn at random (vessels, log rates 1-100 Hz, held commands, file splits, sensor
+# suites, noise levels, effect magnitudes), trials made outside the project's simulator (a
+# twin-thruster boat integrated here, and Fossen's PythonVehicleSimulator frigate), pairs of
+# effects and effects outside the library. Scored: right effect first, null on clean, median shrink,
+# second effect found, out-of-library reported as unexplained, detection threshold per effect in
+# noise units.
+PVS_PATH = os.environ.get("PVS_PATH", "/work/pvs/src")
+
+
+@dataclass(frozen=True)
+class RandomCase:
+    """One randomised trial: ``kind`` is single, clean, pvs_clean, pair or outside."""
+
+    index: int
+    kind: str
+    seed: int
+
+    @property
+    def name(self) -> str:
+        return f"r{self.index:03d}-{self.kind}"
+
+
+def random_cases(n: int, seed: int = 12) -> list[RandomCase]:
+    """``n`` randomised trials: 45% one effect, 15% clean (own simulators), 15% PVS frigate
+    (clean), 12% two effects, 13% out of library."""
+    rng = np.random.default_rng(seed)
+    kinds = rng.choice(["single", "clean", "pvs_clean", "pair", "outside"], size=n,
+                       p=[0.45, 0.15, 0.15, 0.12, 0.13])
+    return [RandomCase(i, str(k), int(seed * 1000 + i)) for i, k in enumerate(kinds)]
+
+
+def twin_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, noise: float,
+               act_lag: float = 0.0, gnss_lag: float = 0.0, quad_yaw: float = 0.0, extra=None) -> Path:
+    """A twin-thruster boat (surge and yaw from the same two thrusters), integrated here with
+    random time constants and gains: GNSS speed over ground, gyro, compass, thrust commands."""
+    import pandas as pd
+
+    n = int(minutes * 60 * fs)
+    t = np.arange(n) / fs
+    t_u, t_r = rng.uniform(3, 12), rng.uniform(1, 5)
+    k_u, k_r = rng.uniform(0.05, 0.12), rng.uniform(0.03, 0.08)
+    hold = int(rng.uniform(15, 35) * fs)
+    t1 = np.repeat(rng.uniform(2, 12, n // hold + 1), hold)[:n]
+    t2 = np.repeat(rng.uniform(2, 12, n // hold + 1), hold)[:n]
+    tau_x, tau_n = t1 + t2, 0.3 * (t1 - t2)
+
+    def lagged(x, lag):
+        k = int(round(lag * fs))
+        return np.concatenate([np.full(k, x[0]), x[:n - k]]) if k else x
+
+    tx, tn = lagged(tau_x, act_lag), lagged(tau_n, act_lag)
+    u, r, psi = np.zeros(n), np.zeros(n), np.zeros(n)
+    h = 1.0 / fs
+    sub = max(int(np.ceil(20 * h / min(t_u, t_r))), 1)  # Euler sub-steps: h/sub <= T/20
+    for k in range(n - 1):
+        uu, rr, pp = u[k], r[k], psi[k]
+        for _ in range(sub):
+            fr = -rr - quad_yaw * abs(rr) * rr + k_r * tn[k] + (extra(t[k], uu, rr, pp) if extra else 0.0)
+            uu, rr, pp = uu + h / sub * (-uu + k_u * tx[k]) / t_u, rr + h / sub * fr / t_r, pp + h / sub * rr
+        u[k + 1], r[k + 1], psi[k + 1] = uu, rr, pp
+    sog = lagged(u, gnss_lag)
+    pd.DataFrame({"t": t, "sog": sog + 0.01 * noise * rng.standard_normal(n),
+                  "r": r + 0.002 * noise * rng.standard_normal(n),
+                  "psi": np.angle(np.exp(1j * (psi + 0.003 * noise * rng.standard_normal(n)))),
+                  "tau_x": tau_x, "tau_n": tau_n}).to_csv(path, index=False, float_format="%.9g")
+    return path
+
+
+def pvs_frigate_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, noise: float) -> Path | None:
+    """A clean trial of Fossen's PythonVehicleSimulator frigate (Norrbin model with rudder dynamics,
+    imported from ``PVS_PATH``, never copied): random speed and rudder steps, logged rudder angle,
+    gyro and compass with noise. None when the simulator is absent."""
+    import pandas as pd
+
+    if not Path(PVS_PATH).exists():
+        return None
+    if PVS_PATH not in sys.path:
+        sys.path.insert(0, PVS_PATH)
+    from python_vehicle_simulator.vehicles import frigate
+
+    ship = frigate("stepInput", U=float(rng.uniform(6.0, 12.0)))
+    h = 0.05
+    n = int(minutes * 60 / h)
+    hold = int(rng.uniform(60, 150) / h)
+    cmds = np.repeat(np.radians(rng.uniform(-15, 15, n // hold + 1)), hold)[:n]
+    nu, eta, u_act = np.zeros(6), np.zeros(6), np.array([0.0])
+    nu[0] = ship.nu[0]
+    rows = np.zeros((n, 4))
+    for k in range(n):
+        rows[k] = (k * h, nu[5], eta[5], u_act[0])
+        nu_next, u_act = ship.dynamics(eta, nu, u_act, np.array([cmds[k]]), h)
+        eta = eta.copy()
+        eta[5] = eta[5] + h * nu[5]
+        nu = nu_next
+    step = max(int(round(1.0 / (fs * h))), 1)
+    rows = rows[::step]
+    m = len(rows)
+    pd.DataFrame({"t": rows[:, 0], "r": rows[:, 1] + 0.0005 * noise * rng.standard_normal(m),
+                  "psi": np.angle(np.exp(1j * (rows[:, 2] + 0.002 * noise * rng.standard_normal(m)))),
+                  "delta": rows[:, 3]}).to_csv(path, index=False, float_format="%.9g")
+    return path
+
+
+def _nuisances(path: Path, rng: np.random.Generator, keep_velocity: bool) -> tuple[list[Path], dict]:
+    """Apply the trial-shape draws to a canonical CSV: log rate (1-100 Hz, never above the file's),
+    body velocities dropped or kept, and a split into a sensor file and a command file (with the gyro)."""
+    import pandas as pd
+
+    df = pd.read_csv(path)
+    fs0 = 1.0 / float(np.median(np.diff(df["t"].to_numpy())))
+    fs = float(min(np.exp(rng.uniform(np.log(1.0), np.log(100.0))), fs0))
+    step = max(int(round(fs0 / fs)), 1)
+    df = df.iloc[::step].reset_index(drop=True)
+    if not keep_velocity:
+        df = df.drop(columns=[c for c in ("u", "v") if c in df.columns and "sog" in df.columns])
+    inputs = [c for c in ("delta", "tau_x", "tau_y", "tau_n", "tau_k", "tau_m") if c in df.columns]
+    shape = {"log_rate_hz": fs0 / step, "velocities": keep_velocity or not {"u", "v"} & set(df.columns)}
+    if inputs and rng.random() < 0.5:
+        a, b = path.with_name(path.stem + "_sensors.csv"), path.with_name(path.stem + "_commands.csv")
+        df.drop(columns=inputs).to_csv(a, index=False, float_format="%.9g")
+        # The command log also carries the gyro (as an autopilot log does): two logs without an
+        # absolute clock are aligned on a rate they share.
+        df[["t"] + inputs + [c for c in ("r",) if c in df.columns]].to_csv(b, index=False, float_format="%.9g")
+        shape["files"] = 2
+        return [a, b], shape
+    df.to_csv(path, index=False, float_format="%.9g")
+    shape["files"] = 1
+    return [path], shape
+
+
+def _random_nomoto(rng: np.random.Generator):
+    t = float(np.exp(rng.uniform(np.log(3.0), np.log(60.0))))
+    return parse_vessel({"name": f"nomoto_T{t:.0f}", "nomoto": {"K": float(rng.uniform(0.05, 0.6)), "T": t}})
+
+
+def _library_effect(rng: np.random.Generator, vessel_kind: str, vessel, exclude=()) -> tuple[str, str, dict, float]:
+    """(effect name expected, DOF, simulator settings, magnitude factor) drawn for a vessel kind."""
+    mag = float(np.exp(rng.uniform(np.log(0.3), np.log(2.0))))
+    if vessel_kind == "twin":
+        opts = [e for e in ("actuator_delay", "sensor_delay", "nonlinear_damping") if e not in exclude]
+        e = str(rng.choice(opts))
+        return e, {"actuator_delay": "surge", "sensor_delay": "surge", "nonlinear_damping": "yaw"}[e], {}, mag
+    opts = [e for e in (applicable("aauship") if vessel_kind == "aauship" else applicable("nomoto"))
+            if e not in exclude]
+    return str(rng.choice(opts)), "", {}, mag
+
+
+def _sim_effects(effect: str, mag: float, vessel_kind: str, vessel, rng) -> tuple[Effects, str | None]:
+    """Project-simulator effect scaled by ``mag`` around the large magnitudes of the fixed benchmark."""
+    if vessel_kind == "aauship":
+        eff, dof, _ = _aauship_effect(effect, 1, rng)
+    else:
+        eff, dof, _ = _nomoto_effect(effect, 1, vessel, rng)
+    kw = {}
+    if eff.quadratic_damping is not None:
+        kw["quadratic_damping"] = eff.quadratic_damping * mag
+    if eff.current != (0.0, 0.0):
+        kw["current"] = (eff.current[0] * mag, eff.current[1] * mag)
+    if eff.rudder_bias:
+        kw["rudder_bias"] = eff.rudder_bias * mag
+    if eff.actuator_delay:
+        kw["actuator_delay"] = eff.actuator_delay * mag
+    if eff.actuator_rate_limit:
+        kw["actuator_rate_limit"] = {k: v / mag for k, v in eff.actuator_rate_limit.items()}
+    if eff.thrust_reverse_gain != 1.0:
+        kw["thrust_reverse_gain"] = float(max(1.0 - (1.0 - eff.thrust_reverse_gain) * mag, 0.1))
+    if eff.waves is not None:
+        w = eff.waves
+        kw["waves"] = WaveParams(omega0=w.omega0, lam=w.lam, kw=w.kw * mag)
+    if eff.coupling is not None:
+        kw["coupling"] = eff.coupling * mag
+    return Effects(**kw), dof
+
+
+def _merge(a: Effects, b: Effects) -> Effects:
+    from dataclasses import fields, replace
+
+    base = Effects()
+    return replace(a, **{f.name: getattr(b, f.name) for f in fields(Effects)
+                         if not _same(getattr(b, f.name), getattr(base, f.name))})
+
+
+def _same(x, y) -> bool:
+    try:
+        return bool(np.all(np.asarray(x) == np.asarray(y))) if x is not None and y is not None else x is y
+    except (ValueError, TypeError):
+        return False
+
+
+def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], object, dict]:
+    """Draw and write one randomised trial; returns (files, vessel or None, truth)."""
+    rng = np.random.default_rng(case.seed)
+    noise_name = str(rng.choice(NOISES))
+    noise = {"low": 0.5, "nominal": 1.0, "high": 2.0}[noise_name]
+    truth: dict = {"kind": case.kind, "noise": noise_name, "effects": []}
+    if case.kind == "pvs_clean":
+        path = pvs_frigate_trial(folder / f"{case.name}.csv", rng, fs=20.0, minutes=float(rng.uniform(15, 30)),
+                                 noise=noise)
+        if path is None:
+            return [], None, {**truth, "skipped": f"PythonVehicleSimulator not found at {PVS_PATH}"}
+        truth["vessel"] = "pvs_frigate"
+        files, shape = _nuisances(path, rng, True)
+        return files, None, {**truth, **shape}
+    if case.kind == "outside":
+        kind = int(rng.integers(3))
+        amp = float(rng.uniform(0.01, 0.03))
+        extra = [lambda t, u, r, p: amp * np.sign(np.sin(2 * np.pi * t / 37.0)),    # square-wave yaw moment
+                 lambda t, u, r, p: amp * np.sin(2 * np.pi * t / 90.0),            # slow yaw moment
+                 lambda t, u, r, p: amp * u * np.cos(p),                          # wind-like, heading-dependent
+                 ][kind]
+        truth.update(vessel="twin", outside=["square_moment", "slow_moment", "heading_dependent_moment"][kind])
+        path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, extra=extra)
+        files, shape = _nuisances(path, rng, True)
+        return files, None, {**truth, **shape}
+    vessel_kind = str(rng.choice(["aauship", "nomoto", "twin"], p=[0.35, 0.35, 0.3]))
+    n_eff = {"single": 1, "pair": 2, "clean": 0}[case.kind]
+    if vessel_kind == "twin":
+        kw: dict = {}
+        for _ in range(n_eff):
+            e, dof, _, mag = _library_effect(rng, "twin", None, exclude=[x["effect"] for x in truth["effects"]]
+                                             + (["sensor_delay", "actuator_delay"] if any(
+                                                 x["effect"].endswith("delay") for x in truth["effects"]) else []))
+            if e == "actuator_delay":
+                kw["act_lag"] = 0.3 * mag
+            elif e == "sensor_delay":
+                kw["gnss_lag"] = 0.3 * mag
+            else:
+                kw["quad_yaw"] = 4.0 * mag
+            truth["effects"].append({"effect": e, "dof": dof, "magnitude": mag})
+        truth["vessel"] = "twin"
+        path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, **kw)
+        files, shape = _nuisances(path, rng, True)
+        return files, None, {**truth, **shape}
+    v = vessels()["aauship"] if vessel_kind == "aauship" else _random_nomoto(rng)
+    eff = Effects()
+    for _ in range(n_eff):
+        taken = [x["effect"] for x in truth["effects"]]
+        e, _, _, mag = _library_effect(rng, vessel_kind, v, exclude=taken)
+        one, dof = _sim_effects(e, mag, vessel_kind, v, rng)
+        eff = _merge(eff, one)
+        truth["effects"].append({"effect": e, "dof": dof, "magnitude": mag})
+    truth["vessel"] = v.name
+    if vessel_kind == "aauship":
+        sensors, dt, cmd = default_sensors(noise_name), 0.01, 50.0
+    else:
+        t = v.nomoto["T"]
+        dt = min(t / 100, 0.1)
+        sensors, cmd = nomoto_sensors(noise_name, min(1.0 / dt, 50.0)), min(1.0 / dt, 50.0)
+    res = simulate(v, schedule(v), eff, sensors=sensors, seed=case.seed, dt=dt, actuator_rate=cmd)
+    path = write_log(res.log, folder / f"{case.name}.csv", vessel=v)
+    files, shape = _nuisances(Path(path), rng, bool(rng.random() < 0.5))
+    return files, v, {**truth, **shape}
+
+
+def run_random_case(case: RandomCase) -> dict:
+    """Make, read back and diagnose one randomised trial."""
+    from pipeline.diagnose import diagnose
+
+    with tempfile.TemporaryDirectory() as tmp:
+        files, vessel, truth = make_random_trial(case, Path(tmp))
+        out = {"case": case.name, **truth}
+        if not files:
+            return out
+        t0 = time.perf_counter()
+        try:
+            rep = diagnose(load_trial(files, vessel), vessel)
+        except Exception as exc:  # a crash or a refusal is a result, not an abort
+            return {**out, "error": f"{type(exc).__name__}: {exc}"}
+        out["t_diagnose"] = time.perf_counter() - t0
+    out["selected"] = [{"effect": e.effect, "dof": e.dof, "shrink": e.shrink} for e in rep.effects]
+    out["unexplained"] = [{"channel": u.channel, "gap": u.gap} for u in rep.unexplained]
+    out["gap_before"], out["gap_final"] = rep.gap_before, rep.gap_final
+    out["dof_gaps"] = {d.dof: d.gap for d in rep.dofs}
+    out["verdict_shrink"] = rep.verdict.shrink if rep.verdict is not None else None
+    return out
+
+
+def _hit(sel: dict, eff: dict) -> bool:
+    return sel["effect"] == eff["effect"] and (not eff.get("dof") or sel["dof"] == eff["dof"])
+
+
+def random_report(results: list[dict]) -> None:
+    """Print the randomised calibration's headline numbers against the issue's targets."""
+    ran = [r for r in results if "selected" in r]
+    errors = [r for r in results if "error" in r]
+    skipped = [r for r in results if r.get("skipped")]
+    single = [r for r in ran if r["kind"] == "single"]
+    clean = [r for r in ran if r["kind"] in ("clean", "pvs_clean")]
+    pvs = [r for r in ran if r["kind"] == "pvs_clean"]
+    pair = [r for r in ran if r["kind"] == "pair"]
+    outside = [r for r in ran if r["kind"] == "outside"]
+    right = [r for r in single if r["selected"] and _hit(r["selected"][0], r["effects"][0])]
+    shr = [r["verdict_shrink"] for r in right if r["verdict_shrink"] is not None]
+    both = [r for r in pair if all(any(_hit(s, e) for s in r["selected"]) for e in r["effects"])]
+    unexp = [r for r in outside if r["unexplained"]]
+
+    def pct(a, b):
+        return f"{100 * len(a) / len(b):.1f}% ({len(a)}/{len(b)})" if b else "n/a (0 trials)"
+
+    print(f"randomised trials: {len(results)} ({len(ran)} diagnosed, {len(errors)} refused or failed, "
+          f"{len(skipped)} skipped)")
+    print(f"right effect first          : {pct(right, single)}   target >= 95%")
+    print(f"null on clean (all shapes)  : {pct([r for r in clean if not r['selected']], clean)}   target >= 97%"
+          f"  (PVS frigate: {pct([r for r in pvs if not r['selected']], pvs)})")
+    print(f"median shrink (right first) : {np.median(shr) if shr else float('nan'):.1f}%   target >= 70%")
+    print(f"both of two effects found   : {pct(both, pair)}   target >= 80%")
+    print(f"out of library -> unexplained: {pct(unexp, outside)}   target >= 80%")
+    times = [r["t_diagnose"] for r in ran if "t_diagnose" in r]
+    print(f"diagnose time: median {np.median(times):.1f} s, max {np.max(times):.1f} s" if times else "")
+    # Detection threshold per effect: excess gap of the true DOF, sqrt(gap^2 - 1), in noise units.
+    print("\ndetection threshold per effect (smallest excess gap of the true DOF, in noise units, above which the "
+          "effect is named first in >= 90% of single-effect trials; n = trials):")
+    by: dict[str, list] = {}
+    for r in single:
+        e = r["effects"][0]
+        g = r["dof_gaps"].get(e.get("dof") or "", None)
+        if g is None:
+            g = max(r["dof_gaps"].values(), default=float("nan"))
+        by.setdefault(e["effect"], []).append((float(np.sqrt(max(g * g - 1.0, 0.0))),
+                                               bool(r["selected"] and _hit(r["selected"][0], e))))
+    for eff, rows in sorted(by.items()):
+        rows.sort()
+        thr = next((x for i, (x, _) in enumerate(rows) if len(rows) - i >= 3
+                    and np.mean([ok for _, ok in rows[i:]]) >= 0.9), None)
+        print(f"  {eff:<20} n={len(rows):<3} threshold "
+              + (f"{thr:.2g} noise units" if thr is not None else "not reached") +
+              f"; found {sum(ok for _, ok in rows)}/{len(rows)}")
+    print("\nmisses:")
+    for r in ran:
+        ok = ((r["kind"] == "single" and r in right) or (r["kind"] in ("clean", "pvs_clean") and not r["selected"])
+              or (r["kind"] == "pair" and r in both) or (r["kind"] == "outside" and r in unexp))
+        if not ok:
+            print(f"  {r['case']:<16} {r.get('vessel', ''):<12} rate {r.get('log_rate_hz', 0):5.1f} Hz files "
+                  f"{r.get('files')} vel {r.get('velocities')} noise {r['noise']:<8} true "
+                  f"{[(e['effect'], e.get('dof'), round(e['magnitude'], 2)) for e in r['effects']] or r.get('outside', '-')}"
+                  f" -> {[(s['effect'], s['dof']) for s in r['selected']]} unexplained "
+                  f"{[u['channel'] for u in r['unexplained']]}")
+    for r in errors:
+        print(f"  {r['case']:<16} {r.get('vessel', ''):<12} rate {r.get('log_rate_hz', 0):5.1f} Hz: {r['error'][:160]}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a small run (about 30 trials)")
@@ -552,7 +894,35 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="worker processes")
     ap.add_argument("--save", metavar="JSON", help="write every trial's outcome")
     ap.add_argument("--realdata", metavar="DIR", help="diagnose the measured sets; figures into DIR")
+    ap.add_argument("--random", type=int, metavar="N", help="N randomised trials (issue 12 calibration)")
+    ap.add_argument("--seed", type=int, default=12, help="seed of the randomised draw")
+    ap.add_argument("--report", metavar="JSONL", help="print the randomised report from a --random --save file")
     args = ap.parse_args(argv)
+    if args.report:
+        results = [json.loads(line) for line in Path(args.report).read_text().splitlines() if line.strip()]
+        print(f"report of {len(results)} randomised trials saved in {args.report} (a partial run reports what finished)")
+        random_report(results)
+        return 0
+    if args.random:
+        from concurrent.futures import as_completed
+
+        todo_r = random_cases(args.random, args.seed)
+        t0 = time.perf_counter()
+        results = []
+        # One JSON line per finished trial, so that an interrupted run still reports what it measured.
+        sink = open(args.save, "w") if args.save else None
+        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+            for fut in as_completed([pool.submit(run_random_case, c) for c in todo_r]):
+                results.append(fut.result())
+                if sink:
+                    sink.write(json.dumps(results[-1], default=float) + "\n")
+                    sink.flush()
+        if sink:
+            sink.close()
+        print(f"{len(results)} randomised trials in {time.perf_counter() - t0:.0f} s with {args.jobs} workers")
+        print(f"command: .venv/bin/python benchmarks/diagnose.py --random {args.random} --seed {args.seed}")
+        random_report(results)
+        return 0
     if args.realdata:
         realdata(Path(args.realdata))
         return 0

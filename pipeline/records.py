@@ -756,3 +756,463 @@ class Provenance:
     created: str
     command: str
     inputs: tuple[tuple[str, str], ...] = ()
+
+
+
+# --------------------------------------------------------------------------- diagnose
+# ``Trial + Fits -> GapReport`` (the diagnose stage): where the identified model disagrees with the
+# boat, which unmodelled effects explain it (in order), how far the gap shrinks, and what is left
+# unexplained. Gaps are dimensionless: the held-out RMS of the open-loop simulation error of a
+# channel in units of that channel's white-noise level at the analysis step (1 = nothing left but
+# sensor noise); a DOF's gap is the RMS over its channels, the trial's gap the RMS over every
+# channel of every DOF. "Explained" errors are relative to the channel's scale instead (its
+# standard deviation over the DOF's own manoeuvres), so that a tiny but statistically visible
+# error is not named.
+
+@dataclass(frozen=True)
+class EffectParam:
+    """One fitted parameter of a candidate.
+
+    Attributes
+    ----------
+    name : str
+        Parameter name (``d2``, ``V_n``, ``tau_d``, ``R``, ``k_rev``, ``omega0``, ``c``, ...).
+    value : float
+        Value fitted on every window [``unit``].
+    stderr : float
+        Delete-a-group jackknife standard error over the cross-validation folds [``unit``];
+        NaN with fewer than two folds.
+    unit : str
+        Unit.
+    """
+
+    name: str
+    value: float
+    stderr: float
+    unit: str = ""
+
+
+@dataclass(frozen=True)
+class ChannelGap:
+    """Held-out gap of one channel before and after a candidate.
+
+    Attributes
+    ----------
+    channel : str
+        Channel name.
+    gap_before, gap_after : float
+        Normalised held-out RMS error [-].
+    p_value : float
+        Held-out F-test p-value of this channel (NaN when not computable).
+    n_eff : float
+        Effective number of independent samples.
+    """
+
+    channel: str
+    gap_before: float
+    gap_after: float
+    p_value: float
+    n_eff: float
+
+
+@dataclass(frozen=True)
+class CandidateResult:
+    """A candidate effect refitted and scored in one DOF.
+
+    Attributes
+    ----------
+    effect : str
+        Effect name (``nonlinear_damping``, ``current``, ``actuator_delay``, ``actuator_rate_limit``,
+        ``thrust_asymmetry``, ``waves``, ``coupling``).
+    dof : str
+        DOF name.
+    label : str
+        ``effect`` or ``effect[input]`` for per-input candidates.
+    input_channel : str or None
+        Input concerned (rate limit, thrust asymmetry) or regressor (coupling), else None.
+    gap_before, gap_after : float
+        The DOF's held-out gap with the baseline and with the candidate [-].
+    shrink : float
+        ``100 (1 - gap_after / gap_before)`` [%].
+    explained : float
+        RMS error the effect accounts for, ``sqrt(e_before^2 - e_after^2)`` of the held-out RMS
+        errors over the channel's scale, largest over the DOF's channels [-] (negative when the
+        candidate makes things worse).
+    p_value : float
+        Bonferroni-corrected held-out F-test p-value.
+    significant : bool
+        Passed the calibrated significance test.
+    params : tuple[EffectParam, ...]
+        The effect's own parameters.
+    model : tuple[EffectParam, ...]
+        Every parameter of the augmented model (T, gains, effect).
+    channels : tuple[ChannelGap, ...]
+        Per-channel detail.
+    gain : float
+        Reduction of the trial's summed squared channel gaps (the ranking key) [-].
+    """
+
+    effect: str
+    dof: str
+    label: str
+    input_channel: str | None
+    gap_before: float
+    gap_after: float
+    shrink: float
+    explained: float
+    p_value: float
+    significant: bool
+    params: tuple[EffectParam, ...] = ()
+    model: tuple[EffectParam, ...] = ()
+    channels: tuple[ChannelGap, ...] = ()
+    gain: float = 0.0
+
+
+@dataclass(frozen=True)
+class Place:
+    """A place where the baseline's held-out gap lives, and its share.
+
+    Attributes
+    ----------
+    category : str
+        ``channel``, ``segment kind``, ``frequency band``, ``speed`` or ``input amplitude``.
+    dof : str
+        DOF.
+    name : str
+        The place (``r``, ``zigzag``, ``below wave band``, ``0.5-1.0 m/s``, ...).
+    share : float
+        Share of the trial's excess squared gap (above the sensor noise) within its category
+        [0-1]; the shares of one category sum to one.
+    gap : float
+        Normalised RMS error inside the place [-].
+    n : int
+        Analysis samples in the place.
+    """
+
+    category: str
+    dof: str
+    name: str
+    share: float
+    gap: float
+    n: int
+
+
+@dataclass(frozen=True)
+class Trace:
+    """Time series for an overlay plot (windows joined with NaN between them).
+
+    Attributes
+    ----------
+    dof, channel : str
+        DOF and channel plotted.
+    kind : str
+        ``heldout`` (cross-validated predictions on the windows) or ``replay`` (whole trial).
+    effect : str or None
+        Label of the candidate in ``with_effect`` (None when there is none).
+    t : numpy.ndarray
+        Time [s, trial clock].
+    measured, baseline, with_effect : numpy.ndarray
+        Measured channel, baseline model, model with the effect [SI]; ``with_effect`` is all NaN
+        when ``effect`` is None.
+    """
+
+    dof: str
+    channel: str
+    kind: str
+    effect: str | None
+    t: np.ndarray
+    measured: np.ndarray
+    baseline: np.ndarray
+    with_effect: np.ndarray
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """Pooled PSD of the baseline's held-out residual of one channel.
+
+    Attributes
+    ----------
+    dof, channel : str
+        DOF and channel.
+    omega : numpy.ndarray
+        Frequency [rad/s].
+    psd : numpy.ndarray
+        One-sided PSD of the normalised residual [1/(rad/s)].
+    band : tuple[float, float]
+        Wave band used for the split [rad/s].
+    """
+
+    dof: str
+    channel: str
+    omega: np.ndarray
+    psd: np.ndarray
+    band: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class DofSummary:
+    """The baseline of one DOF and how it was analysed.
+
+    Attributes
+    ----------
+    dof : str
+        DOF name.
+    channels : tuple[str, ...]
+        Output channels scored.
+    inputs : tuple[str, ...]
+        Inputs driving it.
+    dt : float
+        Analysis step [s].
+    n_windows : int
+        Windows (segments and time blocks) replayed.
+    n_folds : int
+        Cross-validation folds.
+    baseline : tuple[EffectParam, ...]
+        Baseline parameters (``T`` [s], gains ``k_<input>``) with jackknife errors.
+    gap : float
+        Held-out gap of the baseline [-].
+    noise_floor : float
+        White-noise standard deviation of the response at the analysis step [SI]: the unit of
+        the gaps (a gap of 1 is measurement noise, not model error).
+    replay_gap : float
+        Gap of the baseline replayed over the whole trial from its start [-].
+    """
+
+    dof: str
+    channels: tuple[str, ...]
+    inputs: tuple[str, ...]
+    dt: float
+    n_windows: int
+    n_folds: int
+    baseline: tuple[EffectParam, ...]
+    gap: float
+    noise_floor: float
+    replay_gap: float
+
+
+#: How the diagnosis ranks candidates (written into every GapReport and its JSON).
+RANKING_RULE = (
+    "candidates are ranked by their held-out shrink: 100 (1 - gap_after / gap_before) of the RMS gap over "
+    "the channels of the DOF they act on, each step refitted on training windows and scored on held-out "
+    "ones; only significant candidates (held-out F test below alpha, shrink and explained error above "
+    "their minimums) can be selected; forward selection takes the best, refits the rest on top of it, "
+    "and stops when none is significant")
+
+
+@dataclass(frozen=True)
+class SelectedEffect:
+    """One step of the forward selection.
+
+    Attributes
+    ----------
+    step : int
+        1 for the verdict, 2 for the effect selected on top of it, ...
+    effect, dof, label : str
+        Effect name, DOF, label (``effect[input]`` for per-input candidates).
+    input_channel : str or None
+        Input, regressor or sensor group concerned.
+    gap_before, gap_after : float
+        The DOF's held-out gap with the effects selected before this one, and with this one added [-].
+    shrink : float
+        ``100 (1 - gap_after / gap_before)`` [%] on top of the previous steps.
+    trial_gap_after : float
+        The trial's held-out gap with every effect up to this one [-].
+    p_value : float
+        Held-out F-test p-value of this step.
+    params : tuple[EffectParam, ...]
+        The effect's fitted parameters with jackknife errors.
+    why : str
+        How the name was decided when it is not the candidate's own (``sensor_delay``: which
+        channel driven by the same inputs showed no delay).
+    candidate : str
+        Label of the candidate that was selected (``actuator_delay`` behind a ``sensor_delay``).
+    """
+
+    step: int
+    effect: str
+    dof: str
+    label: str
+    input_channel: str | None
+    gap_before: float
+    gap_after: float
+    shrink: float
+    trial_gap_after: float
+    p_value: float
+    params: tuple[EffectParam, ...] = ()
+    why: str = ""
+    candidate: str = ""
+
+
+@dataclass(frozen=True)
+class Unexplained:
+    """A channel whose held-out gap stays above the noise after every selected effect.
+
+    Attributes
+    ----------
+    dof, channel : str
+        DOF and channel.
+    gap : float
+        Held-out gap left after the selected effects [-] (1 = sensor noise).
+    share : float
+        Share of the trial's remaining excess squared gap (above 1 per channel) in this channel [0-1].
+    p_value : float
+        Chi-square test of "only noise is left": probability of an RMS this large from white noise
+        of unit variance with the channel's effective number of independent samples.
+    place : str
+        Where most of this DOF's gap lives (segment kind and operating regime).
+    band : str
+        Frequency band holding most of the residual's power (below, in or above the wave band).
+    peak_omega : float
+        Frequency of the residual's spectral peak [rad/s].
+    correlations : Mapping[str, float]
+        Correlation of the residual with speed (``sog`` or ``u``), with each input, and with
+        ``cos``/``sin`` of the heading [-1, 1].
+    looks_like : str
+        One sentence: what the residual looks like.
+    """
+
+    dof: str
+    channel: str
+    gap: float
+    share: float
+    p_value: float
+    place: str = ""
+    band: str = ""
+    peak_omega: float = float("nan")
+    correlations: Mapping[str, float] = field(default_factory=dict)
+    looks_like: str = ""
+
+
+@dataclass(frozen=True)
+class GapReport:
+    """The diagnosis of one trial.
+
+    Attributes
+    ----------
+    trial, vessel : str
+        Names.
+    effect, dof : str or None
+        Verdict: the best significant candidate, or None.
+    gap_before, gap_after : float
+        Trial gap (held out) of the baseline and of the model with the verdict's effect added in
+        every DOF where it is significant [-].
+    candidates : tuple[CandidateResult, ...]
+        Every candidate in every DOF, best (largest gain) first.
+    places : tuple[Place, ...]
+        Where the baseline's gap lives, largest share first.
+    dofs : tuple[DofSummary, ...]
+        Per-DOF baselines.
+    traces : tuple[Trace, ...]
+        Overlay series (held-out, with the verdict's or DOF's best candidate; and replays).
+    spectra : tuple[Spectrum, ...]
+        Residual spectra per channel.
+    thresholds : Mapping[str, float]
+        Significance constants used.
+    notes : tuple[str, ...]
+        What was done and what was doubtful.
+    effects : tuple[SelectedEffect, ...]
+        Forward selection: the verdict first, then each effect significant on top of the previous ones.
+    gap_final : float
+        Trial gap (held out) with every selected effect [-].
+    unexplained : tuple[Unexplained, ...]
+        Channels whose gap stays above the noise after the selected effects, largest share first.
+    ranking_rule : str
+        The rule the candidates are ranked and selected by.
+    unexplained_test : str
+        The test that decides whether a channel's remaining gap is unexplained.
+    """
+
+    trial: str
+    vessel: str
+    effect: str | None
+    dof: str | None
+    gap_before: float
+    gap_after: float
+    candidates: tuple[CandidateResult, ...]
+    places: tuple[Place, ...] = ()
+    dofs: tuple[DofSummary, ...] = ()
+    traces: tuple[Trace, ...] = field(default=(), repr=False)
+    spectra: tuple[Spectrum, ...] = field(default=(), repr=False)
+    thresholds: Mapping[str, float] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+    effects: tuple[SelectedEffect, ...] = ()
+    gap_final: float = float("nan")
+    unexplained: tuple[Unexplained, ...] = ()
+    ranking_rule: str = RANKING_RULE
+    unexplained_test: str = ""
+
+    @property
+    def status(self) -> str:
+        """``explained`` (nothing left above the noise), ``partly explained`` (effects selected, a
+        gap left) or ``unexplained`` (no library effect, a gap left); ``model fine`` only when
+        there is neither an effect nor a gap left."""
+        if self.unexplained:
+            return "partly explained" if self.effects else "unexplained"
+        return "explained" if self.effects else "model fine"
+
+    @property
+    def shrink(self) -> float:
+        """``100 (1 - gap_after / gap_before)`` [%] (0 when there is no verdict)."""
+        return 100.0 * (1.0 - self.gap_after / self.gap_before) if self.gap_before > 0 else 0.0
+
+    @property
+    def verdict(self) -> CandidateResult | None:
+        """The winning candidate, if any."""
+        if self.effects:
+            first = self.effects[0]
+            return next((c for c in self.candidates if c.dof == first.dof and c.label == first.candidate), None)
+        for c in self.candidates:
+            if c.significant and c.effect == self.effect and c.dof == self.dof:
+                return c
+        return None
+
+    def to_dict(self) -> dict[str, object]:
+        """The JSON contract of ``vesselid diagnose --json`` (NaN and inf become null).
+
+        ``{"verdict": {"effect", "dof"}, "gap_before", "gap_after", "shrink", "candidates":
+        [{"effect", "dof", "gap_before", "gap_after", "shrink", "significant", ...}], ...}``
+        """
+        def num(x: float) -> float | None:
+            return float(x) if x is not None and math.isfinite(float(x)) else None
+
+        def params(ps: tuple[EffectParam, ...]) -> dict:
+            return {p.name: {"value": num(p.value), "stderr": num(p.stderr), "unit": p.unit} for p in ps}
+
+        return {
+            "trial": self.trial,
+            "vessel": self.vessel,
+            "verdict": {"effect": self.effect, "dof": self.dof},
+            "gap_before": num(self.gap_before),
+            "gap_after": num(self.gap_after),
+            "shrink": num(self.shrink),
+            "candidates": [{
+                "effect": c.effect, "dof": c.dof, "label": c.label, "input": c.input_channel,
+                "gap_before": num(c.gap_before), "gap_after": num(c.gap_after), "shrink": num(c.shrink),
+                "explained": num(c.explained), "p_value": num(c.p_value), "significant": bool(c.significant),
+                "params": params(c.params),
+            } for c in self.candidates],
+            "dofs": [{
+                "dof": d.dof, "channels": list(d.channels), "inputs": list(d.inputs), "dt": num(d.dt),
+                "windows": d.n_windows, "folds": d.n_folds, "baseline": params(d.baseline), "gap": num(d.gap),
+                "noise_floor": num(d.noise_floor), "replay_gap": num(d.replay_gap),
+            } for d in self.dofs],
+            "places": [{"category": p.category, "dof": p.dof, "name": p.name, "share": num(p.share),
+                        "gap": num(p.gap), "n": p.n} for p in self.places],
+            "thresholds": {k: num(v) for k, v in self.thresholds.items()},
+            "notes": list(self.notes),
+            "status": self.status,
+            "effects": [{
+                "step": e.step, "effect": e.effect, "dof": e.dof, "label": e.label, "input": e.input_channel,
+                "gap_before": num(e.gap_before), "gap_after": num(e.gap_after), "shrink": num(e.shrink),
+                "trial_gap_after": num(e.trial_gap_after), "p_value": num(e.p_value), "params": params(e.params),
+                "why": e.why, "candidate": e.candidate,
+            } for e in self.effects],
+            "gap_final": num(self.gap_final),
+            "unexplained": [{
+                "dof": u.dof, "channel": u.channel, "gap": num(u.gap), "share": num(u.share),
+                "p_value": num(u.p_value), "place": u.place, "band": u.band, "peak_omega": num(u.peak_omega),
+                "correlations": {k: num(v) for k, v in u.correlations.items()}, "looks_like": u.looks_like,
+            } for u in self.unexplained],
+            "ranking_rule": self.ranking_rule,
+            "unexplained_test": self.unexplained_test,
+        }

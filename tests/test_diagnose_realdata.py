@@ -47,7 +47,7 @@ def test_aauship_yaw_decays(tmp_path):
     # level off short of zero (the thrusters spin down), and the windows here stop once the rate
     # has lost most of its peak, which weights the faster start: T of a few seconds.
     assert 1.0 < t_const < 7.0
-    assert rep.effect in (None,) + EFFECTS
+    assert rep.effect in (None, "sensor_delay") + EFFECTS
     assert rep.candidates and all(c.dof == "yaw" for c in rep.candidates)
 
 
@@ -63,4 +63,4 @@ def test_catamaran_yaw_steps(tmp_path):
     # The authors' first-order fit: T = 1.2 s under thrust, slower coasting; a positive time
     # constant of that order, and a finite gap, is what a sane baseline gives here.
     assert 0.3 < t_const < 10.0 and np.isfinite(rep.gap_before)
-    assert rep.effect in (None,) + EFFECTS
+    assert rep.effect in (None, "sensor_delay") + EFFECTS

@@ -12,9 +12,10 @@ import pandas as pd
 import pytest
 
 from pipeline.diagnose.candidates import delay_input, rate_limit
-from pipeline.diagnose.models import GridData, LinearSpec, effective_forcing, predict_linear, solve_linear
+from pipeline.diagnose.gridfit import GridData, LinearSpec, predict_linear, solve_linear
+from pipeline.model.first_order_blocks import effective_forcing
 from pipeline.diagnose.problem import Window, block_average, block_noise, input_moments
-from pipeline.diagnose.records import CandidateResult, EffectParam, GapReport
+from pipeline.records import CandidateResult, EffectParam, GapReport
 from pipeline.diagnose.waves import fit_wave_spectrum, smooth_waves
 from pipeline.model import integrate_rk4
 from pipeline.model.nomoto import NomotoParams, nomoto_rhs

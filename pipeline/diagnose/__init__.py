@@ -12,7 +12,7 @@ the boat, which unmodelled effect explains it, and how far the gap shrinks with 
 """
 
 from .candidates import EFFECTS
-from .records import CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Place, Spectrum, Trace
+from ..records import CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Place, Spectrum, Trace
 from .segments import diagnose_segments
 from .verdict import diagnose
 

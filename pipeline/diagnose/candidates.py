@@ -24,10 +24,11 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.optimize
 
-from .models import (GridData, LinearSpec, effective_forcing, fit_linear, initial_states, outputs_from_response,
+from ..model.first_order_blocks import effective_forcing
+from .gridfit import (GridData, LinearSpec, fit_linear, initial_states, outputs_from_response,
                      predict_linear, refine_initial_states, refit_linear,
                      simulate_quadratic, solve_linear, weighted_residuals)
-from .problem import DofProblem, block_average, input_moments
+from .problem import INPUT_HISTORY_T, DofProblem, block_average, input_moments
 from . import waves as wave_model
 
 #: Effect names, in the order candidates are tried (ties go to the simpler, earlier one).
@@ -38,7 +39,7 @@ FORCE_INPUTS = ("tau_x", "tau_y", "tau_n", "tau_k", "tau_m")
 #: Largest quadratic-to-linear damping ratio at the largest speed of the data.
 D2_MAX = 20.0
 #: Delay search range in time constants of the DOF.
-DELAY_MAX_T = 0.6
+DELAY_MAX_T = INPUT_HISTORY_T
 #: Rate-limit search: full-swing times from this fraction of T ...
 RATE_SWING_MIN_T = 0.02
 #: ... to this many T.

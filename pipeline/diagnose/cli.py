@@ -4,9 +4,17 @@ Writes the diagnosis contract (:meth:`pipeline.diagnose.records.GapReport.to_dic
 
     {"verdict": {"effect": name or null, "dof": name or null}, "gap_before": number,
      "gap_after": number, "shrink": number,
-     "candidates": [{"effect", "dof", "gap_before", "gap_after", "shrink", "significant", ...}], ...}
+     "candidates": [{"effect", "dof", "gap_before", "gap_after", "shrink", "significant", ...}],
+     "effects": [{"step", "effect", "dof", "gap_before", "gap_after", "shrink", "trial_gap_after", ...}],
+     "gap_final": number, "unexplained": [{"dof", "channel", "gap", "share", "place", "band",
+     "correlations", "looks_like", ...}], "status": "model fine" | "explained" | "partly explained" |
+     "unexplained", "ranking_rule": text, "unexplained_test": text, ...}
 
-and prints the verdict, the candidates that count and where the gap lives. Every error is a
+``verdict`` is the first of ``effects`` (forward selection). Effect names: the candidates'
+(``nonlinear_damping``, ``current``, ``actuator_delay``, ``actuator_rate_limit``, ``thrust_asymmetry``,
+``waves``, ``coupling``) and ``sensor_delay`` (an input delay that another channel driven by the same
+inputs does not show). It prints what is unexplained first, then the verdict and the further
+effects, the candidates that count and where the gap lives. Every error is a
 :class:`pipeline.errors.DiagnoseError` naming what was expected and what was found.
 """
 
@@ -108,17 +116,40 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
-def _summary(report) -> str:
-    """Terminal summary: verdict, the candidates that count, the top places."""
+def _unexplained_lines(report) -> list[str]:
+    """What is left unexplained, printed before anything else (never reads as "model fine")."""
     lines = []
+    if report.unexplained:
+        head = ("UNEXPLAINED: no library effect explains the gap" if not report.effects else
+                "UNEXPLAINED: a gap is left after the selected effects")
+        lines.append(f"{head} (trial gap {report.gap_before:.3g} -> {report.gap_final:.3g} noise units; "
+                     f"1 = sensor noise only)")
+        for u in report.unexplained[:5]:
+            lines.append(f"  {u.dof} {u.channel}: gap {u.gap:.3g} noise units, {100 * u.share:.0f}% of what is left"
+                         + (f", mostly in {u.place}" if u.place else "") + f"; {u.looks_like}")
+    return lines
+
+
+def _summary(report) -> str:
+    """Terminal summary: what is unexplained first, then the verdict and further effects, the
+    candidates that count, and the top places."""
+    lines = _unexplained_lines(report)
     v = report.verdict
-    if v is None:
-        lines.append(f"verdict: no effect beyond noise (trial gap {report.gap_before:.3g} noise units)")
-    else:
-        params = ", ".join(f"{p.name} = {p.value:.4g} +- {p.stderr:.2g} {p.unit}" for p in v.params)
-        lines.append(f"verdict: {v.effect} in {v.dof}" + (f" [{v.input_channel}]" if v.input_channel else "")
-                     + f": {v.dof} gap {v.gap_before:.3g} -> {v.gap_after:.3g} ({v.shrink:.1f}%), trial gap "
-                     f"{report.gap_before:.3g} -> {report.gap_after:.3g} ({report.shrink:.1f}%); {params}")
+    if not report.effects:
+        if report.unexplained:
+            lines.append("verdict: none of the library's effects is significant -- the model is NOT fine, see above")
+        else:
+            lines.append(f"verdict: no effect, and nothing left above the sensor noise (trial gap "
+                         f"{report.gap_before:.3g} noise units)")
+    for e in report.effects:
+        params = ", ".join(f"{p.name} = {p.value:.4g} +- {p.stderr:.2g} {p.unit}" for p in e.params)
+        head = "verdict" if e.step == 1 else f"effect {e.step}"
+        lines.append(f"{head}: {e.effect} in {e.dof}" + (f" [{e.input_channel}]" if e.input_channel else "")
+                     + f": {e.dof} gap {e.gap_before:.3g} -> {e.gap_after:.3g} ({e.shrink:.1f}%), trial gap now "
+                     f"{e.trial_gap_after:.3g}; {params}" + (f" ({e.why})" if e.why else ""))
+    if report.effects:
+        lines.append(f"trial gap {report.gap_before:.3g} -> {report.gap_final:.3g} noise units with every selected "
+                     f"effect (verdict alone: {report.gap_after:.3g})")
     shown = [c for c in report.candidates if c.significant] or list(report.candidates[:3])
     lines.append(f"{'dof':<6} {'candidate':<28} {'gap before':>10} {'gap after':>10} {'shrink %':>9} {'p':>9}  significant")
     for c in shown[:10]:
@@ -127,4 +158,6 @@ def _summary(report) -> str:
     top = [p for p in report.places if p.share > 0][:5]
     if top:
         lines.append("where: " + "; ".join(f"{p.dof} {p.category} {p.name} {100 * p.share:.0f}%" for p in top))
+    lines.append(f"ranking: {report.ranking_rule}")
+    del v
     return "\n".join(lines)

@@ -15,7 +15,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from .candidates import Candidate, Fitted, candidate_label
-from .models import GridData
+from .gridfit import GridData
 from .problem import DofProblem
 
 #: Largest number of folds.

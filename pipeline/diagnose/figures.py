@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from ..atomic import atomic_path
 from ..errors import DiagnoseError
 from ..records import ANGLE_CHANNELS, CHANNEL_UNITS
-from .records import GapReport, Trace
+from ..records import GapReport, Trace
 
 #: Resolution of every PNG [dots per inch].
 DPI = 110

@@ -11,7 +11,7 @@ import math
 from typing import Mapping
 
 from .figures import figure_names
-from .records import CandidateResult, EffectParam, GapReport
+from ..records import CandidateResult, EffectParam, GapReport
 
 TITLE = "Sim-to-real gap"
 
@@ -30,19 +30,49 @@ def _param(p: EffectParam) -> str:
     return f"{_e(p.name)} = {_num(p.value, '.4g')}{se}{unit}"
 
 
+def _unexplained_html(report: GapReport) -> str:
+    """The section's lead when a gap is left: what, where, what it looks like."""
+    if not report.unexplained:
+        return ""
+    head = ("No effect of the library explains the gap: the model is not fine." if not report.effects else
+            "A gap is left after the selected effects.")
+    rows = "\n".join(
+        f"<tr><td>{_e(u.dof)}</td><td>{_e(u.channel)}</td><td class=\"num\">{_num(u.gap)}</td>"
+        f"<td class=\"num\">{_num(100 * u.share, '.0f')}</td><td>{_e(u.place or '-')}</td>"
+        f"<td>{_e(u.band or '-')} (peak {_num(u.peak_omega)} rad/s)</td><td>{_e(u.looks_like)}</td></tr>"
+        for u in report.unexplained)
+    return (f"<div class=\"unexplained\" style=\"border-left:4px solid #c33;padding-left:8px\">"
+            f"<p><b>Unexplained.</b> {_e(head)} Trial gap {_num(report.gap_before)} &rarr; "
+            f"{_num(report.gap_final)} noise units (1 = sensor noise only).</p>"
+            "<table><caption>Channels whose held-out gap stays above the noise ("
+            f"{_e(report.unexplained_test)}).</caption><thead><tr><th>DOF</th><th>channel</th><th>gap</th>"
+            "<th>share [%]</th><th>where</th><th>band</th><th>what it looks like</th></tr></thead>"
+            f"<tbody>{rows}</tbody></table></div>")
+
+
 def _verdict_text(report: GapReport) -> str:
     v = report.verdict
-    if v is None:
+    if not report.effects or v is None:
+        if report.unexplained:
+            return ("<p><b>Verdict: none of the library's effects is significant.</b> This is not a clean bill: "
+                    "the gap above is left unexplained.</p>")
         return (f"<p><b>Verdict: no effect.</b> No candidate improves the held-out gap beyond what noise alone "
-                f"produces (trial gap {_num(report.gap_before)} in units of the sensor noise; 1 means only noise "
-                f"is left).</p>")
-    params = "; ".join(_param(p) for p in v.params) or "no parameter"
-    return (f"<p><b>Verdict: {_e(v.effect)} in {_e(v.dof)}</b>"
-            + (f" (input {_e(v.input_channel)})" if v.input_channel else "")
-            + f". Adding it shrinks the held-out gap of {_e(v.dof)} from {_num(v.gap_before)} to "
-            f"{_num(v.gap_after)} ({_num(v.shrink, '.1f')}%), and the whole trial's from "
-            f"{_num(report.gap_before)} to {_num(report.gap_after)} ({_num(report.shrink, '.1f')}%). "
-            f"Fitted: {params}. p = {_num(v.p_value, '.2g')}.</p>")
+                f"produces, and nothing is left above the noise (trial gap {_num(report.gap_before)} in units of the "
+                f"sensor noise; 1 means only noise is left).</p>")
+    items = []
+    for e in report.effects:
+        params = "; ".join(_param(p) for p in e.params) or "no parameter"
+        items.append(f"<li><b>{_e(e.effect)} in {_e(e.dof)}</b>"
+                     + (f" ({_e(e.input_channel)})" if e.input_channel else "")
+                     + f": {_e(e.dof)} gap {_num(e.gap_before)} &rarr; {_num(e.gap_after)} "
+                     f"({_num(e.shrink, '.1f')}% on top of the effects above), trial gap now "
+                     f"{_num(e.trial_gap_after)}; p = {_num(e.p_value, '.2g')}; {params}."
+                     + (f" <i>{_e(e.why)}</i>" if e.why else "") + "</li>")
+    first = report.effects[0]
+    return (f"<p><b>Verdict: {_e(first.effect)} in {_e(first.dof)}</b>. Effects selected in order "
+            f"(forward selection, each held out and significance-tested on top of the ones before):</p>"
+            f"<ol>{''.join(items)}</ol><p>Trial gap {_num(report.gap_before)} &rarr; {_num(report.gap_after)} with "
+            f"the verdict alone, {_num(report.gap_final)} with every selected effect.</p>")
 
 
 def _candidate_rows(cands: tuple[CandidateResult, ...]) -> str:
@@ -73,7 +103,8 @@ def diagnose_html_section(report: GapReport, figures: Mapping[str, str] | None =
         Section title and HTML fragment.
     """
     figs = figure_names(report) if figures is None else dict(figures)
-    parts = [_verdict_text(report)]
+    parts = [p for p in (_unexplained_html(report), _verdict_text(report)) if p]
+    parts.append(f"<p class=\"notes\">Ranking rule: {_e(report.ranking_rule)}.</p>")
     parts.append(
         "<p class=\"notes\">Gaps are held-out RMS errors of the open-loop simulation (every window predicted by a "
         "model fitted without it, re-initialised from the measured state at the window start), in units of each "

@@ -9,7 +9,7 @@ cross-validation has enough independent pieces.
 Signals are block-averaged from the trial rate to an analysis step ``dt`` of about a twentieth of
 the DOF's time constant (capped so that the wave band stays resolved), which keeps the refits fast
 on long trials without losing the dynamics: averaging is a proper anti-alias filter, and the
-models predict block averages exactly (see :mod:`pipeline.diagnose.models`).
+models predict block averages exactly (see :mod:`pipeline.diagnose.gridfit`).
 """
 
 from __future__ import annotations
@@ -192,7 +192,7 @@ def block_average(x: np.ndarray, windows: tuple[Window, ...], m: int, n: int, tr
 def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) -> np.ndarray:
     """Moments of a held input within each block: ``sum u_j``, ``sum (m-1-j) u_j``, ``sum (m-1-j)^2 u_j``.
 
-    They let :mod:`pipeline.diagnose.models` weight the samples of a block by how long each acts
+    They let :mod:`pipeline.diagnose.gridfit` weight the samples of a block by how long each acts
     before the block ends (an input switching inside a block, as a zig-zag's does), to second order
     in ``h / T``, for any time constant T.
 
@@ -461,6 +461,37 @@ def quick_time_constant(y: np.ndarray, u: np.ndarray | None, fs: float, windows:
     return float(-1.0 / coef[0])
 
 
+#: Longest input delay searched, in time constants (the delay candidate's range).
+INPUT_HISTORY_T = 0.6
+
+
+def _after_record_starts(trial: Trial, windows: list[Window], hist: float, keep_all: bool = False) -> list:
+    """Move window starts that lie within ``hist`` seconds after the start of the record (or the
+    end of a dropout or run gap) to ``hist`` seconds after it.
+
+    A delayed input needs its history: what the actuators did before the record began is not
+    logged, and a model that assumes the first logged value was acting all along turns a step
+    from rest at the first sample into a spurious "no delay". Replay never integrates across a
+    gap, so every run start is a record start. (Assumption kept explicit: runs of one trial are
+    laid end to end on the trial clock with a gap between them.) With ``keep_all`` a window that
+    becomes too short is returned as None in its place.
+    """
+    t = trial.t
+    starts = [float(t[0])] + [float(g.t_end) for g in trial.gaps]
+    out = []
+    for w in windows:
+        s0 = max((s for s in starts if s <= w.t0 + 1e-9), default=float(t[0]))
+        if w.t0 - s0 < hist:
+            i0 = int(np.searchsorted(t, s0 + hist))
+            if w.i1 - i0 < 4:
+                if keep_all:
+                    out.append(None)
+                continue
+            w = Window(i0, w.i1, float(t[i0]), w.t1, w.kinds, w.dofs, w.label)
+        out.append(w)
+    return out
+
+
 #: Most analysis samples per DOF problem (over all windows): bounds the cost of a refit on long
 #: trials; the step grows beyond T/20 only when the windows are longer than this many steps.
 MAX_SAMPLES = 12000
@@ -561,6 +592,15 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         t_const = quick_time_constant(y, u_sum, fs, own_w or windows0)
         if not np.isfinite(t_const) or t_const <= 0:
             t_const = 0.2 * float(np.median([w.t1 - w.t0 for w in (own_w or windows0)]))
+    if inputs:
+        # At most a quarter of the shortest own window is given up for the input history.
+        shortest = min((w.t1 - w.t0 for w in (own_w or windows0)), default=0.0)
+        hist = min(INPUT_HISTORY_T * t_const, 0.25 * shortest)
+        moved = dict(zip(map(id, windows0), _after_record_starts(trial, windows0, hist, keep_all=True)))
+        own_w = [moved[id(w)] for w in own_w if id(w) in moved and moved[id(w)] is not None]
+        windows0 = [v for v in moved.values() if v is not None]
+        if not windows0:
+            return None
     total = sum(w.t1 - w.t0 for w in windows0)
     dt_target = min(max(t_const / STEPS_PER_T, 1.0 / fs, total / MAX_SAMPLES), DT_MAX)
     m = max(int(round(dt_target * fs)), 1)

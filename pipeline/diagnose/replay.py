@@ -17,9 +17,9 @@ import numpy as np
 
 from ..records import Trial
 from . import waves as wave_model
-from .models import GridData, grid_data
+from .gridfit import GridData, grid_data
 from .problem import DofProblem, Window, block_average
-from .records import Place, Spectrum, Trace
+from ..records import Place, Spectrum, Trace
 
 #: Bins of the operating-regime split.
 N_BINS = 3

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..fit.heldout_test import (ALPHA, ALPHA_ROBUST, MIN_EXPLAINED, MIN_SHRINK,  # noqa: F401 (re-exported)
                                 ChannelScore, channel_score, is_significant, lag1)
-from .models import GridData
+from .gridfit import GridData
 
 
 @dataclass(frozen=True)

@@ -17,11 +17,13 @@ from ..errors import DiagnoseError
 from ..records import CHANNEL_UNITS, Fits, Segments, Trial
 from ..vessel import Vessel
 from . import significance as sig
-from .candidates import Candidate, candidates_for
+from . import oscillatory as osc
+from . import selection as sel
+from .candidates import Candidate, candidate_label, candidates_for
 from .crossval import CandidateRun, cross_validate, jackknife_stderr
-from .models import grid_data
+from .gridfit import grid_data
 from .problem import DofProblem, build_problems
-from .records import CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
+from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
 from .replay import default_band, rank_places, replay, traces, where
 from .segments import diagnose_segments
 
@@ -103,7 +105,8 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
                             f"{[c for c in trial.data.columns if c != 't']}")
     t_consts = _refine_time_constants(trial, segs, vessel)
     problems = build_problems(trial, segs, vessel, time_constants=t_consts)
-    if not problems:
+    osc_problems = [q for q in (osc.build_oscillatory(trial, segs, dof) for dof in ("roll", "pitch")) if q is not None]
+    if not problems and not osc_problems:
         raise DiagnoseError(f"{trial.name}: expected a DOF whose response (u, v or r, or sog) is measured and "
                             f"excited by the segments, found none (channels "
                             f"{[c for c in trial.data.columns if c != 't']}, {len(segs.items)} segments)")
@@ -117,26 +120,18 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     results: list[CandidateResult] = []
     summaries: list[DofSummary] = []
     per_dof: dict[str, dict] = {}
+    states: dict[str, sel.DofState] = {}
     for p, d, cs in zip(problems, datas, cands):
-        runs = cross_validate(p, d, cs, tick=tick)
         names = {"y": p.channel, "angle": p.angle}
+        runs, scored, base_score = _score_dof(p, d, cs, tick)
         base = runs[0]
-        scored = []
-        for r in runs[1:]:
-            s = sig.score(d, base.heldout, r.heldout, r.candidate.n_extra, names, folds=base.fold_of)
-            res = CandidateResult(
-                effect=r.candidate.effect, dof=p.dof, label=r.label, input_channel=_input_of(r),
-                gap_before=s.gap_before, gap_after=s.gap_after, shrink=s.shrink, explained=s.explained,
-                p_value=s.p_value, significant=s.significant,
-                params=_params(r, p, r.full.effect_params),
-                model=_params(r, p, tuple(r.full.params)),
-                channels=tuple(ChannelGap(c.channel, c.gap_before, c.gap_after, c.p_value, c.n_eff) for c in s.channels),
-                gain=s.gain)
-            results.append(res)
-            scored.append((res, r, s))
-        base_score = sig.score(d, base.heldout, base.heldout, 1, names)
+        results += [res for res, _, _ in scored]
+        gaps, neff = sel.channel_gaps_of(base_score)
         per_dof[p.dof] = {"problem": p, "data": d, "runs": runs, "scored": scored, "names": names,
-                          "channel_gaps": {c.channel: c.gap_before for c in base_score.channels}}
+                          "channel_gaps": dict(gaps)}
+        states[p.dof] = sel.DofState(problem=p, data=d, results=[(res, r) for res, r, _ in scored],
+                                     base_heldout=base.heldout, channel_gaps=dict(gaps), channel_neff=dict(neff),
+                                     selected=[])
         resid = sig.heldout_residuals(d, base.heldout)
         floor = d.sigma_y
         summaries.append(DofSummary(
@@ -145,16 +140,46 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             gap=base_score.gap_before, noise_floor=float(floor), replay_gap=math.nan))
         per_dof[p.dof]["resid"] = resid
 
-    ranked = sorted(results, key=lambda c: -c.gain)
-    winner = next((c for c in ranked if c.significant), None)
+    for q in osc_problems:
+        res, base_run, cand_run, summary, state = _oscillatory_dof(q)
+        results.append(res)
+        summaries.append(summary)
+        states[q.dof] = state
+        per_dof[q.dof] = {"problem": q, "data": q.data, "runs": [base_run], "scored": [(res, cand_run, None)],
+                          "names": {"y": q.channel, "angle": q.angle}, "channel_gaps": dict(state.channel_gaps),
+                          "oscillatory": True}
+
+    ranked = sorted(results, key=sel.rank_key)
+    run_of = {(res.dof, res.label): r for v in per_dof.values() for res, r, _ in v["scored"]}
+
+    def rescore(state: sel.DofState) -> None:
+        """Cross-validate a DOF again on its corrected data (the next selection step)."""
+        p = state.problem
+        if isinstance(p, osc.OscProblem):
+            # One candidate only: once it is selected nothing is left to test in this DOF, and the
+            # old baseline's prediction on the corrected data leaves exactly the candidate's residual.
+            state.results = []
+            return
+        cs = [c for c in candidates_for(p, state.data) if candidate_label(c) not in state.selected]
+        runs2, scored2, bs = _score_dof(p, state.data, cs, None)
+        for res, r, _ in scored2:
+            run_of[(res.dof, "+" + res.label)] = r
+        state.results = [(res, r) for res, r, _ in scored2]
+        state.base_heldout = runs2[0].heldout
+        state.channel_gaps, state.channel_neff = sel.channel_gaps_of(bs)
+
+    chosen = sel.forward_select(states, rescore)
+    effects = sel.selected_effects(chosen, states, params_of=lambda res: res.params)
+    winner = chosen[0][0] if chosen else None
+    gap_final = chosen[-1][2] if chosen else sel.trial_gap(states)
 
     # Trial gap: RMS over every scored channel of every DOF.
     before = {(dof, ch): g for dof, v in per_dof.items() for ch, g in v["channel_gaps"].items()}
     after = dict(before)
     if winner is not None:
         for dof, v in per_dof.items():
-            best = max((res for res, _, _ in v["scored"] if res.significant and res.effect == winner.effect),
-                       key=lambda c: c.gain, default=None)
+            best = min((res for res, _, _ in v["scored"] if res.significant and res.effect == winner.effect),
+                       key=sel.rank_key, default=None)
             if best is not None:
                 for cg in best.channels:
                     after[(dof, cg.channel)] = cg.gap_after
@@ -166,6 +191,8 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     spectra = []
     all_traces: list[Trace] = []
     for i, (dof, v) in enumerate(per_dof.items()):
+        if v.get("oscillatory"):
+            continue
         p, d = v["problem"], v["data"]
         waves_run = next(((res, r) for res, r, _ in v["scored"] if res.effect == "waves"), None)
         band = default_band(p)
@@ -180,7 +207,7 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         spectra += sp
         # Overlays: the DOF's best significant candidate, else its best by gain.
         cand = [x for x in v["scored"] if x[0].significant] or v["scored"]
-        best = max(cand, key=lambda x: x[0].gain, default=None)
+        best = min(cand, key=lambda x: sel.rank_key(x[0]), default=None)
         base_run = v["runs"][0]
         if best is not None:
             all_traces += traces(p, d, base_run.heldout, best[1].heldout, best[0].label, "heldout", v["names"])
@@ -195,29 +222,90 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             gaps = [float(np.sqrt(np.nanmean(x**2))) for x in rr.values() if np.isfinite(x).any()]
             summaries[i] = _with_replay(summaries[i], float(np.sqrt(np.mean(np.square(gaps)))) if gaps else math.nan)
     places = rank_places(raw_places)
+    unexplained = sel.unexplained(states, places, trial, lambda p: {"y": p.channel, "angle": p.angle})
+    for e in effects:
+        if e.why:
+            notes.append(f"{e.label} in {e.dof}: {e.why}")
 
     if fits is not None:
         for key in ("K_nomoto", "T_nomoto", "X_u", "Y_v", "N_r"):
             e = fits.estimates.get(key)
             if e is not None and e.success:
                 notes.append(f"fit stage: {key} = {e.value:.4g} {e.unit}")
+    for q in osc_problems:
+        notes.append(f"{q.dof}: {len(q.windows)} windows ({', '.join(dict.fromkeys(w.label for w in q.windows))}), "
+                     f"channels {', '.join(q.outputs)}, second-order baseline (natural frequency, damping ratio"
+                     + (f", gain of {q.inputs[0]}" if q.inputs else ", free decays") + f"), analysis step {q.dt:.3g} s")
     for p in problems:
         notes.append(f"{p.dof}: {len(p.windows)} windows, response {p.channel}"
                      + (f" and heading {p.angle}" if p.angle else "")
                      + (f", inputs {', '.join(p.inputs)}" if p.inputs else ", no input (free decays)")
                      + f", analysis step {p.dt:.3g} s")
-    thresholds = {"alpha": sig.ALPHA, "alpha_robust": sig.ALPHA_ROBUST, "min_shrink_percent": sig.MIN_SHRINK,
+    thresholds = {"alpha_unexplained": sel.ALPHA_UNEXPLAINED, "unexplained_gap": sel.UNEXPLAINED_GAP,
+                  "min_unexplained_scale": sel.MIN_UNEXPLAINED_SCALE,
+                  "alpha": sig.ALPHA, "alpha_robust": sig.ALPHA_ROBUST, "min_shrink_percent": sig.MIN_SHRINK,
                   "min_explained": sig.MIN_EXPLAINED}
     return GapReport(
         trial=trial.name, vessel=vessel.name if vessel is not None else "",
-        effect=winner.effect if winner else None, dof=winner.dof if winner else None,
+        effect=effects[0].effect if effects else None, dof=effects[0].dof if effects else None,
         gap_before=gb, gap_after=ga if winner else gb, candidates=tuple(ranked), places=places,
         dofs=tuple(summaries), traces=tuple(all_traces), spectra=tuple(spectra), thresholds=thresholds,
-        notes=tuple(notes))
+        notes=tuple(notes), effects=effects, gap_final=gap_final, unexplained=unexplained,
+        ranking_rule=RANKING_RULE, unexplained_test=sel.UNEXPLAINED_TEST)
+
+
+def _oscillatory_dof(q):
+    """Cross-validate and score roll or pitch (:mod:`pipeline.diagnose.oscillatory`)."""
+    base_run, cand_run = osc.cross_validate(q)
+    names = {"y": q.channel, "angle": q.angle}
+    s = sig.score(q.data, base_run.heldout, cand_run.heldout, 1, names, folds=base_run.fold_of)
+
+    def eparams(run, keys):
+        se = jackknife_stderr(run.full, run.fold_params)
+        return tuple(EffectParam(k, float(run.full[k]), float(se.get(k, math.nan)), osc.UNITS.get(k, ""))
+                     for k in keys if k in run.full)
+
+    res = CandidateResult(
+        effect="nonlinear_damping", dof=q.dof, label="nonlinear_damping", input_channel=None,
+        gap_before=s.gap_before, gap_after=s.gap_after, shrink=s.shrink, explained=s.explained,
+        p_value=s.p_value, significant=s.significant, params=eparams(cand_run, ("d2",)),
+        model=eparams(cand_run, tuple(cand_run.full)),
+        channels=tuple(ChannelGap(c.channel, c.gap_before, c.gap_after, c.p_value, c.n_eff) for c in s.channels),
+        gain=s.gain)
+    bs = sig.score(q.data, base_run.heldout, base_run.heldout, 1, names)
+    gaps, neff = sel.channel_gaps_of(bs)
+    summary = DofSummary(dof=q.dof, channels=q.outputs, inputs=q.inputs, dt=q.dt, n_windows=len(q.windows),
+                         n_folds=int(base_run.fold_of.max()) + 1,
+                         baseline=eparams(base_run, tuple(base_run.full)), gap=bs.gap_before,
+                         noise_floor=float(q.data.sigma_y if q.rate else q.data.sigma_angle), replay_gap=math.nan)
+    state = sel.DofState(problem=q, data=q.data, results=[(res, cand_run)], base_heldout=base_run.heldout,
+                         channel_gaps=dict(gaps), channel_neff=dict(neff), selected=[])
+    return res, base_run, cand_run, summary, state
+
+
+def _score_dof(p: DofProblem, d, cs: list[Candidate], tick) -> tuple[list[CandidateRun], list, sig.Score]:
+    """Cross-validate and score every candidate of one DOF against its baseline (``cs[0]``)."""
+    runs = cross_validate(p, d, cs, tick=tick)
+    names = {"y": p.channel, "angle": p.angle}
+    base = runs[0]
+    scored = []
+    for r in runs[1:]:
+        s = sig.score(d, base.heldout, r.heldout, r.candidate.n_extra, names, folds=base.fold_of)
+        res = CandidateResult(
+            effect=r.candidate.effect, dof=p.dof, label=r.label, input_channel=_input_of(r),
+            gap_before=s.gap_before, gap_after=s.gap_after, shrink=s.shrink, explained=s.explained,
+            p_value=s.p_value, significant=s.significant,
+            params=_params(r, p, r.full.effect_params),
+            model=_params(r, p, tuple(r.full.params)),
+            channels=tuple(ChannelGap(c.channel, c.gap_before, c.gap_after, c.p_value, c.n_eff) for c in s.channels),
+            gain=s.gain)
+        scored.append((res, r, s))
+    base_score = sig.score(d, base.heldout, base.heldout, 1, names)
+    return runs, scored, base_score
 
 
 def _replay_sim(candidate: Candidate, fitted, data) -> dict[str, np.ndarray]:
-    from .models import predict_linear
+    from .gridfit import predict_linear
 
     spec, theta = fitted.state
     return predict_linear(data, spec, fitted.params["T"], theta)

@@ -22,6 +22,9 @@ import numpy as np
 import scipy.optimize
 import scipy.signal
 
+from ..model.waves import WaveParams
+from ..model.waves import wave_psd as model_wave_psd
+
 #: Lowest wave frequency searched, in units of 1/T of the DOF: below that the residual holds the
 #: model's own low-frequency error, which a wave model must not be allowed to soak up.
 BAND_LO_T = 2.5
@@ -76,11 +79,29 @@ class WaveSpectrum:
         return wave_psd(w, self.omega0, self.lam, self.sigma), self.n0 + self.a_lf / w**2
 
 
-def wave_psd(omega: np.ndarray, omega0: float, lam: float, sigma: float) -> np.ndarray:
-    """One-sided PSD [unit^2 s/rad] of the second-order wave model with variance ``sigma^2``.
+def kw_for_variance(omega0: float, lam: float, sigma: float) -> float:
+    """Gain ``K_w`` of :class:`pipeline.model.waves.WaveParams` whose one-sided spectrum
+    ``K_w^2 shape(omega)`` holds the variance ``sigma^2`` (the conversion between the model's
+    spectrum and a residual's measured variance).
 
     ``shape = omega^2 / ((omega0^2 - omega^2)^2 + (2 lam omega0 omega)^2)`` integrates to
-    ``pi / (4 lam omega0)`` over ``(0, inf)``.
+    ``pi / (4 lam omega0)`` over ``(0, inf)``, so ``K_w^2 = 4 lam omega0 sigma^2 / pi``.
+
+    Parameters
+    ----------
+    omega0 : float
+        Peak frequency [rad/s].
+    lam : float
+        Relative damping [-].
+    sigma : float
+        Standard deviation of the wave component [unit].
+    """
+    return float(np.sqrt(4.0 * lam * omega0 / np.pi) * sigma)
+
+
+def wave_psd(omega: np.ndarray, omega0: float, lam: float, sigma: float) -> np.ndarray:
+    """One-sided PSD [unit^2 s/rad] of the wave model (:func:`pipeline.model.waves.wave_psd`, the
+    project's one convention) scaled to the variance ``sigma^2`` (:func:`kw_for_variance`).
 
     Parameters
     ----------
@@ -93,9 +114,7 @@ def wave_psd(omega: np.ndarray, omega0: float, lam: float, sigma: float) -> np.n
     sigma : float
         Standard deviation of the wave component [unit].
     """
-    w = np.asarray(omega, float)
-    shape = w**2 / ((omega0**2 - w**2) ** 2 + (2 * lam * omega0 * w) ** 2)
-    return sigma**2 * shape * 4 * lam * omega0 / np.pi
+    return model_wave_psd(omega, WaveParams(omega0=omega0, lam=lam, kw=kw_for_variance(omega0, lam, sigma)))
 
 
 def search_band(t_const: float, dt: float) -> tuple[float, float]:

@@ -1,0 +1,434 @@
+"""Forward selection of several effects, sensor-or-actuator naming, and what stays unexplained.
+
+Ranking (:data:`pipeline.records.RANKING_RULE`): candidates are ranked by their held-out shrink of
+the RMS gap over the channels of the DOF they act on; only significant ones can be selected.
+
+Forward selection: the best significant candidate is the verdict. Its held-out correction (its
+cross-validated prediction minus the baseline's, so nothing of a held-out window leaks into its
+own fit) is taken off the measurements of its DOF, and every other candidate of that DOF is
+cross-validated and significance-tested again on top of it; the candidates of other DOFs are
+scored on separate problems and keep their scores. The next best significant candidate is
+selected, and so on, until none is significant (at most :data:`MAX_EFFECTS`). Working on the
+corrected measurements (backfitting; Hastie and Tibshirani 1990) lets any two effects of the
+library be stacked without writing every pair as one model.
+
+Sensor or actuator: an input delay and an output (sensor) delay look the same in one channel of a
+linear model. When another DOF, driven by inputs that change at the same instants and measured by a
+different sensor group, shows no such delay, the delay is in the first channel's sensor group, not
+in the actuators: :func:`sensor_or_actuator` renames it ``sensor_delay``.
+
+Unexplained (:func:`unexplained`): a channel whose held-out gap ``g`` (noise units) after the
+selected effects fails the test "only noise is left", ``n_eff g^2 ~ chi^2(n_eff)``, at
+``ALPHA_UNEXPLAINED`` and exceeds ``UNEXPLAINED_GAP`` (a model error of at least
+``sqrt(UNEXPLAINED_GAP^2 - 1)`` noise units RMS) and ``MIN_UNEXPLAINED_SCALE`` of the channel's
+scale, is reported with where its gap lives, the
+frequency band holding its power and its correlation with speed, inputs and heading.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Callable, Mapping
+
+import numpy as np
+import scipy.stats
+
+from ..records import CandidateResult, EffectParam, Place, SelectedEffect, Trial, Unexplained
+from . import significance as sig
+from .gridfit import GridData
+from .problem import DofProblem, block_average
+from .replay import band_split, default_band, pooled_psd
+
+#: Most effects selected one after the other.
+MAX_EFFECTS = 4
+#: Significance level of the "only noise is left" test of a channel's final gap.
+ALPHA_UNEXPLAINED = 1e-4
+#: Smallest final gap [noise units] called unexplained: below it the model error is under one
+#: noise unit RMS, which the noise estimate itself cannot tell apart from 1 reliably.
+UNEXPLAINED_GAP = 1.5
+#: Smallest model error called unexplained, relative to the channel's scale (its standard deviation
+#: over the DOF's own manoeuvres) [-]: ``sqrt(g^2 - 1)`` noise units must be at least this share of
+#: the signal, so that a first-order baseline's slight misfit of a large, clean heading record
+#: (statistically visible at low noise) is not called a gap.
+MIN_UNEXPLAINED_SCALE = 0.01
+#: Sensor groups by channel: a delay in one group that another group does not show is the sensor's.
+SENSOR_GROUPS: Mapping[str, str] = {
+    "sog": "gnss", "cog": "gnss", "x_n": "gnss", "y_e": "gnss", "lat": "gnss", "lon": "gnss",
+    "u": "velocity", "v": "velocity", "w": "velocity",
+    "p": "imu", "q": "imu", "r": "imu", "phi": "imu", "theta": "imu", "ax": "imu", "ay": "imu", "az": "imu",
+    "psi": "compass",
+}
+#: Share of one DOF's input changes that must coincide with the other's for "the same input".
+SAME_INPUT_SHARE = 0.8
+#: The other DOF "shows no delay" when its delay plus two standard errors stays under this
+#: fraction of the first DOF's delay.
+NO_DELAY_FRACTION = 0.5
+
+
+def rank_key(c: CandidateResult) -> float:
+    """Sort key of the ranking rule: larger held-out shrink first.
+
+    Parameters
+    ----------
+    c : CandidateResult
+        A scored candidate.
+    """
+    return -c.shrink if math.isfinite(c.shrink) else math.inf
+
+
+@dataclass
+class DofState:
+    """Where the forward selection stands in one DOF (mutable working state, never returned).
+
+    Attributes
+    ----------
+    problem : DofProblem
+        The DOF problem.
+    data : GridData
+        Measurements with the selected effects' corrections taken off.
+    results : list
+        ``(CandidateResult, CandidateRun)`` of the candidates on top of the current selection.
+    base_heldout : Mapping[str, numpy.ndarray]
+        Held-out outputs of the current baseline.
+    channel_gaps : dict[str, float]
+        Current held-out gap per channel [noise units].
+    channel_neff : dict[str, float]
+        Effective number of independent samples per channel.
+    selected : list[str]
+        Labels selected in this DOF.
+    """
+
+    problem: DofProblem
+    data: GridData
+    results: list
+    base_heldout: Mapping[str, np.ndarray]
+    channel_gaps: dict
+    channel_neff: dict
+    selected: list
+
+
+def corrected(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str, np.ndarray]) -> GridData:
+    """The measurements minus a candidate's held-out correction (``cand - base``).
+
+    Parameters
+    ----------
+    data : GridData
+        Current measurements.
+    base, cand : Mapping[str, numpy.ndarray]
+        Held-out outputs of the baseline and of the selected candidate.
+    """
+    dy = np.nan_to_num(cand["y"] - base["y"])
+    out = {"y": data.y - dy}
+    if data.angle is not None and "angle" in cand and "angle" in base:
+        out["angle"] = data.angle - np.nan_to_num(cand["angle"] - base["angle"])
+    new = replace(data, **out)
+    return new
+
+
+def trial_gap(states: Mapping[str, DofState]) -> float:
+    """RMS over every channel of every DOF of the current held-out gaps [noise units].
+
+    Parameters
+    ----------
+    states : Mapping[str, DofState]
+        Per-DOF state.
+    """
+    g = np.array([v for s in states.values() for v in s.channel_gaps.values()], float)
+    g = g[np.isfinite(g)]
+    return float(np.sqrt(np.mean(g**2))) if len(g) else math.nan
+
+
+def forward_select(states: dict[str, DofState], rescore: Callable[[DofState], None],
+                   max_effects: int = MAX_EFFECTS) -> list[tuple[CandidateResult, object]]:
+    """Select effects one after the other (see module docstring).
+
+    Parameters
+    ----------
+    states : dict[str, DofState]
+        Per-DOF state after the first round; updated in place as effects are selected.
+    rescore : callable
+        ``rescore(state)`` re-runs the cross-validation of a DOF on its corrected data and
+        replaces ``state.results``, ``state.base_heldout``, ``channel_gaps`` and ``channel_neff``.
+    max_effects : int
+        Most effects.
+
+    Returns
+    -------
+    list of (CandidateResult, SelectedEffect-without-name-decision)
+        The selected candidates in order, each with the trial gap after it.
+    """
+    chosen: list[tuple[CandidateResult, object, float]] = []
+    for _ in range(max_effects):
+        pool = [(res, run, s) for s in states.values() for res, run in s.results
+                if res.significant and res.label not in s.selected]
+        if not pool:
+            break
+        res, run, s = min(pool, key=lambda x: rank_key(x[0]))
+        for cg in res.channels:
+            s.channel_gaps[cg.channel] = cg.gap_after
+        chosen.append((res, run, trial_gap(states)))
+        s.selected.append(res.label)
+        if len(chosen) >= max_effects:
+            break
+        s.data = corrected(s.data, s.base_heldout, run.heldout)
+        rescore(s)
+    return chosen
+
+
+# --------------------------------------------------------------------------- sensor or actuator
+def input_change_times(p: DofProblem) -> np.ndarray:
+    """Trial sample indices where any input of a DOF changes (inside its windows).
+
+    Parameters
+    ----------
+    p : DofProblem
+        The DOF problem.
+    """
+    idx = []
+    for c in p.inputs:
+        u = np.nan_to_num(p.raw[c])
+        scale = max(float(np.max(np.abs(u))), 1e-12)
+        idx.append(np.flatnonzero(np.abs(np.diff(u)) > 1e-6 * scale) + 1)
+    out = np.unique(np.concatenate(idx)) if idx else np.zeros(0, int)
+    inside = np.zeros(len(out), bool)
+    for w in p.windows:
+        inside |= (out >= w.i0) & (out < w.i1)
+    return out[inside]
+
+
+def same_input(a: DofProblem, b: DofProblem) -> bool:
+    """True when DOF ``b`` is driven by the same input as ``a``: a shared input channel, or
+    input changes of ``a`` that coincide (within two samples) with changes of ``b``.
+
+    Parameters
+    ----------
+    a, b : DofProblem
+        Two DOF problems of one trial.
+    """
+    if set(a.inputs) & set(b.inputs):
+        return True
+    ta, tb = input_change_times(a), input_change_times(b)
+    if len(ta) < 2 or len(tb) < 2:
+        return False
+    near = np.min(np.abs(ta[:, None] - tb[None, :]), axis=1) <= 2
+    return bool(near.mean() >= SAME_INPUT_SHARE)
+
+
+def _param(res: CandidateResult, name: str) -> EffectParam | None:
+    return next((q for q in res.params if q.name == name), None)
+
+
+def sensor_or_actuator(res: CandidateResult, states: Mapping[str, DofState]) -> tuple[str, str | None, str]:
+    """Name a selected delay: ``actuator_delay`` or ``sensor_delay`` (with the sensor group).
+
+    Parameters
+    ----------
+    res : CandidateResult
+        A selected candidate.
+    states : Mapping[str, DofState]
+        Every analysed DOF (their delay candidates are the witnesses).
+
+    Returns
+    -------
+    (effect, input_channel, why)
+        The effect name to report, the input or sensor group, and the reason.
+    """
+    if res.effect != "actuator_delay":
+        return res.effect, res.input_channel, ""
+    tau = _param(res, "tau_d")
+    if tau is None or not tau.value > 0:
+        return res.effect, res.input_channel, ""
+    pa = states[res.dof].problem
+    group_a = SENSOR_GROUPS.get(pa.channel, pa.channel)
+    witnesses = []
+    for dof, s in states.items():
+        pb = s.problem
+        if dof == res.dof or not pb.inputs or SENSOR_GROUPS.get(pb.channel, pb.channel) == group_a:
+            continue
+        if not same_input(pa, pb):
+            continue
+        other = next((r for r, _ in s.results if r.effect == "actuator_delay"), None)
+        if other is None:
+            continue
+        tb = _param(other, "tau_d")
+        if tb is None or not math.isfinite(tb.value):
+            continue
+        se = tb.stderr if math.isfinite(tb.stderr) else 0.0
+        witnesses.append((dof, pb.channel, tb.value, se))
+    if not witnesses:
+        return res.effect, res.input_channel, (
+            f"no other channel driven by the same inputs through another sensor, so a delay of the "
+            f"{group_a} sensor cannot be told from an actuator delay")
+    quiet = [w for w in witnesses if w[2] + 2 * w[3] < NO_DELAY_FRACTION * tau.value]
+    if quiet:
+        dof, ch, v, se = quiet[0]
+        return "sensor_delay", group_a, (
+            f"{dof} ({ch}, another sensor) is driven by the same inputs and shows no such delay "
+            f"({v:.3g} +- {se:.2g} s against {tau.value:.3g} s): the {group_a} measurement lags")
+    dof, ch, v, se = witnesses[0]
+    return res.effect, res.input_channel, (
+        f"{dof} ({ch}), driven by the same inputs through another sensor, shows a delay too "
+        f"({v:.3g} +- {se:.2g} s): the inputs act late")
+
+
+def selected_effects(chosen, states: Mapping[str, DofState],
+                     params_of: Callable[[CandidateResult], tuple[EffectParam, ...]] | None = None,
+                     ) -> tuple[SelectedEffect, ...]:
+    """The selection as records, delays named sensor or actuator.
+
+    Parameters
+    ----------
+    chosen : list
+        :func:`forward_select`'s output.
+    states : Mapping[str, DofState]
+        Per-DOF state.
+    params_of : callable, optional
+        Parameters to report for a candidate (default its own).
+    """
+    out = []
+    for i, (res, _run, tg) in enumerate(chosen):
+        effect, inp, why = sensor_or_actuator(res, states)
+        label = res.label if effect == res.effect else f"{effect}[{inp}]"
+        out.append(SelectedEffect(step=i + 1, effect=effect, dof=res.dof, label=label, input_channel=inp,
+                                  gap_before=res.gap_before, gap_after=res.gap_after, shrink=res.shrink,
+                                  trial_gap_after=tg, p_value=res.p_value,
+                                  params=params_of(res) if params_of else res.params, why=why,
+                                  candidate=res.label))
+    return tuple(out)
+
+
+# --------------------------------------------------------------------------- unexplained
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
+    ok = np.isfinite(a) & np.isfinite(b)
+    if ok.sum() < 8:
+        return math.nan
+    x, y = a[ok] - a[ok].mean(), b[ok] - b[ok].mean()
+    den = math.sqrt(float(np.sum(x**2) * np.sum(y**2)))
+    return float(np.sum(x * y) / den) if den > 0 else math.nan
+
+
+def _looks_like(band: str, corr: Mapping[str, float], mean_share: float) -> str:
+    parts = []
+    if mean_share > 0.5:
+        parts.append("mostly a steady offset within each window")
+    parts.append({"below wave band": "slow (below the wave band): a model or force error more than noise",
+                  "in wave band": "oscillation in the wave band: waves or an unmodelled resonance",
+                  "above wave band": "fast (above the wave band): vibration, sensor or timing"}.get(band, band))
+    strong = sorted(((abs(v), k, v) for k, v in corr.items() if math.isfinite(v) and abs(v) >= 0.3), reverse=True)
+    if strong:
+        parts.append("correlates with " + ", ".join(f"{k} ({v:+.2f})" for _, k, v in strong[:3]))
+    else:
+        parts.append("no correlation of 0.3 or more with speed, inputs or heading")
+    return "; ".join(parts)
+
+
+def residual_character(p: DofProblem, resid: np.ndarray, trial: Trial) -> tuple[str, float, dict, str]:
+    """Frequency band, spectral peak and correlations of one channel's residual rows.
+
+    Parameters
+    ----------
+    p : DofProblem
+        The DOF problem (windows, analysis step).
+    resid : numpy.ndarray
+        Residual rows (W, n), NaN off-window.
+    trial : Trial
+        The trial (speed, inputs, heading).
+
+    Returns
+    -------
+    (band, peak_omega, correlations, looks_like)
+    """
+    band_edges = default_band(p)
+    split = band_split(resid, p.dt, band_edges)
+    band = max(split, key=split.get) if sum(split.values()) > 0 else ""
+    om, psd = pooled_psd(resid, p.dt)
+    peak = float(om[1:][np.argmax(psd[1:])]) if len(psd) > 2 else math.nan
+    total = float(np.nansum(resid**2))
+    cnt = np.isfinite(resid).sum(axis=1, keepdims=True)
+    means = np.where(cnt > 0, np.nansum(resid, axis=1, keepdims=True) / np.maximum(cnt, 1), 0.0)
+    mean_share = float(np.nansum(means**2 * cnt) / total) if total > 0 else 0.0
+    corr: dict[str, float] = {}
+    speed = "sog" if trial.has("sog") else ("u" if trial.has("u") else None)
+    series = {}
+    if speed:
+        series[f"speed ({speed})"] = trial.data[speed].to_numpy(float)
+    for c in p.inputs:
+        series[c] = np.nan_to_num(p.raw[c])
+    head = "psi" if trial.has("psi") else ("cog" if trial.has("cog") else None)
+    if head:
+        h = trial.data[head].to_numpy(float)
+        series[f"cos {head}"] = np.cos(h)
+        series[f"sin {head}"] = np.sin(h)
+    for name, x in series.items():
+        xb = block_average(x, p.windows, p.m, p.n, trapezoid=True)
+        corr[name] = _corr(resid.ravel(), xb.ravel())
+    return band, peak, corr, _looks_like(band, corr, mean_share)
+
+
+def unexplained(states: Mapping[str, DofState], places: tuple[Place, ...], trial: Trial,
+                names_of: Callable[[DofProblem], Mapping[str, str]]) -> tuple[Unexplained, ...]:
+    """Channels whose gap stays above the noise after the selected effects (see module docstring).
+
+    Parameters
+    ----------
+    states : Mapping[str, DofState]
+        Per-DOF state after the selection.
+    places : tuple[Place, ...]
+        Where the baseline's gap lives (the top non-channel place of the DOF is reported).
+    trial : Trial
+        The trial.
+    names_of : callable
+        Output key -> channel name of a DOF problem.
+    """
+    rows = []
+    for dof, s in states.items():
+        names = names_of(s.problem)
+        resid = sig.heldout_residuals(s.data, s.base_heldout)
+        units = sig.noise_units(s.data)
+        for key, ch in names.items():
+            if ch is None or ch not in s.channel_gaps:
+                continue
+            g = s.channel_gaps[ch]
+            n_eff = s.channel_neff.get(ch, math.nan)
+            if not (math.isfinite(g) and math.isfinite(n_eff) and n_eff > 1):
+                continue
+            pv = float(scipy.stats.chi2.sf(n_eff * g**2, n_eff))
+            rel = math.sqrt(max(g * g - 1.0, 0.0)) * units.get(key, math.nan)
+            if not (pv < ALPHA_UNEXPLAINED and g >= UNEXPLAINED_GAP and not rel < MIN_UNEXPLAINED_SCALE):
+                continue
+            r = resid.get(key)
+            r = r / units[key] if r is not None and math.isfinite(units.get(key, math.nan)) else r
+            band, peak, corr, looks = residual_character(s.problem, r, trial) if r is not None else ("", math.nan, {}, "")
+            place = next((f"{pl.category} {pl.name}" for pl in places
+                          if pl.dof == dof and pl.category not in ("channel", "frequency band") and pl.share > 0), "")
+            rows.append([dof, ch, g, pv, place, band, peak, corr, looks])
+    excess = np.array([max(r[2] ** 2 - 1.0, 0.0) for r in rows])
+    tot = float(excess.sum())
+    out = [Unexplained(dof=r[0], channel=r[1], gap=float(r[2]), share=float(e / tot) if tot > 0 else math.nan,
+                       p_value=float(r[3]), place=r[4], band=r[5], peak_omega=float(r[6]), correlations=r[7],
+                       looks_like=r[8]) for r, e in zip(rows, excess)]
+    return tuple(sorted(out, key=lambda u: -u.share if math.isfinite(u.share) else 0.0))
+
+
+UNEXPLAINED_TEST = (
+    f"a channel is unexplained when its held-out gap g after the selected effects fails the test 'only "
+    f"sensor noise is left' (n_eff g^2 against chi^2(n_eff), p < {ALPHA_UNEXPLAINED:g}, n_eff corrected for "
+    f"the residual's lag-1 autocorrelation), g >= {UNEXPLAINED_GAP:g} noise units, and the model error "
+    f"sqrt(g^2 - 1) noise units is at least {100 * MIN_UNEXPLAINED_SCALE:g}% of the channel's scale")
+
+
+def channel_gaps_of(base_score: sig.Score) -> tuple[dict, dict]:
+    """Per-channel gap and effective sample count of the current baseline.
+
+    Parameters
+    ----------
+    base_score : Score
+        The baseline scored against itself.
+    """
+    return ({c.channel: c.gap_before for c in base_score.channels},
+            {c.channel: c.n_eff for c in base_score.channels})
+
+
+__all__ = ["DofState", "channel_gaps_of", "forward_select", "rank_key", "selected_effects", "sensor_or_actuator",
+           "unexplained", "UNEXPLAINED_TEST"]

@@ -1,0 +1,117 @@
+"""Forward selection, sensor-or-actuator delays and the unexplained gap, on a twin-thruster boat
+whose surge and yaw are driven by the same two thrusters (so their inputs change together).
+
+The trials are simulated here (first-order surge and yaw, Euler at the log rate), written as
+canonical CSV and read back by ``load_trial``, so they are not made by the project's simulator.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.cli import main
+from pipeline.diagnose import diagnose
+from pipeline.flow import load_trial
+
+
+def twin_log(path, seed=1, gnss_lag=0.0, act_lag=0.0, quad_yaw=0.0, extra=None, fs=10.0, minutes=8.0):
+    """Write a twin-thruster trial as canonical CSV: thrusts held 25 s at random levels, GNSS speed
+    over ground (optionally ``gnss_lag`` s late), gyro and compass; returns the path."""
+    rng = np.random.default_rng(seed)
+    n = int(minutes * 60 * fs)
+    t = np.arange(n) / fs
+    hold = int(25 * fs)
+    t1 = np.repeat(rng.uniform(2, 12, n // hold + 1), hold)[:n]
+    t2 = np.repeat(rng.uniform(2, 12, n // hold + 1), hold)[:n]
+    tau_x, tau_n = t1 + t2, 0.3 * (t1 - t2)
+    al = int(round(act_lag * fs))
+    tx = np.concatenate([np.full(al, tau_x[0]), tau_x[:n - al]]) if al else tau_x
+    tn = np.concatenate([np.full(al, tau_n[0]), tau_n[:n - al]]) if al else tau_n
+    u, r, psi = np.zeros(n), np.zeros(n), np.zeros(n)
+    h = 1.0 / fs
+    for k in range(n - 1):
+        fr = -r[k] - quad_yaw * abs(r[k]) * r[k] + 0.05 * tn[k]
+        if extra is not None:
+            fr += extra(t[k])
+        u[k + 1] = u[k] + h * (-u[k] + 0.08 * tx[k]) / 6.0
+        r[k + 1] = r[k] + h * fr / 2.5
+        psi[k + 1] = psi[k] + h * r[k]
+    lag = int(round(gnss_lag * fs))
+    sog = np.concatenate([np.full(lag, u[0]), u[:n - lag]]) if lag else u
+    pd.DataFrame({"t": t, "sog": sog + 0.01 * rng.standard_normal(n), "r": r + 0.002 * rng.standard_normal(n),
+                  "psi": np.angle(np.exp(1j * (psi + 0.003 * rng.standard_normal(n)))),
+                  "tau_x": tau_x, "tau_n": tau_n}).to_csv(path, index=False)
+    return path
+
+
+def _report(tmp_path, name, **kw):
+    return diagnose(load_trial([twin_log(tmp_path / f"{name}.csv", **kw)], None))
+
+
+def test_clean_twin_is_model_fine(tmp_path):
+    rep = _report(tmp_path, "clean")
+    assert rep.effects == () and rep.unexplained == ()
+    assert rep.status == "model fine"
+    doc = rep.to_dict()
+    assert doc["verdict"] == {"effect": None, "dof": None}
+    assert doc["effects"] == [] and doc["unexplained"] == [] and doc["status"] == "model fine"
+    assert "shrink" in doc["ranking_rule"] and doc["gap_final"] == pytest.approx(doc["gap_before"])
+
+
+def test_gnss_lag_is_a_sensor_delay_not_an_actuator_delay(tmp_path):
+    rep = _report(tmp_path, "gnss", gnss_lag=0.6)
+    names = [(e.effect, e.dof, e.input_channel) for e in rep.effects]
+    assert ("sensor_delay", "surge", "gnss") in names, names
+    assert not any(e.effect == "actuator_delay" for e in rep.effects)
+    e = next(e for e in rep.effects if e.effect == "sensor_delay")
+    assert "yaw" in e.why and e.candidate == "actuator_delay"
+
+
+def test_actuator_lag_stays_an_actuator_delay(tmp_path):
+    rep = _report(tmp_path, "act", act_lag=0.6)
+    assert rep.effects and rep.effects[0].effect == "actuator_delay"
+    assert not any(e.effect == "sensor_delay" for e in rep.effects)
+    tau = next(p for p in rep.effects[0].params if p.name == "tau_d")
+    assert abs(tau.value - 0.6) < 0.15
+
+
+def test_two_effects_in_two_dofs_are_both_selected(tmp_path):
+    rep = _report(tmp_path, "two", act_lag=0.6, quad_yaw=8.0)
+    effects = {(e.effect, e.dof) for e in rep.effects}
+    assert ("actuator_delay", "surge") in effects and any(d == "yaw" for _, d in effects), effects
+    assert rep.effects[0].step == 1 and [e.step for e in rep.effects] == list(range(1, len(rep.effects) + 1))
+    # Each step shrinks the trial gap further, and the verdict is the first step.
+    gaps = [rep.gap_before] + [e.trial_gap_after for e in rep.effects]
+    assert all(b < a for a, b in zip(gaps, gaps[1:]))
+    assert (rep.effect, rep.dof) == (rep.effects[0].effect, rep.effects[0].dof)
+    assert rep.gap_final == pytest.approx(rep.effects[-1].trial_gap_after)
+
+
+def test_out_of_library_disturbance_is_unexplained_and_printed_first(tmp_path, capsys):
+    path = twin_log(tmp_path / "square.csv", extra=lambda t: 0.02 * np.sign(np.sin(2 * np.pi * t / 37.0)))
+    toml = tmp_path / "boat.toml"
+    toml.write_text('name = "twin"\n')
+    out = tmp_path / "d.json"
+    assert main(["diagnose", "--vessel", str(toml), str(path), "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["unexplained"], "a large gap no candidate explains must be reported"
+    assert doc["status"] in ("unexplained", "partly explained")
+    u = doc["unexplained"][0]
+    assert u["dof"] == "yaw" and u["gap"] > 3 and 0 < u["share"] <= 1
+    assert u["band"] and u["looks_like"] and set(u["correlations"]) >= {"tau_n", "tau_x"} - {"tau_x"}
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].startswith("UNEXPLAINED")
+    assert not any("nothing left above the sensor noise" in line for line in printed)
+
+
+def test_html_section_leads_with_the_unexplained_gap(tmp_path):
+    from pipeline.diagnose.html import diagnose_html_section
+
+    rep = _report(tmp_path, "sq", extra=lambda t: 0.02 * np.sign(np.sin(2 * np.pi * t / 37.0)))
+    _, html = diagnose_html_section(rep, figures={})
+    assert html.index("Unexplained") < html.index("Verdict")
+    assert "Ranking rule" in html and "no effect." not in html.lower().split("unexplained")[0]
