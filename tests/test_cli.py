@@ -17,7 +17,7 @@ from pipeline.sim.writers import write_log
 from pipeline.vessel import load_vessel
 
 ROOT = Path(__file__).resolve().parents[1]
-VESSEL_TOML = ROOT / "vessel_configs" / "aauship.toml"
+from conftest import AAUSHIP_TOML as VESSEL_TOML  # noqa: E402
 VESSEL = load_vessel(VESSEL_TOML)
 
 

@@ -1,0 +1,264 @@
+"""Long trials in bounded memory and time: wall time and peak memory of every stage against trial length.
+
+    python benchmarks/scaling.py [--minutes 10 30 60 120] [--out DIR] [--baseline-max 30]
+
+For each length, one continuous AAUSHIP sea trial is simulated (the identification programme of
+``pipeline.sim.sea_trial`` repeated with varied amplitudes, zig-zag angles and signs, as a day of
+trials would be: real manoeuvres, no concatenation, no jumps), written as canonical CSV through the
+real writer, and run through the CLI, one fresh process per command so each peak is its own:
+
+- ``vesselid align LOG --out trial.csv``
+- ``vesselid segment trial.csv --json segments.json``
+- ``vesselid fit --vessel V trial.csv --segments segments.json --json coefficients.json``
+- ``vesselid diagnose --vessel V trial.csv --json diagnosis.json``
+- ``vesselid run trial.toml`` (every stage from the raw log: the issue's target)
+
+Wall time (``time.perf_counter``) and peak resident memory (``os.wait4`` ``ru_maxrss`` of that
+process) are recorded per command and length; a straight line through them gives the cost per
+trial hour. Baseline in the same run: the previous grey-box implementation (``git show
+<--baseline-rev>:pipeline/fit/greybox.py``, loaded beside the new one) fitted to the same records
+for lengths up to ``--baseline-max`` minutes, its wall time, its Python peak memory
+(tracemalloc, same as the new one's) and every coefficient's difference in standard errors.
+
+Targets (issue 14): a 2-hour trial ``vesselid run`` < 60 s and < 1.5 GB; memory per extra trial
+hour < 0.5 GB; every coefficient as before within its standard error. Exit status 1 when a target
+is missed. Writes ``scaling.json`` and ``scaling.png`` into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline.sim import chain, free_decay, rudder_step, simulate, step_and_coast, zigzag  # noqa: E402
+from pipeline.sim.sensors import default_sensors  # noqa: E402
+from pipeline.sim.writers import write_log  # noqa: E402
+from pipeline.vessel import load_vessel  # noqa: E402
+
+VESSEL = ROOT / "vessel_configs" / "aauship.toml"
+COMMANDS = ("align", "segment", "fit", "diagnose", "run")
+
+
+def programme(vessel, minutes: float, seed: int = 0):
+    """A continuous trial of at least ``minutes``: the sea-trial programme repeated with variations."""
+    rng = np.random.default_rng(seed)
+    d = np.diag(vessel.damping)
+    m = np.diag(vessel.mass_matrix())
+    tc = m / d
+    speeds = {"surge": 1.5, "sway": 0.3, "yaw": 0.5}
+    rest_s = float(max(5.0, 3 * np.max(tc)))
+    items, total = [], 0.0
+    cycle = 0
+    while total < minutes * 60.0:
+        a = float(rng.uniform(0.6, 1.3))
+        sign = 1.0 if cycle % 2 == 0 else -1.0
+        block = []
+        for dof, i in (("surge", 0), ("sway", 1), ("yaw", 4)):
+            hold = max(6 * tc[i], 3.0)
+            block.append(step_and_coast(dof, sign * a * float(d[i] * speeds[dof]) if dof != "surge"
+                                        else a * float(d[i] * speeds[dof]), hold, hold))
+        for dof, i, angle in (("roll", 2, np.radians(20)), ("pitch", 3, np.radians(6))):
+            g = vessel.restoring.get(dof, 0.0)
+            wn = np.sqrt(g / m[i])
+            zeta = d[i] / (2 * np.sqrt(g * m[i]))
+            length = min(max(4.0 / max(zeta * wn, 1e-3), 2.0), 60.0)
+            block += [free_decay(dof, a * angle, length), free_decay(dof, -a * angle, length)]
+        t_yaw = max(8 * tc[4], 5.0)
+        thrust = {"tau_x": float(d[0] * a)}
+        z = np.radians(float(rng.choice([10.0, 15.0, 20.0])))
+        block += [rudder_step(sign * a * np.radians(10), t_yaw, t_yaw, thrust),
+                  rudder_step(-sign * a * np.radians(10), t_yaw, t_yaw, thrust),
+                  zigzag(z, z, 12 * tc[4] + 10, thrust)]
+        for man in block:
+            if total >= minutes * 60.0:
+                break
+            items.append(man)
+            total += man.duration + rest_s
+        cycle += 1
+    return chain(*items, rest_s=rest_s)
+
+
+def write_trial(vessel, minutes: float, folder: Path, seed: int) -> tuple[Path, Path, float]:
+    sensors = tuple(s if s.rate <= 50 else type(s)(s.name, s.channels, 50.0, s.noise, s.bias, s.suffix)
+                    for s in default_sensors("nominal"))
+    res = simulate(vessel, programme(vessel, minutes, seed), sensors=sensors, seed=seed)
+    log = write_log(res.log, folder / "log.csv", vessel=vessel)
+    manifest = folder / "trial.toml"
+    manifest.write_text(f'name = "scaling{int(minutes)}"\nvessel = "{VESSEL}"\nlogs = ["log.csv"]\n')
+    return log, manifest, float(res.truth["t"].iloc[-1])
+
+
+def measure_wait4(argv: list[str], cwd: Path) -> dict:
+    """Wall time [s] and peak RSS [GB] of one command in a fresh process (``os.wait4``)."""
+    env = dict(os.environ, CI="1", PYTHONPATH=str(ROOT))
+    with tempfile.TemporaryFile() as errf:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *argv], cwd=cwd, env=env,
+                                stdout=subprocess.DEVNULL, stderr=errf)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        errf.seek(0)
+        err = errf.read().decode(errors="replace")
+    return {"wall_s": round(wall, 2), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
+            "peak_gb": round(usage.ru_maxrss / 1e6, 3), "rc": proc.returncode,
+            "stderr": err[-400:] if proc.returncode else ""}
+
+
+def load_baseline(rev: str):
+    """The grey-box module as it was at ``rev``, importable beside the current one."""
+    src = subprocess.run(["git", "show", f"{rev}:pipeline/fit/greybox.py"], cwd=ROOT, capture_output=True,
+                         text=True, check=True).stdout
+    path = Path(tempfile.mkdtemp(prefix="scaling-baseline-")) / "greybox_baseline.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location("pipeline.fit.greybox_baseline", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def compare_with_baseline(baseline, trial_csv: Path, segments_json: Path, vessel) -> dict:
+    """Current and baseline grey-box fits of the same records: time, Python peak, coefficients."""
+    from pipeline.fit import fit_trial
+    from pipeline.fit.greybox import fit_coupled_damping
+    from pipeline.flow import load_trial, segments_from_json
+
+    trial = load_trial([trial_csv], vessel)
+    segs = segments_from_json(segments_json)
+    single = fit_trial(trial, segs, vessel, extend=False)
+    out = {}
+    for name, fn in (("current", fit_coupled_damping), ("baseline", baseline.fit_coupled_damping)):
+        tracemalloc.start()
+        t0 = time.perf_counter()
+        gb = fn(trial, segs, vessel, single.damping_matrix)
+        wall = time.perf_counter() - t0
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        out[name] = {"wall_s": round(wall, 2), "python_peak_gb": round(peak / 1e9, 3),
+                     "values": dict(zip(gb.names, map(float, gb.values))),
+                     "stderr": dict(zip(gb.names, map(float, gb.stderr))), "converged": bool(gb.converged)}
+    cur, base = out["current"], out["baseline"]
+    out["max_diff_in_se"] = max(abs(cur["values"][n] - base["values"][n]) / cur["stderr"][n]
+                                for n in cur["values"] if math.isfinite(cur["stderr"][n]) and cur["stderr"][n] > 0)
+    return out
+
+
+def slope(x: list[float], y: list[float]) -> tuple[float, float]:
+    """Least-squares line ``y = a + b x``: (b, a)."""
+    b, a = np.polyfit(np.asarray(x, float), np.asarray(y, float), 1)
+    return float(b), float(a)
+
+
+def plot(results: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    hours = [r["hours"] for r in results]
+    for cmd in COMMANDS:
+        axes[0].plot(hours, [r["commands"][cmd]["wall_s"] for r in results], "o-", label=cmd)
+        axes[1].plot(hours, [r["commands"][cmd]["peak_gb"] for r in results], "o-", label=cmd)
+    axes[0].axhline(60, color="k", ls=":", lw=1, label="run target (2 h)")
+    axes[1].axhline(1.5, color="k", ls=":", lw=1, label="run target (2 h)")
+    axes[0].set(xlabel="trial length [h]", ylabel="wall time [s]", title="wall time per command")
+    axes[1].set(xlabel="trial length [h]", ylabel="peak RSS [GB]", title="peak memory per command")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, nargs="+", default=[10, 30, 60, 120])
+    ap.add_argument("--out", default=str(ROOT / "reports" / "scaling"))
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--baseline-rev", default="930a812", help="git revision of the previous grey-box")
+    ap.add_argument("--baseline-max", type=float, default=30, help="longest trial the baseline is run on [min]")
+    args = ap.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    vessel = load_vessel(VESSEL)
+    baseline = None
+    try:
+        baseline = load_baseline(args.baseline_rev)
+    except (subprocess.CalledProcessError, OSError) as exc:
+        print(f"baseline grey-box at {args.baseline_rev} not available ({exc}): no baseline comparison")
+    results = []
+    for minutes in args.minutes:
+        folder = out / f"{int(minutes)}min"
+        folder.mkdir(exist_ok=True)
+        t0 = time.perf_counter()
+        log, manifest, duration = write_trial(vessel, minutes, folder, args.seed)
+        sim_s = time.perf_counter() - t0
+        cmds = {
+            "align": ["align", str(log), "--out", str(folder / "trial.csv")],
+            "segment": ["segment", str(folder / "trial.csv"), "--json", str(folder / "segments.json")],
+            "fit": ["fit", "--vessel", str(VESSEL), str(folder / "trial.csv"), "--segments",
+                    str(folder / "segments.json"), "--json", str(folder / "coefficients.json")],
+            "diagnose": ["diagnose", "--vessel", str(VESSEL), str(folder / "trial.csv"), "--json",
+                         str(folder / "diagnosis.json")],
+            "run": ["run", str(manifest), "--out", str(folder / "report")],
+        }
+        row = {"minutes": minutes, "hours": duration / 3600.0, "simulated_s": round(sim_s, 1), "commands": {}}
+        for name, argv in cmds.items():
+            row["commands"][name] = measure_wait4(argv, folder)
+            c = row["commands"][name]
+            print(f"{minutes:5.0f} min  {name:8s} {c['wall_s']:7.1f} s wall {c['cpu_s']:7.1f} s cpu  "
+                  f"{c['peak_gb']:6.2f} GB  rc={c['rc']}"
+                  + (f"  {c['stderr'][-200:]}" if c["rc"] else ""), flush=True)
+        coeffs = json.loads((folder / "coefficients.json").read_text()) if (folder / "coefficients.json").exists() else {}
+        row["coefficients"] = coeffs.get("estimates", coeffs.get("coefficients", {}))
+        if baseline is not None and minutes <= args.baseline_max:
+            row["baseline"] = compare_with_baseline(baseline, folder / "trial.csv", folder / "segments.json", vessel)
+            b = row["baseline"]
+            print(f"{minutes:5.0f} min  grey-box current {b['current']['wall_s']} s {b['current']['python_peak_gb']} GB"
+                  f" | baseline {b['baseline']['wall_s']} s {b['baseline']['python_peak_gb']} GB | largest "
+                  f"difference {b['max_diff_in_se']:.3f} standard errors", flush=True)
+        results.append(row)
+    hours = [r["hours"] for r in results]
+    fits = {cmd: {"s_per_hour": slope(hours, [r["commands"][cmd]["wall_s"] for r in results])[0],
+                  "cpu_s_per_hour": slope(hours, [r["commands"][cmd]["cpu_s"] for r in results])[0],
+                  "gb_per_hour": slope(hours, [r["commands"][cmd]["peak_gb"] for r in results])[0]}
+            for cmd in COMMANDS} if len(results) > 1 else {}
+    for cmd, f in fits.items():
+        print(f"slope {cmd:8s} {f['s_per_hour']:7.1f} s/h wall  {f['cpu_s_per_hour']:7.1f} s/h cpu  "
+              f"{f['gb_per_hour']:6.3f} GB/h")
+    (out / "scaling.json").write_text(json.dumps({"results": results, "slopes": fits}, indent=1, default=str))
+    plot(results, out / "scaling.png")
+    longest = max(results, key=lambda r: r["hours"])
+    ok = True
+    if longest["hours"] >= 1.9:
+        run = longest["commands"]["run"]
+        ok &= run["wall_s"] < 60 and run["peak_gb"] < 1.5 and run["rc"] == 0
+    else:
+        print("2-hour target not measured (no trial of 2 hours in --minutes)")
+    if fits:
+        ok &= fits["run"]["gb_per_hour"] < 0.5
+    ok &= all(r.get("baseline", {}).get("max_diff_in_se", 0.0) < 1.0 for r in results)
+    ok &= all(c["rc"] == 0 for r in results for c in r["commands"].values())
+    print("targets met" if ok else "targets missed (see above)")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
