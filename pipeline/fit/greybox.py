@@ -800,8 +800,23 @@ class _Problem:
 
 
 # --------------------------------------------------------------------------- fit
-def _start_damping(d_start: np.ndarray | None, vessel: Vessel) -> tuple[np.ndarray, list[str]]:
-    """Start D: the given matrix, NaN filled from the config's [damping], then M_ii / 1 s, off-diagonals 0."""
+def start_damping(d_start: np.ndarray | None, vessel: Vessel) -> tuple[np.ndarray, list[str]]:
+    """Start D: the given matrix, NaN filled from the config's [damping], then M_ii / 1 s, off-diagonals 0.
+
+    Parameters
+    ----------
+    d_start : numpy.ndarray or None
+        5x5 start damping [SI] (u v p q r), e.g. the single-DOF ``Fits.damping_matrix``; NaN where unknown.
+    vessel : Vessel
+        Mass matrix and optional ``[damping]``.
+
+    Returns
+    -------
+    d0 : numpy.ndarray, shape (5, 5)
+        Start matrix with every entry finite and a positive diagonal.
+    notes : list[str]
+        Which diagonal entries were filled in, and from where.
+    """
     notes = []
     d0 = np.full((5, 5), np.nan) if d_start is None else np.array(d_start, float)
     if d0.shape != (5, 5):
@@ -962,7 +977,7 @@ def fit_coupled_damping(trial: Trial, segments: Segments, vessel: Vessel, d_star
         for n in _ROLL:
             fixed[n] = "the trial logs no roll channel (p or phi): log roll rate or roll angle"
     estimated = tuple(n for n in COEFFICIENTS if n in estimate and n not in fixed)
-    d0, notes = _start_damping(d_start, vessel)
+    d0, notes = start_damping(d_start, vessel)
     d_fixed = d0.copy()
     for n in estimated:
         d_fixed[COEFFICIENTS[n]] = 0.0
