@@ -140,6 +140,7 @@ def test_run_manifest_errors(capsys, tmp_path):
     assert code != 0 and "colour" in err
 
 
+@pytest.mark.slow  # a whole simulated day through every stage: make test-all
 def test_simulate_then_run_end_to_end(capsys, tmp_path):
     log = tmp_path / "sim.csv"
     code, _, err = run_cli(capsys, "simulate", "--vessel", VESSEL_TOML, "--out", log, "--seed", "5")
