@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test install clean bench
+.PHONY: run test test-all install clean bench
 
 $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
@@ -18,14 +18,19 @@ install: $(STAMP)
 run: $(STAMP)
 	$(BIN)/vesselid run trials/sample/trial.toml --out reports/sample
 
-## make test: the test suite, in the same venv
+## make test: the test suite without the slow regression runs (under 5 minutes on 2 cores)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -m "not slow"
+
+## make test-all: the whole suite: make test, then the slow regression runs (pytest -m slow)
+test-all: test
+	$(BIN)/python -m pytest -q -m slow
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/ingest.py
 	$(BIN)/python benchmarks/accuracy.py
 	$(BIN)/python benchmarks/diagnose.py
+	$(BIN)/python benchmarks/scaling.py
 
 clean:
 	rm -rf $(VENV) reports/sample

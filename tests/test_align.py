@@ -20,7 +20,7 @@ from pipeline.sim.manoeuvres import Manoeuvre
 from pipeline.sim.sensors import SensorSpec
 from pipeline.vessel import load_vessel
 
-AAUSHIP = load_vessel(Path(__file__).resolve().parents[1] / "vessel_configs" / "aauship.toml")
+from conftest import AAUSHIP  # noqa: E402 - the vessel, loaded once per session
 
 
 def _log(source, **channels):

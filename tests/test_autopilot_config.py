@@ -1,7 +1,6 @@
 """AutopilotConfig: TOML contents and round trip, input readers, rudder limits, ArduPilot export,
 the stage's files and HTML section, and a meta-test that the public API documents its parameters."""
 
-import inspect
 import json
 import math
 import tomllib
@@ -213,34 +212,3 @@ def test_stage_outputs_and_html_section(tmp_path):
     title2, frag2 = ap.autopilot_html_section(build_autopilot(read_coefficients_json(_coefficients(tmp_path)),
                                                               check=False), figures=False)
     assert "<img" not in frag2 and "ArduPilot" in frag2
-
-
-def _documented(doc: str) -> set[str]:
-    """Names listed in a numpydoc Parameters section (``name : type`` or ``a, b : type``)."""
-    if "Parameters\n----------" not in doc:
-        return set()
-    section = doc.split("Parameters\n----------", 1)[1]
-    for end in ("\nReturns\n", "\nRaises\n", "\nReferences\n", "\nNotes\n", "\nYields\n"):
-        section = section.split(end, 1)[0]
-    names = set()
-    for line in section.splitlines():
-        if line and not line.startswith(" ") and " : " in line + " ":
-            names.update(n.strip() for n in line.split(":", 1)[0].split(","))
-    return names
-
-
-def test_public_functions_document_their_parameters():
-    missing = []
-    for name in ap.__all__:
-        obj = getattr(ap, name)
-        if not (inspect.isfunction(obj) or inspect.isclass(obj)):
-            continue
-        doc = inspect.getdoc(obj) or ""
-        if not doc:
-            missing.append(f"{name}: no docstring")
-        elif inspect.isfunction(obj):
-            params = set(inspect.signature(obj).parameters)
-            undocumented = params - _documented(doc)
-            if undocumented:
-                missing.append(f"{name}: {sorted(undocumented)}")
-    assert not missing, missing

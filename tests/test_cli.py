@@ -18,7 +18,7 @@ from pipeline.sim.writers import write_log
 from pipeline.vessel import load_vessel
 
 ROOT = Path(__file__).resolve().parents[1]
-VESSEL_TOML = ROOT / "vessel_configs" / "aauship.toml"
+from conftest import AAUSHIP_TOML as VESSEL_TOML  # noqa: E402
 VESSEL = load_vessel(VESSEL_TOML)
 
 
@@ -141,6 +141,7 @@ def test_run_manifest_errors(capsys, tmp_path):
     assert code != 0 and "colour" in err
 
 
+@pytest.mark.slow  # a whole simulated day through every stage: make test-all
 def test_simulate_then_run_end_to_end(capsys, tmp_path):
     log = tmp_path / "sim.csv"
     code, _, err = run_cli(capsys, "simulate", "--vessel", VESSEL_TOML, "--out", log, "--seed", "5")

@@ -20,7 +20,7 @@ from pipeline.sim.manoeuvres import chain, rudder_step, step_and_coast, zigzag
 from pipeline.vessel import load_vessel, parse_vessel
 
 ROOT = Path(__file__).resolve().parents[1]
-AAUSHIP = load_vessel(ROOT / "vessel_configs" / "aauship.toml")
+from conftest import AAUSHIP  # noqa: E402 - the vessel, loaded once per session
 SHIP = parse_vessel({"name": "small", "nomoto": {"K": 0.5, "T": 5.0}})
 
 

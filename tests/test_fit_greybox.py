@@ -18,9 +18,9 @@ from pipeline.align import align
 from pipeline.errors import FitError
 from pipeline.fit import fit_trial
 from pipeline.fit.extend import extend_fits
+from pipeline.fit.casadi_jit import compile_function
 from pipeline.fit.greybox import (COEFFICIENTS, COUPLED, NX, STATES, UNITS, _Problem, build_records,
-                                  compile_function, fit_coupled_damping, generalised_force, lateral_segments,
-                                  step_function)
+                                  fit_coupled_damping, generalised_force, lateral_segments, step_function)
 from pipeline.model import Vessel5DofParams, integrate_rk4, params_from_vessel, vessel5dof_rhs
 from pipeline.records import Segments, Trial
 from pipeline.sim import chain, free_decay, rudder_step, simulate, step_and_coast, zigzag
@@ -118,12 +118,12 @@ def test_jacobian_matches_central_differences(coupled_trial):
 def test_compiled_and_virtual_machine_rollouts_agree():
     params = Vessel5DofParams(M=VESSEL.mass_matrix(), D=np.diag(np.diag(D_SEED)), G=VESSEL.restoring_matrix())
     step = step_function(params, ("Y_r", "N_v"), 0.02, 1).mapaccum("roll", 30)
-    fast, compiled = compile_function(step, jit=True)
+    fast, compiled, note = compile_function(step, jit=True)
     rng = np.random.default_rng(5)
     args = (rng.normal(0, 0.1, NX), rng.normal(0, 1, (5, 30)), np.tile([[0.1], [0.9]], (1, 30)))
     assert np.allclose(np.asarray(fast(*args)), np.asarray(step(*args)), atol=1e-13)
     if not compiled:
-        pytest.skip("no working C compiler: the virtual machine was used for both")
+        pytest.skip(f"no working C compiler: the virtual machine was used for both ({note})")
 
 
 def test_coupled_terms_recovered_within_three_sigma(coupled_trial):
@@ -138,7 +138,7 @@ def test_coupled_terms_recovered_within_three_sigma(coupled_trial):
         err = est.value - TRUTH[name]
         assert abs(err) < 3 * est.stderr, f"{name}: {est.value:.5g} +- {est.stderr:.2g}, truth {TRUTH[name]:.5g}"
         assert abs(err) < tol * abs(TRUTH[name]), (name, est.value, TRUTH[name])
-        assert est.unit == UNITS[name] and "grey-box" in est.method and "least_squares" in est.method
+        assert est.unit == UNITS[name] and "grey-box" in est.method and "Levenberg-Marquardt" in est.method
         i, j = COEFFICIENTS[name]
         if key == name:
             assert ext.damping_matrix[i, j] == pytest.approx(-est.value)
@@ -290,3 +290,103 @@ def test_rudder_segments_need_a_rudder_map(coupled_trial):
     only_rudder = Segments(segs.trial, tuple(s for s in segs.items if s.kind == "zigzag"))
     with pytest.raises(FitError, match="need \\[rudder\\] yaw_moment or sway_force"):
         fit_coupled_damping(trial, only_rudder, no_map)
+
+
+def _small_problem(coupled_trial, jit=False, repeat=1):
+    trial, segs, _ = coupled_trial
+    seg = tuple(s for s in lateral_segments(segs) if s.kind == "free_decay")
+    records = build_records(trial, seg, VESSEL) * repeat
+    est = tuple(COEFFICIENTS)
+    d_fixed = D_SEED.copy()
+    for n in est:
+        d_fixed[COEFFICIENTS[n]] = 0.0
+    params = Vessel5DofParams(M=VESSEL.mass_matrix(), D=d_fixed, G=VESSEL.restoring_matrix())
+    scale = np.array([abs(D_SEED[COEFFICIENTS[n]]) + 0.01 for n in est])
+    # A small chunk so that the pass over the intervals is split.
+    return _Problem(records, est, params, scale, np.full(NX, 0.1), 0.02, 1, 60, jit=jit, chunk=2)
+
+
+def test_chunked_normal_equations_equal_the_whole_jacobian(coupled_trial):
+    """J^T J and J^T r summed chunk by chunk equal those of the Jacobian formed whole."""
+    prob = _small_problem(coupled_trial)
+    rng = np.random.default_rng(6)
+    z = np.concatenate([rng.uniform(0.5, 1.5, prob.k), prob.node_guess() + rng.normal(0, 0.1, prob.n_z - prob.k)])
+    w = prob.weights(np.full(NX, 0.01))
+    rho = np.linspace(1.0, 3.0, NX)
+    jac = prob.jacobian(z, w, rho)
+    r = prob.residual(z, w, rho)
+    cost, g, h = prob.normal_equations(z, prob._pad_weights(w), prob._rho_nodes(rho))
+    assert prob.n_nodes > prob.chunk
+    assert cost == pytest.approx(0.5 * r @ r, rel=1e-12)
+    assert np.allclose(g, jac.T @ r, rtol=1e-10, atol=1e-10 * np.abs(g).max())
+    jtj = (jac.T @ jac).toarray()
+    assert np.allclose(h.toarray(), jtj, rtol=1e-10, atol=1e-10 * np.abs(jtj).max())
+
+
+def test_fisher_on_the_continuity_manifold_equals_the_dense_reduction(coupled_trial):
+    """The record-by-record Schur complement equals the single-shooting Fisher information built whole."""
+    prob = _small_problem(coupled_trial)
+    rng = np.random.default_rng(7)
+    z = np.concatenate([rng.uniform(0.5, 1.5, prob.k), prob.node_guess()])
+    w = prob.weights(np.full(NX, 0.01))
+    _, _, (g_blk, _, e_blk) = prob.evaluate(z, prob._pad_weights(w), gram=True)
+    fisher, n_w = prob.effective_fisher(g_blk, e_blk)
+    # Dense reference: nodes as functions of [theta, x0 per record] through the defect Jacobian.
+    jac = prob.jacobian(z, w, 1.0).toarray()
+    j_out, j_def = jac[: prob.n_sim], jac[prob.n_sim:]
+    k = prob.k
+    t = np.zeros((prob.n_z, n_w))
+    t[:k, :k] = np.eye(k)
+    row, seen = 0, set()
+    for iv in prob.intervals:
+        zi = slice(k + NX * iv.node, k + NX * iv.node + NX)
+        if iv.record not in seen:
+            seen.add(iv.record)
+            t[zi, k + NX * iv.record: k + NX * iv.record + NX] = np.eye(NX)
+        if not iv.last:
+            blk = j_def[row: row + NX]
+            t[zi.start + NX: zi.stop + NX] = blk[:, zi] @ t[zi] + blk[:, :k] @ t[:k]
+            row += NX
+    f_w = (j_out @ t).T @ (j_out @ t)
+    a, b, c = f_w[:k, :k], f_w[:k, k:], f_w[k:, k:]
+    ref = a - b @ np.linalg.pinv(c, rcond=1e-12, hermitian=True) @ b.T
+    assert n_w == k + NX * len(prob.records)
+    assert np.allclose(fisher, ref, rtol=1e-7, atol=1e-9 * np.abs(ref).max())
+
+
+def test_jit_code_size_does_not_grow_with_the_data_and_leaves_no_folder(coupled_trial, tmp_path, monkeypatch):
+    """The compiled unit is one RK4 sub-step: the same function for a short and a long record, and
+    its temporary folder is gone after the compile, also when the compile fails."""
+    import glob
+    import os
+    import tempfile
+
+    import pipeline.fit.casadi_jit as cj
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    prob = _small_problem(coupled_trial, jit=True)
+    long_prob = _small_problem(coupled_trial, jit=True, repeat=4)
+    assert long_prob.n_nodes == 4 * prob.n_nodes and long_prob.compiled == prob.compiled
+    assert prob.substep.n_nodes() == long_prob.substep.n_nodes()
+    assert not glob.glob(str(tmp_path / "vesselid-jit-*"))
+    # A source-size limit below the step's size: the virtual machine, with the reason.
+    monkeypatch.setattr(cj, "MAX_SOURCE_BYTES", 10)
+    cj._cached.cache_clear()
+    res = cj.compile_function(prob.substep, jit=True)
+    assert not res.compiled and "generated code" in res.note and "virtual machine" in res.note
+    # A compiler that fails: the same.
+    monkeypatch.setattr(cj, "MAX_SOURCE_BYTES", 10 ** 9)
+    monkeypatch.setenv("CC", "false")
+    monkeypatch.setattr(cj, "_compiler", lambda: "/bin/false")
+    cj._cached.cache_clear()
+    res = cj.compile_function(prob.substep, jit=True)
+    assert not res.compiled and "compiler failed" in res.note
+    assert not glob.glob(str(tmp_path / "vesselid-jit-*"))
+    # A folder left by a killed process (its pid no longer alive) is removed; a live one is not.
+    dead = tmp_path / "vesselid-jit-999999999-abc"
+    live = tmp_path / f"vesselid-jit-{os.getpid()}-abc"
+    dead.mkdir()
+    live.mkdir()
+    assert cj.remove_stale_folders(tmp_path) == 1
+    assert not dead.exists() and live.exists()
+    cj._cached.cache_clear()

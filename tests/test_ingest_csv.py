@@ -21,7 +21,7 @@ from pipeline.sim import chain, rudder_step, simulate, step_and_coast
 from pipeline.sim.writers.csv_writer import write_csv_log
 from pipeline.vessel import load_vessel
 
-AAUSHIP = load_vessel(Path(__file__).resolve().parents[1] / "vessel_configs" / "aauship.toml")
+from conftest import AAUSHIP  # noqa: E402 - the vessel, loaded once per session
 
 
 @pytest.fixture(scope="module")

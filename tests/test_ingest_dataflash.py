@@ -30,8 +30,8 @@ def _wrap(a):
 
 
 @pytest.fixture(scope="module")
-def vessel():
-    v = load_vessel("/work/main/vessel_configs/aauship.toml")
+def vessel(aauship):
+    v = aauship
     # Twin surge thrusters on servo 3 and 6, and the RC sticks for rudder and throttle.
     extra = (ActuatorMap("servo", 6, "tau_x", full_scale=10.0, reverse_scale=10.0),
              ActuatorMap("rc", 1, "delta", full_scale=0.6109), ActuatorMap("rc", 3, "tau_x", full_scale=10.0))

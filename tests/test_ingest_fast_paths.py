@@ -20,7 +20,7 @@ from pipeline.sim import chain, rudder_step, simulate
 from pipeline.sim.writers import write_log
 from pipeline.vessel import load_vessel
 
-VESSEL = load_vessel(Path(__file__).resolve().parents[1] / "vessel_configs" / "aauship.toml")
+from conftest import AAUSHIP as VESSEL  # noqa: E402 - loaded once per session
 
 
 @pytest.fixture(scope="module")

@@ -42,8 +42,8 @@ def _sha(p: Path) -> str:
 
 
 @pytest.fixture(scope="module")
-def sim():
-    vessel = load_vessel(REPO / "vessel_configs" / "aauship.toml")
+def sim(aauship):
+    vessel = aauship
     return simulate(vessel, chain(step_and_coast("surge", 4.0, 6.0, 6.0), step_and_coast("yaw", 0.1, 6.0, 6.0),
                                   rest_s=2.0), seed=3)
 

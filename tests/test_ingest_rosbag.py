@@ -52,16 +52,16 @@ def _bag_name(version: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def sim():
-    vessel = load_vessel(REPO / "vessel_configs" / "aauship.toml")
+def sim(aauship):
+    vessel = aauship
     schedule = chain(step_and_coast("surge", 4.0, 3.0, 3.0), rudder_step(math.radians(10), 3.0, 3.0, {"tau_x": 3.0}),
                      rest_s=1.0)
     return simulate(vessel, schedule, seed=7)
 
 
 @pytest.fixture(scope="module")
-def short_sim():
-    vessel = load_vessel(REPO / "vessel_configs" / "aauship.toml")
+def short_sim(aauship):
+    vessel = aauship
     return simulate(vessel, chain(rudder_step(math.radians(10), 1.5, 1.0, {"tau_x": 3.0}), rest_s=0.5), seed=11)
 
 

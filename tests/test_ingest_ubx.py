@@ -35,8 +35,8 @@ def _wrap(a):
 
 
 @pytest.fixture(scope="module")
-def sim():
-    v = load_vessel("/work/main/vessel_configs/aauship.toml")
+def sim(aauship):
+    v = aauship
     sched = chain(step_and_coast("surge", 5.0, 3.0, 3.0), free_decay("roll", 0.3, 3.0),
                   rudder_step(0.17, 3.0, 3.0, {"tau_x": 3.0}), rest_s=1.0)
     sensors = default_sensors() + (SensorSpec("gps2", ("lat", "lon", "sog", "cog"), 5.0,

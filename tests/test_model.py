@@ -22,7 +22,7 @@ from pipeline.model.waves import WaveParams, simulate_waves, wave_matrices, wave
 from pipeline.errors import ConfigError
 from pipeline.vessel import load_vessel, parse_vessel
 
-AAUSHIP = load_vessel(Path(__file__).resolve().parents[1] / "vessel_configs" / "aauship.toml")
+from conftest import AAUSHIP  # noqa: E402 - the vessel, loaded once per session
 IX = {name: i for i, name in enumerate(STATES_5DOF)}
 
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import copy
 import html as html_lib
-import inspect
 import json
 import math
 import re
@@ -447,21 +446,6 @@ def test_minimal_fits_only_nomoto(tmp_path):
     assert all(x is None for row in data["damping_matrix"]["values"] for x in row)
     assert data["coefficients"]["K_nomoto"]["value"] == pytest.approx(0.3)
     assert paths.fit_figures == () and paths.overview_figure is None
-
-
-def test_public_functions_document_their_parameters():
-    """Every public function of the report modules documents each parameter (numpydoc)."""
-    missing = []
-    for mod in (atomic_mod, coefficients_json, tables, figures, html_mod):
-        for name, fn in inspect.getmembers(mod, inspect.isfunction):
-            if name.startswith("_") or fn.__module__ != mod.__name__:
-                continue
-            doc = inspect.getdoc(fn) or ""
-            for p in inspect.signature(fn).parameters:
-                # numpydoc: "name : type" or "a, b : type" under Parameters.
-                if not re.search(rf"^(\w+, )*{p}(, \w+)* :", doc, re.M):
-                    missing.append(f"{mod.__name__}.{name}: {p}")
-    assert not missing, missing
 
 
 def test_further_coefficients_follow_the_standard_ones(fits, tmp_path):

@@ -24,7 +24,8 @@ from pipeline.sim import (chain, default_sensors, rudder_step, sea_trial, simula
 from pipeline.sim.writers.csv_writer import write_csv_log
 from pipeline.vessel import load_vessel, parse_vessel
 
-AAUSHIP = load_vessel(Path(__file__).resolve().parents[1] / "vessel_configs" / "aauship.toml")
+from conftest import simulated_sea_trial  # noqa: E402
+from conftest import AAUSHIP  # noqa: E402 - the vessel, loaded once per session
 SHIP = parse_vessel({"name": "ship", "nomoto": {"K": 0.156, "T": 72.4}})
 SCHEDULE = sea_trial(AAUSHIP)
 MATCHED_KINDS = ("step", "coast_down", "free_decay", "rudder_step", "zigzag")
@@ -33,8 +34,8 @@ CASES = [(level, seed) for level in ("low", "nominal", "high") for seed in (1, 2
 
 @functools.lru_cache(maxsize=None)
 def _sea_trial(level: str, seed: int):
-    """One simulation per configuration for the whole module (about 3 s each)."""
-    return simulate(AAUSHIP, SCHEDULE, sensors=default_sensors(level), seed=seed)
+    """One simulation per configuration for the whole session (about 3 s each; tests/conftest.py)."""
+    return simulated_sea_trial(level, seed)
 
 
 @pytest.fixture(scope="module", params=CASES, ids=[f"{l}-seed{s}" for l, s in CASES])

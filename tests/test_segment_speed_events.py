@@ -18,7 +18,7 @@ from pipeline.segment.speed_events import find_coast_downs
 from pipeline.sim import chain, simulate, step_and_coast
 from pipeline.vessel import Vessel, load_vessel
 
-AAUSHIP = load_vessel(Path(__file__).resolve().parents[1] / "vessel_configs" / "aauship.toml")
+from conftest import AAUSHIP  # noqa: E402 - the vessel, loaded once per session
 T_SURGE = 13.0 / 2.86  # m / X_u of the config [s]
 INPUTS = ("tau_x", "tau_y", "tau_n", "delta")
 

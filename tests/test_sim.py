@@ -22,7 +22,7 @@ from pipeline.sim import (EFFECT_NAMES, Effects, Schedule, SensorSpec, chain, de
 from pipeline.sim.sensors import NOISE_LEVELS, scaled
 from pipeline.vessel import load_vessel, parse_vessel
 
-AAUSHIP = load_vessel(Path(__file__).resolve().parents[1] / "vessel_configs" / "aauship.toml")
+from conftest import AAUSHIP  # noqa: E402 - the vessel, loaded once per session
 SHIP = parse_vessel({"name": "ship", "nomoto": {"K": 0.156, "T": 72.4}})
 D = np.diag(AAUSHIP.damping)
 M = np.diag(AAUSHIP.mass_matrix())
@@ -56,8 +56,8 @@ def base():
 
 
 @pytest.fixture(scope="module")
-def trial():
-    return simulate(AAUSHIP, sea_trial(AAUSHIP), seed=0)
+def trial(sea_trial_sim):
+    return sea_trial_sim("nominal", 0)
 
 
 # --------------------------------------------------------------------------- determinism

@@ -14,7 +14,7 @@ import pytest
 from pipeline.errors import ConfigError
 from pipeline.vessel import ActuatorMap, load_vessel, parse_vessel
 
-AAUSHIP = Path(__file__).resolve().parents[1] / "vessel_configs" / "aauship.toml"
+from conftest import AAUSHIP_TOML as AAUSHIP  # noqa: E402 - the config file itself (loading it is tested here)
 RB = {"mass": 13.0, "inertia": [0.0654, 1.089, 1.107]}
 
 

@@ -282,9 +282,9 @@ def group_runs(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | None 
             break
         if not placed:
             if not _has_states(log):
-                raise AlignError(f"runs: {s} holds only inputs ({sorted(log.channels)}) and has no absolute time, so it "
-                                 f"must share a clock with another log by cross-correlation; found: "
-                                 + ("; ".join(tried) or "no other log"))
+                raise AlignError(f"runs: {s} holds only inputs ({sorted(log.channels)}) and no absolute time: expected "
+                                 f"a measured response channel, or another log that shares its clock by "
+                                 f"cross-correlation; found: " + ("; ".join(tried) or "no other log"))
             groups.append([s])
             reasons.append([f"{Path(s).name}: no absolute time"]
                            + ([f"a run of its own: {'; '.join(tried)}"] if tried else []))

@@ -32,7 +32,7 @@ from ..vessel import Vessel
 from .added_mass import fit_added_mass
 from .combine import failed_estimate
 from .data import segment_label
-from .greybox import (COEFFICIENTS, COUPLED, DIAGONAL, UNITS, GreyBoxFit, _start_damping, fit_coupled_damping,
+from .greybox import (COEFFICIENTS, COUPLED, DIAGONAL, UNITS, GreyBoxFit, fit_coupled_damping, start_damping,
                       lateral_segments)
 from .identifiability import MANOEUVRES, CoefficientStatus, Identifiability, analyse_identifiability
 from .least_squares import confidence_interval
@@ -191,7 +191,7 @@ def joint_fit(trial: Trial, segments: Segments, vessel: Vessel, d_start: np.ndar
     # The couplings are probed at their natural size rather than at their zero start: at zero, a
     # coefficient that acts only through a coupling (Y_v on an unmeasured v, through N_v) shows no
     # information at all, which is an artefact of the start point, not of the trial.
-    probe, _ = _start_damping(start, vessel)
+    probe, _ = start_damping(start, vessel)
     for n in COUPLED:
         i, j = COEFFICIENTS[n]
         if probe[i, j] == 0.0:

@@ -13,18 +13,23 @@ entries of ``D`` are casadi symbols; :func:`vessel5dof_rhs` keeps its numeric
 
 Estimation (Ljung 1999, ch. 7; Bock & Plitt 1984):
 
-- fixed-step RK4 (zero-order-hold inputs, ``substeps`` per sample) as a casadi ``Function``,
-  rolled out over the input sequence with ``Function.mapaccum`` (no ``cvodes``: casadi 3.8's
+- fixed-step RK4 (zero-order-hold inputs, ``substeps`` per sample): one sub-step is a casadi
+  ``Function`` (and its sensitivity-augmented twin), compiled to C within bounded time and memory
+  (:mod:`pipeline.fit.casadi_jit`; the generated code depends on the model, not on the data), mapped
+  over the shooting intervals of a chunk and stepped through the samples (no ``cvodes``: casadi 3.8's
   integrator crashes when asked for output-grid derivatives);
 - multiple shooting: a free state every ``shooting_interval`` seconds, continuity as a penalty
   residual that is tightened in a second solve, so long records and poor start values do not
   blow the simulation up;
 - output error on ``v, p, q, r, phi, theta`` (those the trial has), each weighted by ``1/sigma``;
   sigma is first the second-difference noise level, then the residual RMS of a first solve;
-- ``scipy.optimize.least_squares`` (trust-region reflective, LSMR) with casadi's exact sparse
-  Jacobian, compiled to C by casadi's JIT when a compiler works; a weak prior about the start
-  values (``PRIOR_SCALES`` scales wide) keeps the solver out of the flat valleys of a trial that
-  does not excite some coupling, and is left out of the covariance;
+- Levenberg-Marquardt on the normal equations (:mod:`pipeline.fit.levenberg_marquardt`): ``J^T J``
+  (block tridiagonal in the shooting nodes with a dense border for the coefficients) and ``J^T r``
+  are summed chunk by chunk from the exact sensitivities, so memory grows linearly with the
+  records and no matrix is sized by the square of the sample count; it starts from the single-DOF
+  fits and stops when a step gains less than the noise. A weak prior about the start values
+  (``PRIOR_SCALES`` scales wide) keeps the solver out of the flat valleys of a trial that does not
+  excite some coupling, and is left out of the covariance;
 - covariance and Fisher information from the single-shooting sensitivity at the estimate: the
   continuity Jacobian carries every node's sensitivity back to the record's initial state, and the
   initial states are eliminated as nuisance parameters (Schur complement). Coloured residuals
@@ -48,24 +53,21 @@ autocorrelation consistent covariance matrix. *Econometrica* 55(3), 703-708.
 
 from __future__ import annotations
 
-import atexit
 import math
-import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
-from functools import lru_cache
 from typing import Mapping, Sequence
 
 import numpy as np
-from scipy import optimize, sparse
+from scipy import sparse
 
 from ..errors import FitError
 from ..model.vessel5dof import Vessel5DofParams, vessel5dof_rhs
 from ..records import DOFS, Segment, Segments, Trial
 from ..vessel import Vessel
+from .casadi_jit import compile_function
 from .data import noise_sigma, segment_label
+from .levenberg_marquardt import levenberg_marquardt
 from .residual_tests import ResidualTest, residual_test
 
 #: Fossen name -> (row, column) of D in DOF order u v p q r; the derivative is ``-D[row, column]``.
@@ -378,7 +380,7 @@ def step_function(params: Vessel5DofParams, estimated: Sequence[str], h: float, 
         k3 = f(xk + dt / 2 * k2)
         k4 = f(xk + dt * k3)
         xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function("rk4_step", [x, tau, theta], [xk], ["x", "tau", "theta"], ["x_next"])
+    return ca.Function("rk4_step", [x, tau, theta], [ca.densify(xk)], ["x", "tau", "theta"], ["x_next"])
 
 
 def _substeps(params: Vessel5DofParams, d_start: np.ndarray, h: float) -> int:
@@ -425,58 +427,8 @@ def sensitivity_step(step) -> object:
     s_next = ca.mtimes(phi_x, s)
     if k:
         s_next = s_next + ca.horzcat(ca.SX(x.shape[0], x.shape[0]), ca.jacobian(x_next, theta))
-    return ca.Function("rk4_sensitivity", [x, s, tau, theta], [x_next, s_next],
+    return ca.Function("rk4_sensitivity", [x, s, tau, theta], [ca.densify(x_next), ca.densify(s_next)],
                        ["x", "S", "tau", "theta"], ["x_next", "S_next"])
-
-
-@lru_cache(maxsize=1)
-def _jit_directory() -> str:
-    """A private temporary directory for the generated C and the shared objects, removed at exit
-    (casadi writes them to the working directory otherwise)."""
-    folder = tempfile.mkdtemp(prefix="vesselid-jit-")
-    atexit.register(shutil.rmtree, folder, True)
-    return folder + os.sep
-
-
-def _jit_options() -> dict:
-    # The directory goes at exit; casadi's own clean-up would race with that and warn.
-    return {"jit": True, "compiler": "shell", "jit_cleanup": False, "jit_temp_suffix": True,
-            "jit_options": {"flags": ["-O1"], "verbose": False, "cleanup": False, "directory": _jit_directory()}}
-
-
-@lru_cache(maxsize=16)
-def _compiled(serialized: str):
-    """JIT-compiled copy of a serialised casadi Function (cached: one compile per model and length)."""
-    import casadi as ca
-
-    fn = ca.Function.deserialize(serialized)
-    args = fn.mx_in()
-    return ca.Function(fn.name() + "_jit", args, fn.call(args), fn.name_in(), fn.name_out(), _jit_options())
-
-
-def compile_function(fn, jit: bool = True):
-    """``fn`` compiled to C by casadi's JIT when a C compiler is available, else ``fn`` itself.
-
-    The rollout runs ~20x faster compiled than in casadi's virtual machine; the result is the same.
-
-    Parameters
-    ----------
-    fn : casadi.Function
-        Function to compile.
-    jit : bool
-        False returns ``fn`` unchanged.
-
-    Returns
-    -------
-    tuple[casadi.Function, bool]
-        The function to call, and whether it is compiled.
-    """
-    if not jit:
-        return fn, False
-    try:
-        return _compiled(fn.serialize()), True
-    except Exception:  # noqa: BLE001 - no compiler, or the compiler failed: the VM gives the same numbers
-        return fn, False
 
 
 class _Buffered:
@@ -500,25 +452,39 @@ class _Buffered:
         return [r.copy() for r in self.res]
 
 
+#: Shooting intervals simulated together in one pass. Bounds the working memory of a pass to about
+#: CHUNK_NODES x (samples per interval) x NX x (NX + k) doubles (~30 MB at 50 Hz, 5 s, k = 9),
+#: whatever the trial length.
+CHUNK_NODES = 128
+
+
 class _Problem:
     """Multiple-shooting output-error problem in scaled variables ``z = [theta/theta_scale, s/x_scale]``.
 
-    Every shooting interval is rolled out by one casadi call (``mapaccum`` over the steps of the
-    sensitivity-augmented RK4 step, ``map`` over the intervals), which returns the states and their
-    exact derivatives with respect to the interval's node state and ``theta``. The output residuals
-    are the simulated lateral state at every sample (node state, then the rollout) minus the data;
-    the defects are the continuity gaps ``x_end(s_j, theta)/x_scale - z_(j+1)`` between consecutive
-    intervals of one record.
+    The compiled unit is one RK4 sub-step (and its sensitivity-augmented twin), mapped over the
+    shooting intervals of a chunk; Python steps it through the samples. Each pass over the chunks
+    returns the weighted output errors, the continuity defects and, when asked, the per-interval
+    Gram blocks ``B^T B`` and ``B^T e`` of the sensitivities ``B``; the normal equations
+    ``J^T J`` (block tridiagonal in the nodes with a dense ``theta`` border) and ``J^T r`` are
+    assembled from them, so memory grows with the number of nodes, never with the square of the
+    sample count, and a chunk's sensitivities are dropped as soon as they are summed.
+
+    Output residual rows are ordered by interval, sample and state (the node's own sample first,
+    the next node's sample belongs to the next interval, the last interval of a record includes
+    its last sample); the defects ``x_end(s_j, theta)/x_scale - z_(j+1)`` follow, NX per interval
+    that is not the last of its record.
     """
 
     def __init__(self, records: Sequence[GreyBoxRecord], estimated: Sequence[str], params: Vessel5DofParams,
                  theta_scale: np.ndarray, x_scale: np.ndarray, h: float, substeps: int, shoot: int,
-                 jit: bool = True) -> None:
+                 jit: bool = True, chunk: int = CHUNK_NODES) -> None:
         self.records = tuple(records)
         self.k = k = len(estimated)
         self.theta_scale = np.asarray(theta_scale, float)
         self.x_scale = np.asarray(x_scale, float)
-        self.step = step_function(params, estimated, h, substeps)
+        self.substeps = int(substeps)
+        # One RK4 sub-step is all that is compiled: code size set by the model, not the data.
+        self.substep = step_function(params, estimated, h / self.substeps, 1)
         intervals = []
         node = 0
         for r, rec in enumerate(self.records):
@@ -532,64 +498,165 @@ class _Problem:
         self.n_nodes = node
         self.n_z = k + NX * node
         self.shoot = shoot
+        self.chunk = max(1, int(chunk))
+        self.steps = np.array([iv.steps for iv in intervals])
         # Inputs of every interval, padded with zeros to a common length (the padding is discarded).
-        u = np.zeros((5, shoot * node))
+        self.u = np.zeros((node, shoot, 5))
         for iv in intervals:
             rec = self.records[iv.record]
-            u[:, iv.node * shoot: iv.node * shoot + iv.steps] = rec.tau[iv.start: iv.start + iv.steps].T
-        self.u = u
-        self.jit = jit
-        path, compiled = compile_function(self.step.mapaccum("rollout", shoot), jit)
-        sens, compiled_s = compile_function(sensitivity_step(self.step).mapaccum("rollout_sensitivity", shoot, 2), jit)
-        self.compiled = compiled and compiled_s
-        self.f_path = _Buffered(path.map(node))
-        self.f_sens = _Buffered(sens.map(node))
-        self.s0 = np.tile(np.hstack([np.eye(NX), np.zeros((NX, k))]), (1, node))
+            self.u[iv.node, : iv.steps] = rec.tau[iv.start: iv.start + iv.steps]
+        path = compile_function(self.substep, jit)
+        sens = compile_function(sensitivity_step(self.substep), jit)
+        self.f_path, self.f_sens = path.function, sens.function
+        self.compiled = path.compiled and sens.compiled
+        self.compile_note = path.note or sens.note
+        self._maps: dict[tuple[str, int], _Buffered] = {}
         # Output rows: for interval j, samples 0..m_j-1 of its window (m_j = steps, or steps + 1 for
-        # the last interval of a record), NX states per sample.
+        # the last interval of a record), NX states per sample; padded layout (node, sample, state).
         self.m = np.array([iv.steps + 1 if iv.last else iv.steps for iv in intervals])
         self.n_sim = int(NX * self.m.sum())
-        self.n_def = NX * sum(1 for iv in intervals if not iv.last)
-        self.y = np.concatenate([self.records[iv.record].y[iv.start: iv.start + m].reshape(-1)
-                                 for iv, m in zip(intervals, self.m)])
+        self._not_last = np.array([not iv.last for iv in intervals])
+        self.n_def = NX * int(self._not_last.sum())
+        y_pad = np.full((node, shoot + 1, NX), np.nan)
+        for iv, m in zip(intervals, self.m):
+            y_pad[iv.node, :m] = self.records[iv.record].y[iv.start: iv.start + m]
+        valid = np.arange(shoot + 1)[None, :] < self.m[:, None]
+        self._pad_index = np.flatnonzero(np.broadcast_to(valid[:, :, None], y_pad.shape).reshape(-1))
+        self.y = y_pad.reshape(-1)[self._pad_index]
         self.state_of_row = np.tile(np.arange(NX), self.n_sim // NX)
         self.measured = np.isfinite(self.y)
-        self.y0 = np.where(self.measured, self.y, 0.0)
-        # Index bookkeeping: (interval, step) of each sample row block.
-        self._iv_of_sample = np.repeat(np.arange(node), self.m)
-        self._step_of_sample = np.concatenate([np.arange(m) for m in self.m])
-        self._not_last = np.array([not iv.last for iv in intervals])
-        self._csr = None
+        self._y0_pad = np.where(np.isfinite(y_pad), y_pad, 0.0)
+        self._measured_pad = np.isfinite(y_pad)
+        # Where each interval's local variables [node_j, theta, node_(j+1)] sit in z (the last
+        # node's "next" points at itself; its defect rows are zero).
+        nxt = np.minimum(np.arange(node) + 1, max(node - 1, 0))
+        self._local_index = np.concatenate([k + NX * np.arange(node)[:, None] + np.arange(NX),
+                                            np.broadcast_to(np.arange(k), (node, k)),
+                                            k + NX * nxt[:, None] + np.arange(NX)], axis=1)
+
+    # ---------------------------------------------------------------- roll-outs
+    def _mapped(self, which: str, lanes: int) -> _Buffered:
+        key = (which, lanes)
+        if key not in self._maps:
+            self._maps[key] = _Buffered((self.f_sens if which == "sens" else self.f_path).map(lanes))
+        return self._maps[key]
+
+    def rollout(self, x0: np.ndarray, tau: np.ndarray, theta: np.ndarray, sensitivities: bool = False):
+        """Simulate lanes side by side from their initial states.
+
+        Parameters
+        ----------
+        x0 : numpy.ndarray, shape (L, NX)
+            Initial states [SI].
+        tau : numpy.ndarray, shape (L, steps, 5)
+            Generalised force held over each sample interval [N, N m].
+        theta : numpy.ndarray, shape (k,)
+            Estimated ``D`` entries (positive convention) [SI].
+        sensitivities : bool
+            Also return ``dx/d[x0, theta]``.
+
+        Returns
+        -------
+        states : numpy.ndarray, shape (L, steps + 1, NX)
+        sens : numpy.ndarray, shape (L, steps + 1, NX, NX + k), or None
+        """
+        lanes, steps = tau.shape[:2]
+        k = self.k
+        th = np.tile(np.asarray(theta, float), lanes)
+        x = np.asarray(x0, float).reshape(-1).copy()
+        states = np.empty((lanes, steps + 1, NX))
+        states[:, 0] = x.reshape(lanes, NX)
+        sens = None
+        if sensitivities:
+            f = self._mapped("sens", lanes)
+            first = np.hstack([np.eye(NX), np.zeros((NX, k))])
+            s = np.tile(first.T.reshape(-1), lanes)
+            sens = np.empty((lanes, steps + 1, NX, NX + k))
+            sens[:, 0] = first
+        else:
+            f = self._mapped("path", lanes)
+        for j in range(steps):
+            u = tau[:, j].reshape(-1)
+            for _ in range(self.substeps):
+                if sensitivities:
+                    x, s = f(x, s, u, th)
+                else:
+                    (x,) = f(x, u, th)
+            states[:, j + 1] = x.reshape(lanes, NX)
+            if sensitivities:
+                sens[:, j + 1] = s.reshape(lanes, NX + k, NX).transpose(0, 2, 1)
+        return states, sens
 
     def _theta(self, z: np.ndarray) -> np.ndarray:
-        return np.broadcast_to((z[: self.k] * self.theta_scale)[:, None], (self.k, self.shoot * self.n_nodes))
+        return z[: self.k] * self.theta_scale
 
     def _nodes(self, z: np.ndarray) -> np.ndarray:
         return z[self.k:].reshape(self.n_nodes, NX) * self.x_scale
 
-    def simulate(self, z: np.ndarray, sensitivities: bool = False):
-        """States ``(n_nodes, shoot + 1, NX)`` from each node, and (``sensitivities``) their
-        derivatives with respect to ``[node state, theta]``, ``(n_nodes, shoot + 1, NX, NX + k)``."""
-        nodes = self._nodes(z)
-        if sensitivities:
-            xp, sp = self.f_sens(nodes.T, self.s0, self.u, self._theta(z))
-            sp = sp.reshape(self.n_nodes, self.shoot, NX + self.k, NX).transpose(0, 1, 3, 2)
-            s_first = np.broadcast_to(np.hstack([np.eye(NX), np.zeros((NX, self.k))]),
-                                      (self.n_nodes, 1, NX, NX + self.k))
-            sens = np.concatenate([s_first, sp], axis=1)
-        else:
-            (xp,) = self.f_path(nodes.T, self.u, self._theta(z))
-            sens = None
-        xp = xp.reshape(self.n_nodes, self.shoot, NX)
-        states = np.concatenate([nodes[:, None, :], xp], axis=1)
-        return states, sens
+    def _pad_weights(self, w: np.ndarray) -> np.ndarray:
+        out = np.zeros((self.n_nodes, self.shoot + 1, NX))
+        out.reshape(-1)[self._pad_index] = w
+        return out
 
-    def _split_states(self, z: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        sim = states[self._iv_of_sample, self._step_of_sample].reshape(-1)
-        steps = np.array([iv.steps for iv in self.intervals])
-        ends = states[np.arange(self.n_nodes), steps][self._not_last] / self.x_scale
-        nxt = z[self.k:].reshape(self.n_nodes, NX)[1:][self._not_last[:-1]] if self.n_nodes > 1 else np.zeros((0, NX))
-        return sim, (ends - nxt).reshape(-1)
+    def _rho_nodes(self, rho) -> np.ndarray:
+        """Defect weights per (node, state); zero for the last interval of each record."""
+        out = np.zeros((self.n_nodes, NX))
+        r = np.asarray(rho, float)
+        if r.ndim == 1 and r.size == NX and self.n_def != NX:
+            out[self._not_last] = r
+        else:
+            out[self._not_last] = np.broadcast_to(r, (self.n_def,)).reshape(-1, NX)
+        return out
+
+    def evaluate(self, z: np.ndarray, w_pad: np.ndarray, gram: bool = False):
+        """One pass over the chunks.
+
+        Parameters
+        ----------
+        z : numpy.ndarray
+            Scaled decision vector.
+        w_pad : numpy.ndarray, shape (n_nodes, shoot + 1, NX)
+            Output weights in the padded layout (0 where unmeasured or padding).
+        gram : bool
+            Also return the Gram blocks.
+
+        Returns
+        -------
+        e : numpy.ndarray, shape (n_nodes, shoot + 1, NX)
+            Weighted output errors (0 at padding).
+        dfc : numpy.ndarray, shape (n_nodes, NX)
+            Unweighted continuity defects (0 for the last interval of a record).
+        blocks : tuple or None
+            ``(G, b, E)``: output Gram ``B^T B`` (n_nodes, NX + k, NX + k) and ``B^T e``
+            (n_nodes, NX + k) in the local columns ``[node, theta]``, and the defect Jacobian
+            ``E = d(x_end/x_scale)/d[node, theta]`` (n_nodes, NX, NX + k).
+        """
+        k = self.k
+        theta = self._theta(z)
+        nodes = self._nodes(z)
+        col_scale = np.concatenate([self.x_scale, self.theta_scale])
+        e = np.zeros((self.n_nodes, self.shoot + 1, NX))
+        ends = np.zeros((self.n_nodes, NX))
+        if gram:
+            g_blk = np.zeros((self.n_nodes, NX + k, NX + k))
+            b_blk = np.zeros((self.n_nodes, NX + k))
+            e_blk = np.zeros((self.n_nodes, NX, NX + k))
+        for lo in range(0, self.n_nodes, self.chunk):
+            sl = slice(lo, min(lo + self.chunk, self.n_nodes))
+            states, sens = self.rollout(nodes[sl], self.u[sl], theta, sensitivities=gram)
+            e[sl] = w_pad[sl] * (states - self._y0_pad[sl])
+            idx = np.arange(sl.start, sl.stop)
+            ends[sl] = states[idx - lo, self.steps[sl]]
+            if gram:
+                b = sens * col_scale * w_pad[sl][:, :, :, None]
+                g_blk[sl] = np.einsum("csnk,csnl->ckl", b, b, optimize=True)
+                b_blk[sl] = np.einsum("csnk,csn->ck", b, e[sl], optimize=True)
+                e_blk[sl] = sens[idx - lo, self.steps[sl]] * col_scale / self.x_scale[:, None]
+                del b, sens
+        nxt = np.zeros((self.n_nodes, NX))
+        nxt[:-1] = z[self.k:].reshape(self.n_nodes, NX)[1:]
+        dfc = np.where(self._not_last[:, None], ends / self.x_scale - nxt, 0.0)
+        return e, dfc, ((g_blk, b_blk, e_blk) if gram else None)
 
     def weights(self, sigma: np.ndarray) -> np.ndarray:
         """Row weights of the output residuals: ``1/sigma`` of the row's state, 0 where unmeasured."""
@@ -597,55 +664,69 @@ class _Problem:
 
     def residual(self, z: np.ndarray, w: np.ndarray, rho) -> np.ndarray:
         """Weighted output errors followed by ``rho`` (scalar or per defect row) times the continuity defects."""
-        states, _ = self.simulate(z)
-        sim, dfc = self._split_states(z, states)
-        return np.concatenate([w * (sim - self.y0), rho * dfc])
+        e, dfc, _ = self.evaluate(z, self._pad_weights(w))
+        return np.concatenate([e.reshape(-1)[self._pad_index], (self._rho_nodes(rho) * dfc)[self._not_last].reshape(-1)])
+
+    def cost(self, z: np.ndarray, w_pad: np.ndarray, rho_nodes: np.ndarray) -> float:
+        """``0.5 |r|^2`` of the weighted output errors and weighted defects."""
+        e, dfc, _ = self.evaluate(z, w_pad)
+        return 0.5 * (float(np.sum(e * e)) + float(np.sum((rho_nodes * dfc) ** 2)))
+
+    def normal_equations(self, z: np.ndarray, w_pad: np.ndarray, rho_nodes: np.ndarray
+                         ) -> tuple[float, np.ndarray, sparse.csc_matrix]:
+        """``(0.5 |r|^2, J^T r, J^T J)`` assembled from the per-interval blocks (``J`` never formed)."""
+        k = self.k
+        e, dfc, (g_blk, b_blk, e_blk) = self.evaluate(z, w_pad, gram=True)
+        nl = 2 * NX + k
+        # Local Jacobian of interval j's defect rows in [node_j, theta, node_(j+1)]: rho [E, -I].
+        jd = np.zeros((self.n_nodes, NX, nl))
+        jd[:, :, : NX + k] = e_blk
+        jd[:, :, NX + k:] = -np.eye(NX)
+        jd *= rho_nodes[:, :, None]
+        rd = rho_nodes * dfc
+        local = np.einsum("cnk,cnl->ckl", jd, jd)
+        local[:, : NX + k, : NX + k] += g_blk
+        grad_l = np.einsum("cnk,cn->ck", jd, rd)
+        grad_l[:, : NX + k] += b_blk
+        rows = np.broadcast_to(self._local_index[:, :, None], local.shape).reshape(-1)
+        cols = np.broadcast_to(self._local_index[:, None, :], local.shape).reshape(-1)
+        h = sparse.coo_matrix((local.reshape(-1), (rows, cols)), shape=(self.n_z, self.n_z)).tocsc()
+        g = np.bincount(self._local_index.reshape(-1), grad_l.reshape(-1), minlength=self.n_z)
+        cost = 0.5 * (float(np.sum(e * e)) + float(np.sum(rd * rd)))
+        return cost, g, h
+
+    def simulate(self, z: np.ndarray, sensitivities: bool = False):
+        """States ``(n_nodes, shoot + 1, NX)`` from each node, and (``sensitivities``) their
+        derivatives with respect to ``[node state, theta]``, ``(n_nodes, shoot + 1, NX, NX + k)``
+        (every node at once: for checks on small problems)."""
+        return self.rollout(self._nodes(z), self.u, self._theta(z), sensitivities)
 
     def jacobian(self, z: np.ndarray, w: np.ndarray, rho) -> sparse.csr_matrix:
-        """Exact sparse Jacobian of :meth:`residual` (casadi algorithmic differentiation)."""
-        rho = np.broadcast_to(np.asarray(rho, float), (self.n_def,))
-        _, sens = self.simulate(z, sensitivities=True)
+        """Sparse Jacobian of :meth:`residual`, formed whole (for checks on small problems; the
+        solver uses :meth:`normal_equations`)."""
         k = self.k
-        # d state / d z: node columns scale by x_scale, theta columns by theta_scale.
+        _, sens = self.simulate(z, sensitivities=True)
         col_scale = np.concatenate([self.x_scale, self.theta_scale])
-        blocks = sens[self._iv_of_sample, self._step_of_sample] * col_scale  # (samples, NX, NX + k)
-        blocks = blocks * w.reshape(-1, NX)[:, :, None]
-        n_samp = blocks.shape[0]
-        rows = np.broadcast_to(np.arange(NX * n_samp).reshape(n_samp, NX, 1), blocks.shape)
-        node_cols = k + NX * self._iv_of_sample[:, None, None] + np.arange(NX)[None, None, :]
-        cols = np.concatenate([np.broadcast_to(node_cols, (n_samp, NX, NX)),
-                               np.broadcast_to(np.arange(k)[None, None, :], (n_samp, NX, k))], axis=2)
+        w_pad = self._pad_weights(w)
+        blocks = (sens * col_scale * w_pad[:, :, :, None]).reshape(-1, NX + k)[self._pad_index]
+        node_of_row = np.repeat(np.arange(self.n_nodes), (self.shoot + 1) * NX)[self._pad_index]
+        rows = np.repeat(np.arange(self.n_sim), NX + k)
+        cols = np.concatenate([k + NX * node_of_row[:, None] + np.arange(NX),
+                               np.broadcast_to(np.arange(k), (self.n_sim, k))], axis=1).reshape(-1)
         data = [blocks.reshape(-1)]
-        ri = [rows.reshape(-1)]
-        ci = [cols.reshape(-1)]
+        ri, ci = [rows], [cols]
         if self.n_def:
+            rho_n = self._rho_nodes(rho)
             idx = np.flatnonzero(self._not_last)
-            steps = np.array([self.intervals[i].steps for i in idx])
-            end = sens[idx, steps] * col_scale / self.x_scale[None, :, None]  # (n_d, NX, NX + k)
-            n_d = idx.size
-            r0 = self.n_sim + NX * np.arange(n_d)
-            drows = np.broadcast_to(r0[:, None, None] + np.arange(NX)[None, :, None], end.shape)
-            ncols = k + NX * idx[:, None, None] + np.arange(NX)[None, None, :]
-            dcols = np.concatenate([np.broadcast_to(ncols, (n_d, NX, NX)),
-                                    np.broadcast_to(np.arange(k)[None, None, :], (n_d, NX, k))], axis=2)
-            data += [(rho.reshape(n_d, NX, 1) * end).reshape(-1), -rho]
-            ri += [drows.reshape(-1), (r0[:, None] + np.arange(NX)).reshape(-1)]
-            ci += [dcols.reshape(-1), (k + NX * (idx[:, None] + 1) + np.arange(NX)).reshape(-1)]
-        data = np.concatenate(data)
-        if self._csr is None:
-            # The sparsity pattern never changes: sort it into CSR order once, then only permute data.
-            order = sparse.csr_matrix((np.arange(1, data.size + 1, dtype=float),
-                                       (np.concatenate(ri), np.concatenate(ci))),
-                                      shape=(self.n_sim + self.n_def, self.n_z))
-            order.sort_indices()
-            self._csr = (order.data.astype(np.int64) - 1, order.indices.copy(), order.indptr.copy())
-        perm, indices, indptr = self._csr
-        return sparse.csr_matrix((data[perm], indices, indptr), shape=(self.n_sim + self.n_def, self.n_z))
-
-    def split(self, jac: sparse.spmatrix) -> tuple[sparse.csr_matrix, sparse.csr_matrix]:
-        """Output rows and defect rows of a Jacobian from :meth:`jacobian`."""
-        j = sparse.csr_matrix(jac)
-        return j[: self.n_sim], j[self.n_sim:]
+            end = sens[idx, self.steps[idx]] * col_scale / self.x_scale[:, None] * rho_n[idx][:, :, None]
+            r0 = self.n_sim + NX * np.arange(idx.size)
+            drows = r0[:, None] + np.arange(NX)
+            data += [end.reshape(-1), -rho_n[idx].reshape(-1)]
+            ri += [np.repeat(drows.reshape(-1), NX + k), drows.reshape(-1)]
+            ci += [np.broadcast_to(self._local_index[idx][:, None, : NX + k], end.shape).reshape(-1),
+                   self._local_index[idx][:, NX + k:].reshape(-1)]
+        return sparse.csr_matrix((np.concatenate(data), (np.concatenate(ri), np.concatenate(ci))),
+                                 shape=(self.n_sim + self.n_def, self.n_z))
 
     def node_guess(self) -> np.ndarray:
         """Node states from the data (0 where a state is not measured), scaled."""
@@ -659,36 +740,83 @@ class _Problem:
             out[NX * iv.node: NX * iv.node + NX] = np.where(np.isfinite(vals), vals, 0.0) / self.x_scale
         return out
 
-    def reduction(self, jac_def: sparse.spmatrix) -> np.ndarray:
-        """Matrix ``T`` with ``dz = T dw`` on the continuity manifold, ``w = [theta_z, first node of each record]``.
+    def effective_fisher(self, g_blk: np.ndarray, e_blk: np.ndarray) -> tuple[np.ndarray, int]:
+        """Fisher information of the scaled ``theta`` on the continuity manifold, initial states eliminated.
 
-        From ``defect_j = x_end(z_j, theta)/x_scale - z_(j+1) = 0``:
-        ``dz_(j+1) = A_j dz_j + B_j dtheta`` with ``A_j``, ``B_j`` read from the defect Jacobian
-        (``jac_def`` computed with ``rho = 1``).
+        Along each record the nodes follow ``dz_(j+1) = A_j dz_j + B_j dtheta`` (``[A_j, B_j] = E_j``),
+        so every node is a linear map ``T_j`` of ``w = [theta, x0 of the record]``; the record's
+        information in ``w`` is ``sum_j P_j^T G_j P_j`` with ``P_j = [T_j; I 0]``, and its initial state
+        is eliminated by a Schur complement (records do not share initial states).
+
+        Parameters
+        ----------
+        g_blk : numpy.ndarray, shape (n_nodes, NX + k, NX + k)
+            Output Gram blocks from :meth:`evaluate`.
+        e_blk : numpy.ndarray, shape (n_nodes, NX, NX + k)
+            Defect Jacobians from :meth:`evaluate`.
+
+        Returns
+        -------
+        fisher : numpy.ndarray, shape (k, k)
+        n_w : int
+            Free variables on the manifold (``k + NX`` per record), for the residual degrees of freedom.
         """
-        c = sparse.csr_matrix(jac_def).toarray() if self.n_def else np.zeros((0, self.n_z))
-        n_w = self.k + NX * len(self.records)
-        t = np.zeros((self.n_z, n_w))
-        t[: self.k, : self.k] = np.eye(self.k)
-        seen = set()
-        row = 0
+        k = self.k
+        f_eff = np.zeros((k, k))
+        theta_rows = np.hstack([np.eye(k), np.zeros((k, NX))])
+        by_record: dict[int, list[_Interval]] = {}
         for iv in self.intervals:
-            zi = slice(self.k + NX * iv.node, self.k + NX * iv.node + NX)
-            if iv.record not in seen:
-                seen.add(iv.record)
-                col = self.k + NX * iv.record
-                t[zi, col: col + NX] = np.eye(NX)
-            if not iv.last:
-                blk = c[row: row + NX]
-                nxt = slice(zi.start + NX, zi.stop + NX)
-                t[nxt] = blk[:, zi] @ t[zi] + blk[:, : self.k] @ t[: self.k]
-                row += NX
-        return t
+            by_record.setdefault(iv.record, []).append(iv)
+        for ivs in by_record.values():
+            t = np.hstack([np.zeros((NX, k)), np.eye(NX)])
+            fr = np.zeros((k + NX, k + NX))
+            for iv in ivs:
+                p = np.vstack([t, theta_rows])
+                fr += p.T @ g_blk[iv.node] @ p
+                if not iv.last:
+                    t = e_blk[iv.node] @ p
+            f_eff += fr[:k, :k] - fr[:k, k:] @ np.linalg.pinv(fr[k:, k:], rcond=1e-12, hermitian=True) @ fr[k:, :k]
+        return 0.5 * (f_eff + f_eff.T), k + NX * len(by_record)
+
+    def continuous(self, z: np.ndarray) -> list[np.ndarray]:
+        """Each record simulated whole from its first node (records of similar length side by side)."""
+        nodes = self._nodes(z)
+        theta = self._theta(z)
+        first = {}
+        for iv in self.intervals:
+            first.setdefault(iv.record, iv.node)
+        order = sorted(range(len(self.records)), key=lambda r: self.records[r].t.size)
+        out: list[np.ndarray | None] = [None] * len(self.records)
+        for lo in range(0, len(order), 32):
+            group = order[lo: lo + 32]
+            length = max(self.records[r].t.size for r in group)
+            tau = np.zeros((len(group), length - 1, 5))
+            for i, r in enumerate(group):
+                tau[i, : self.records[r].t.size - 1] = self.records[r].tau[:-1]
+            states, _ = self.rollout(nodes[[first[r] for r in group]], tau, theta)
+            for i, r in enumerate(group):
+                out[r] = states[i, : self.records[r].t.size].copy()
+        return out
 
 
 # --------------------------------------------------------------------------- fit
-def _start_damping(d_start: np.ndarray | None, vessel: Vessel) -> tuple[np.ndarray, list[str]]:
-    """Start D: the given matrix, NaN filled from the config's [damping], then M_ii / 1 s, off-diagonals 0."""
+def start_damping(d_start: np.ndarray | None, vessel: Vessel) -> tuple[np.ndarray, list[str]]:
+    """Start D: the given matrix, NaN filled from the config's [damping], then M_ii / 1 s, off-diagonals 0.
+
+    Parameters
+    ----------
+    d_start : numpy.ndarray or None
+        5x5 start damping [SI] (u v p q r), e.g. the single-DOF ``Fits.damping_matrix``; NaN where unknown.
+    vessel : Vessel
+        Mass matrix and optional ``[damping]``.
+
+    Returns
+    -------
+    d0 : numpy.ndarray, shape (5, 5)
+        Start matrix with every entry finite and a positive diagonal.
+    notes : list[str]
+        Which diagonal entries were filled in, and from where.
+    """
     notes = []
     d0 = np.full((5, 5), np.nan) if d_start is None else np.array(d_start, float)
     if d0.shape != (5, 5):
@@ -849,7 +977,7 @@ def fit_coupled_damping(trial: Trial, segments: Segments, vessel: Vessel, d_star
         for n in _ROLL:
             fixed[n] = "the trial logs no roll channel (p or phi): log roll rate or roll angle"
     estimated = tuple(n for n in COEFFICIENTS if n in estimate and n not in fixed)
-    d0, notes = _start_damping(d_start, vessel)
+    d0, notes = start_damping(d_start, vessel)
     d_fixed = d0.copy()
     for n in estimated:
         d_fixed[COEFFICIENTS[n]] = 0.0
@@ -892,7 +1020,7 @@ def fit_coupled_damping(trial: Trial, segments: Segments, vessel: Vessel, d_star
 
     def defect_weight(sig: np.ndarray, rho: float) -> np.ndarray:
         sd = np.where(measured_state, sig, 0.01 * x_scale)
-        return rho * np.tile(x_scale / sd, prob.n_def // NX)
+        return prob._rho_nodes(rho * x_scale / sd)
 
     # A weak prior (standard deviation PRIOR_SCALES times each coefficient's scale) about the start
     # bowls out the flat valleys of a trial that does not excite some coupling, so the solver stops
@@ -900,23 +1028,24 @@ def fit_coupled_damping(trial: Trial, segments: Segments, vessel: Vessel, d_star
     # is left out of the Fisher information and the covariance.
     k = len(estimated)
     z_prior = z[:k].copy()
-    prior = sparse.hstack([sparse.identity(k) / PRIOR_SCALES, sparse.csr_matrix((k, prob.n_z - k))]).tocsr()
 
-    def fun(zz, w, dw):
-        return np.concatenate([prob.residual(zz, w, dw), (zz[:k] - z_prior) / PRIOR_SCALES])
+    def cost(zz, w_pad, rho_n):
+        return prob.cost(zz, w_pad, rho_n) + 0.5 * float(np.sum(((zz[:k] - z_prior) / PRIOR_SCALES) ** 2))
 
-    def jac(zz, w, dw):
-        return sparse.vstack([prob.jacobian(zz, w, dw), prior]).tocsr()
+    def normal(zz, w_pad, rho_n):
+        f, g, hm = prob.normal_equations(zz, w_pad, rho_n)
+        g = g.copy()
+        g[:k] += (zz[:k] - z_prior) / PRIOR_SCALES ** 2
+        prior = sparse.diags(np.concatenate([np.full(k, PRIOR_SCALES ** -2.0), np.zeros(prob.n_z - k)]))
+        return f + 0.5 * float(np.sum(((zz[:k] - z_prior) / PRIOR_SCALES) ** 2)), g, (hm + prior).tocsc()
 
     for stage, rho in enumerate(PENALTIES if solve else ()):
-        w = prob.weights(sigma)
-        dw = defect_weight(sigma, rho)
-        res = optimize.least_squares(lambda zz: fun(zz, w, dw), z, jac=lambda zz: jac(zz, w, dw),
-                                     bounds=(lower, np.inf), method="trf", tr_solver="lsmr", x_scale="jac",
-                                     tr_options={"atol": 1e-10, "btol": 1e-10}, ftol=1e-7, xtol=1e-7,
-                                     max_nfev=max_nfev)
+        w_pad = prob._pad_weights(prob.weights(sigma))
+        rho_n = defect_weight(sigma, rho)
+        res = levenberg_marquardt(lambda zz: cost(zz, w_pad, rho_n), lambda zz: normal(zz, w_pad, rho_n), z,
+                                  lower=lower, max_njev=max_nfev)
         z = res.x
-        if res.status <= 0:
+        if not res.converged:
             converged = False
             messages.append(f"solve {stage + 1} did not converge: {res.message}")
         if stage == 0:
@@ -933,26 +1062,16 @@ def fit_coupled_damping(trial: Trial, segments: Segments, vessel: Vessel, d_star
     if not solve:
         converged = False
         messages.append("not solved: Fisher information at the start values (screening)")
-    k = len(estimated)
     theta = z[:k] * theta_scale
     damping = d0.copy()
     for i, n in enumerate(estimated):
         damping[COEFFICIENTS[n]] = theta[i]
 
     # The continuous simulation of each record from its fitted initial state, and its residual tests.
-    step = prob.step
     y_fit, tests = [], []
-    nodes = z[k:].reshape(prob.n_nodes, NX) * x_scale
-    first_node = {}
-    for iv in prob.intervals:
-        first_node.setdefault(iv.record, iv.node)
     kappa_num = np.zeros(NX)
     kappa_den = np.zeros(NX)
-    for r_i, rec in enumerate(records if solve else ()):
-        x0 = nodes[first_node[r_i]]
-        n = rec.t.size
-        path = np.asarray(step.mapaccum(n - 1)(x0, ca.DM(rec.tau[:-1].T), ca.repmat(ca.DM(theta), 1, n - 1)))
-        yf = np.column_stack([x0, path]).T
+    for rec, yf in zip(records, prob.continuous(z) if solve else ()):
         y_fit.append(yf)
         inputs = {ch: rec.tau[:, j] for j, ch in ((1, "tau_y"), (2, "tau_k"), (3, "tau_m"), (4, "tau_n"))
                   if np.ptp(rec.tau[:, j]) > 0}
@@ -971,31 +1090,26 @@ def fit_coupled_damping(trial: Trial, segments: Segments, vessel: Vessel, d_star
                         "standard errors inflated by the long-run variance ratio, " + ", ".join(coloured))
 
     # Fisher information on the continuity manifold with each channel's noise variance inflated by
-    # its long-run variance ratio kappa (the effective number of independent samples is N/kappa).
-    w_eff = prob.weights(sigma * np.sqrt(kappa))
-    jac = prob.jacobian(z, w_eff, 1.0)
-    j_out, j_def = prob.split(jac)
-    t_red = prob.reduction(j_def)
-    j_w = np.asarray(j_out @ t_red)
-    f_w = j_w.T @ j_w
-    w = prob.weights(sigma)
-    r_out = prob.residual(z, w, 0.0)[: prob.n_sim]
+    # its long-run variance ratio kappa (the effective number of independent samples is N/kappa),
+    # accumulated record by record from the per-interval blocks (no matrix sized by the samples).
+    w_eff = prob._pad_weights(prob.weights(sigma * np.sqrt(kappa)))
+    _, _, (g_blk, _, e_blk) = prob.evaluate(z, w_eff, gram=True)
+    f_z, n_w = prob.effective_fisher(g_blk, e_blk)
+    e_out, defects, _ = prob.evaluate(z, prob._pad_weights(prob.weights(sigma)))
     n_meas = int(prob.measured.sum())
-    n_w = t_red.shape[1]
-    s2 = float(r_out @ r_out) / max(n_meas - n_w, 1)
-    f_z = _effective_fisher(f_w, k)
+    s2 = float(np.sum(e_out * e_out)) / max(n_meas - n_w, 1)
     # The Fisher matrix is J^T J / sigma^2 (known noise); the covariance takes the residual variance.
     cov_z, se_z = covariance_from_fisher(f_z, s2)
     fisher = f_z / np.outer(theta_scale, theta_scale)
     cov = cov_z * np.outer(theta_scale, theta_scale)
     stderr = se_z * theta_scale
-    defects = prob.residual(z, w, 1.0)[prob.n_sim:]
     sd_def = np.where(measured_state, sigma, 0.01 * x_scale)
-    max_defect = float(np.max(np.abs(defects * np.tile(x_scale / sd_def, prob.n_def // NX)))) if defects.size else 0.0
+    max_defect = float(np.max(np.abs(defects * x_scale / sd_def))) if prob.n_def else 0.0
     if max_defect > 0.1:
         messages.append(f"continuity defects up to {max_defect:.2g} noise standard deviations remain")
     if not prob.compiled:
-        notes.append("rollout evaluated in casadi's virtual machine (no working C compiler for the JIT)")
+        notes.append("rollout evaluated in casadi's virtual machine"
+                     + (f" ({prob.compile_note})" if prob.compile_note else " (JIT not requested)"))
 
     names = estimated
     values = -theta  # Fossen: the derivative is -D[i, j]
@@ -1003,8 +1117,9 @@ def fit_coupled_damping(trial: Trial, segments: Segments, vessel: Vessel, d_star
               f"v p q r phi theta, surge at rest, pitch damping held; M = M_RB + M_A and restoring from the "
               f"config) to {len(records)} record(s) "
               f"of zig-zags/rudder steps/sway-yaw steps/roll decays ({', '.join(outputs)} measured); RK4 "
-              f"h = {h:.3g} s x {substeps}, multiple shooting every {shoot * h:.3g} s; scipy least_squares "
-              f"(trf) with the casadi Jacobian; covariance s^2 (J^T J)^-1 with initial states eliminated")
+              f"h = {h:.3g} s x {substeps}, multiple shooting every {shoot * h:.3g} s; Levenberg-Marquardt on the "
+              f"sparse normal equations of the casadi sensitivities (stops when the gain is below the noise); "
+              f"covariance s^2 (J^T J)^-1 with initial states eliminated")
     return GreyBoxFit(names=names, values=values, stderr=stderr, covariance=cov, fisher=fisher, fixed=fixed,
                       damping=damping, outputs=outputs, sigma={c: float(sigma[STATES.index(c)]) for c in outputs},
                       records=records, y_fit=tuple(y_fit), residual_tests=tuple(tests), s2=s2, n=n_meas,

@@ -1,0 +1,339 @@
+"""Long trials in bounded memory and time: wall time and peak memory of every stage against trial length.
+
+    python benchmarks/scaling.py [--minutes 10 30 60 120] [--out DIR] [--baseline-max 30]
+
+For each length, one continuous AAUSHIP sea trial is simulated (the identification programme of
+``pipeline.sim.sea_trial`` repeated with varied amplitudes, zig-zag angles and signs, as a day of
+trials would be: real manoeuvres, no concatenation, no jumps) and written as canonical CSV through
+the real writer. Then, each in a fresh process so that each peak is its own:
+
+- the stages, in one worker process through the flow's functions: ``load_trial`` (ingest + align),
+  ``segment_trial``, ``fit_trial(extend=False)`` (single-DOF fits), ``extend_fits`` (the joint
+  grey-box stage), ``diagnose`` — wall time, CPU time and peak resident memory per stage (the
+  peak is reset between stages through Linux's ``/proc/self/clear_refs``, so it includes the
+  interpreter, the libraries and the records the earlier stages hand on);
+- ``vesselid run trial.toml`` (every stage from the raw log, report included: the issue's target):
+  wall time, CPU time and peak resident memory (``os.wait4``).
+
+A straight line through each quantity gives its cost per trial hour. The machine may be shared:
+CPU time is the figure that does not depend on what else runs. Baseline in the same run: the
+previous grey-box implementation (``git show <--baseline-rev>:pipeline/fit/greybox.py``, loaded
+beside the new one) fitted to the same records for lengths up to ``--baseline-max`` minutes: its
+time, its Python peak memory and every coefficient's difference in standard errors.
+
+Targets (issue 14): a 2-hour trial ``vesselid run`` < 60 s and < 1.5 GB; memory per extra trial
+hour < 0.5 GB; every coefficient as before within its standard error. Exit status 1 when a target
+is missed. Writes ``scaling.json`` and ``scaling.png`` into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline.sim import chain, free_decay, rudder_step, simulate, step_and_coast, zigzag  # noqa: E402
+from pipeline.sim.sensors import default_sensors  # noqa: E402
+from pipeline.sim.writers import write_log  # noqa: E402
+from pipeline.vessel import load_vessel  # noqa: E402
+
+VESSEL = ROOT / "vessel_configs" / "aauship.toml"
+STAGES = ("align", "segment", "fit_single_dof", "fit_greybox", "diagnose")
+
+
+def programme(vessel, minutes: float, seed: int = 0):
+    """A continuous trial of at least ``minutes``: the sea-trial programme repeated with variations."""
+    rng = np.random.default_rng(seed)
+    d = np.diag(vessel.damping)
+    m = np.diag(vessel.mass_matrix())
+    tc = m / d
+    speeds = {"surge": 1.5, "sway": 0.3, "yaw": 0.5}
+    rest_s = float(max(5.0, 3 * np.max(tc)))
+    items, total = [], 0.0
+    cycle = 0
+    while total < minutes * 60.0:
+        a = float(rng.uniform(0.6, 1.3))
+        sign = 1.0 if cycle % 2 == 0 else -1.0
+        block = []
+        for dof, i in (("surge", 0), ("sway", 1), ("yaw", 4)):
+            hold = max(6 * tc[i], 3.0)
+            block.append(step_and_coast(dof, sign * a * float(d[i] * speeds[dof]) if dof != "surge"
+                                        else a * float(d[i] * speeds[dof]), hold, hold))
+        for dof, i, angle in (("roll", 2, np.radians(20)), ("pitch", 3, np.radians(6))):
+            g = vessel.restoring.get(dof, 0.0)
+            wn = np.sqrt(g / m[i])
+            zeta = d[i] / (2 * np.sqrt(g * m[i]))
+            length = min(max(4.0 / max(zeta * wn, 1e-3), 2.0), 60.0)
+            block += [free_decay(dof, a * angle, length), free_decay(dof, -a * angle, length)]
+        t_yaw = max(8 * tc[4], 5.0)
+        thrust = {"tau_x": float(d[0] * a)}
+        z = np.radians(float(rng.choice([10.0, 15.0, 20.0])))
+        block += [rudder_step(sign * a * np.radians(10), t_yaw, t_yaw, thrust),
+                  rudder_step(-sign * a * np.radians(10), t_yaw, t_yaw, thrust),
+                  zigzag(z, z, 12 * tc[4] + 10, thrust)]
+        for man in block:
+            if total >= minutes * 60.0:
+                break
+            items.append(man)
+            total += man.duration + rest_s
+        cycle += 1
+    return chain(*items, rest_s=rest_s)
+
+
+def write_trial(vessel, minutes: float, folder: Path, seed: int) -> tuple[Path, Path, float]:
+    sensors = tuple(s if s.rate <= 50 else type(s)(s.name, s.channels, 50.0, s.noise, s.bias, s.suffix)
+                    for s in default_sensors("nominal"))
+    res = simulate(vessel, programme(vessel, minutes, seed), sensors=sensors, seed=seed)
+    log = write_log(res.log, folder / "log.csv", vessel=vessel)
+    manifest = folder / "trial.toml"
+    manifest.write_text(f'name = "scaling{int(minutes)}"\nvessel = "{VESSEL}"\nlogs = ["log.csv"]\n')
+    return log, manifest, float(res.truth["t"].iloc[-1])
+
+
+def measure_wait4(argv: list[str], cwd: Path) -> dict:
+    """Wall time [s], CPU time [s] and peak RSS [GB] of one process (``os.wait4``)."""
+    env = dict(os.environ, CI="1", PYTHONPATH=str(ROOT))
+    with tempfile.TemporaryFile() as errf, tempfile.TemporaryFile() as outf:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, *argv], cwd=cwd, env=env, stdout=outf, stderr=errf)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        errf.seek(0)
+        outf.seek(0)
+        err = errf.read().decode(errors="replace")
+        out = outf.read().decode(errors="replace")
+    return {"wall_s": round(wall, 2), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
+            "peak_gb": round(usage.ru_maxrss / 1e6, 3), "rc": proc.returncode,
+            "stderr": err[-600:] if proc.returncode else "", "stdout": out}
+
+
+def reset_peak_rss() -> bool:
+    """Reset this process's peak RSS (Linux ``/proc/self/clear_refs``); False where not possible."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_rss() -> float:
+    """Peak RSS since the last reset [bytes] (``VmHWM``)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return float(line.split()[1]) * 1024
+    return math.nan
+
+
+def stage_worker(log: Path, out_json: Path) -> None:
+    """Run the stages in this process, one after the other, and write their costs to ``out_json``."""
+    import resource
+
+    from pipeline.diagnose import diagnose
+    from pipeline.fit import fit_trial
+    from pipeline.fit.extend import extend_fits
+    from pipeline.flow import load_trial, segment_trial
+
+    vessel = load_vessel(VESSEL)
+    stages = {}
+    state: dict = {}
+
+    def timed(name, fn):
+        # Linux: writing 5 to clear_refs resets the peak RSS (VmHWM), so each stage gets its own peak
+        # without tracemalloc's overhead; elsewhere the process's running peak is reported.
+        own = reset_peak_rss()
+        t0, c0 = time.perf_counter(), time.process_time()
+        value = fn()
+        stages[name] = {"wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(time.process_time() - c0, 2),
+                        "peak_gb": round((peak_rss() if own else
+                                          resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1e3) / 1e9, 3),
+                        "own_peak": own}
+        return value
+
+    state["trial"] = timed("align", lambda: load_trial([log], vessel))
+    state["segments"] = timed("segment", lambda: segment_trial(state["trial"]))
+    state["single"] = timed("fit_single_dof", lambda: fit_trial(state["trial"], state["segments"], vessel, extend=False))
+    state["fits"] = timed("fit_greybox", lambda: extend_fits(state["single"], state["trial"], state["segments"], vessel))
+    timed("diagnose", lambda: diagnose(state["trial"], vessel, fits=state["fits"]))
+    est = {n: [e.value, e.stderr, e.success] for n, e in state["fits"].estimates.items()}
+    out_json.write_text(json.dumps({"stages": stages, "rows": len(state["trial"].data),
+                                    "segments": len(state["segments"].items), "estimates": est}))
+
+
+def load_baseline(rev: str):
+    """The grey-box module as it was at ``rev``, importable beside the current one."""
+    src = subprocess.run(["git", "show", f"{rev}:pipeline/fit/greybox.py"], cwd=ROOT, capture_output=True,
+                         text=True, check=True).stdout
+    path = Path(tempfile.mkdtemp(prefix="scaling-baseline-")) / "greybox_baseline.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location("pipeline.fit.greybox_baseline", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def compare_with_baseline(baseline, log: Path, vessel) -> dict:
+    """Current and baseline grey-box fits of the same records: time, Python peak, coefficients."""
+    from pipeline.fit import fit_trial
+    from pipeline.fit.greybox import fit_coupled_damping
+    from pipeline.flow import load_trial, segment_trial
+
+    trial = load_trial([log], vessel)
+    segs = segment_trial(trial)
+    single = fit_trial(trial, segs, vessel, extend=False)
+    out = {}
+    for name, fn in (("current", fit_coupled_damping), ("baseline", baseline.fit_coupled_damping)):
+        tracemalloc.start()
+        t0, c0 = time.perf_counter(), time.process_time()
+        gb = fn(trial, segs, vessel, single.damping_matrix)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        out[name] = {"wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "python_peak_gb": round(peak / 1e9, 3),
+                     "values": dict(zip(gb.names, map(float, gb.values))),
+                     "stderr": dict(zip(gb.names, map(float, gb.stderr))), "converged": bool(gb.converged)}
+    cur, base = out["current"], out["baseline"]
+    out["max_diff_in_se"] = max(abs(cur["values"][n] - base["values"][n]) / cur["stderr"][n]
+                                for n in cur["values"] if math.isfinite(cur["stderr"][n]) and cur["stderr"][n] > 0)
+    return out
+
+
+def slope(x: list[float], y: list[float]) -> tuple[float, float]:
+    """Least-squares line ``y = a + b x``: (b, a)."""
+    b, a = np.polyfit(np.asarray(x, float), np.asarray(y, float), 1)
+    return float(b), float(a)
+
+
+def series(results: list[dict], name: str, key: str) -> tuple[list[float], list[float]]:
+    """Trial hours and one quantity of a stage (or ``run``), over the lengths where it was measured."""
+    rows = [r for r in results if (name == "run" and "run" in r) or name in r.get("stages", {})]
+    return [r["hours"] for r in rows], [(r["run"] if name == "run" else r["stages"][name])[key] for r in rows]
+
+
+def plot(results: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    for name in STAGES + ("run",):
+        label = "vesselid run" if name == "run" else name
+        axes[0].plot(*series(results, name, "cpu_s"), "o-", label=label)
+        axes[1].plot(*series(results, name, "wall_s"), "o-", label=label)
+        axes[2].plot(*series(results, name, "peak_gb"), "ko-" if name == "run" else "o-", label=label)
+    axes[1].axhline(60, color="k", ls=":", lw=1, label="run target at 2 h")
+    axes[2].axhline(1.5, color="k", ls=":", lw=1, label="run target at 2 h")
+    axes[0].set(xlabel="trial length [h]", ylabel="CPU time [s]", title="CPU time")
+    axes[1].set(xlabel="trial length [h]", ylabel="wall time [s]", title="wall time (shared machine)")
+    axes[2].set(xlabel="trial length [h]", ylabel="peak RSS [GB]", title="peak resident memory per stage")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, nargs="+", default=[10, 30, 60, 120])
+    ap.add_argument("--out", default=str(ROOT / "reports" / "scaling"))
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--baseline-rev", default="930a812", help="git revision of the previous grey-box")
+    ap.add_argument("--baseline-max", type=float, default=30, help="longest trial the baseline is run on [min]")
+    ap.add_argument("--run-max", type=float, default=math.inf,
+                    help="longest trial vesselid run is measured on [min] (it repeats every stage)")
+    ap.add_argument("--keep", action="store_true", help="keep other lengths from an earlier run in --out")
+    ap.add_argument("--stage-worker", nargs=2, metavar=("LOG", "OUT_JSON"), help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.stage_worker:
+        stage_worker(Path(args.stage_worker[0]), Path(args.stage_worker[1]))
+        return 0
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    vessel = load_vessel(VESSEL)
+    baseline = None
+    try:
+        baseline = load_baseline(args.baseline_rev)
+    except (subprocess.CalledProcessError, OSError) as exc:
+        print(f"baseline grey-box at {args.baseline_rev} not available ({exc}): no baseline comparison")
+    results = []
+    previous = out / "scaling.json"
+    if args.keep and previous.exists():
+        # Lengths measured by an earlier run into the same folder and not repeated now are kept.
+        results = [r for r in json.loads(previous.read_text())["results"] if r["minutes"] not in args.minutes]
+    for minutes in args.minutes:
+        folder = out / f"{int(minutes)}min"
+        folder.mkdir(exist_ok=True)
+        t0 = time.perf_counter()
+        log, manifest, duration = write_trial(vessel, minutes, folder, args.seed)
+        sim_s = time.perf_counter() - t0
+        row = {"minutes": minutes, "hours": duration / 3600.0, "simulated_s": round(sim_s, 1)}
+        worker = measure_wait4([__file__, "--stage-worker", str(log), str(folder / "stages.json")], folder)
+        if worker["rc"] == 0:
+            row.update(json.loads((folder / "stages.json").read_text()))
+        row["stage_process"] = {k: worker[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr")}
+        for name, st in row.get("stages", {}).items():
+            print(f"{minutes:5.0f} min  {name:15s} {st['wall_s']:7.1f} s wall {st['cpu_s']:7.1f} s cpu  "
+                  f"{st['peak_gb']:6.3f} GB peak RSS", flush=True)
+        print(f"{minutes:5.0f} min  stages process peak RSS {worker['peak_gb']:.2f} GB rc={worker['rc']} "
+              f"{worker['stderr'][-300:]}", flush=True)
+        if minutes <= args.run_max:
+            run = measure_wait4(["-m", "pipeline.cli", "run", str(manifest), "--out", str(folder / "report")], folder)
+            row["run"] = {k: run[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr")}
+            print(f"{minutes:5.0f} min  vesselid run    {run['wall_s']:7.1f} s wall {run['cpu_s']:7.1f} s cpu  "
+                  f"{run['peak_gb']:6.2f} GB peak RSS  rc={run['rc']} {run['stderr'][-300:]}", flush=True)
+        if baseline is not None and minutes <= args.baseline_max:
+            row["baseline"] = compare_with_baseline(baseline, log, vessel)
+            b = row["baseline"]
+            print(f"{minutes:5.0f} min  grey-box current {b['current']['cpu_s']} s cpu {b['current']['python_peak_gb']} GB"
+                  f" | baseline {b['baseline']['cpu_s']} s cpu {b['baseline']['python_peak_gb']} GB | largest "
+                  f"difference {b['max_diff_in_se']:.3f} standard errors", flush=True)
+        results.append(row)
+        (out / "scaling.json").write_text(json.dumps({"results": results}, indent=1, default=str))
+    results.sort(key=lambda r: r["hours"])
+    fits = {}
+    for name in STAGES + ("run",):
+        if len(series(results, name, "cpu_s")[0]) > 1:
+            fits[name] = {"cpu_s_per_hour": slope(*series(results, name, "cpu_s"))[0],
+                          "wall_s_per_hour": slope(*series(results, name, "wall_s"))[0],
+                          "gb_per_hour": slope(*series(results, name, "peak_gb"))[0]}
+            f = fits[name]
+            print(f"slope {name:15s} {f['cpu_s_per_hour']:7.1f} s/h cpu  {f['wall_s_per_hour']:7.1f} s/h wall  "
+                  f"{f['gb_per_hour']:6.3f} GB/h peak RSS")
+    (out / "scaling.json").write_text(json.dumps({"results": results, "slopes": fits}, indent=1, default=str))
+    plot(results, out / "scaling.png")
+    longest = max(results, key=lambda r: r["hours"])
+    ok = all(r.get("run", {}).get("rc", 0) == 0 and r["stage_process"]["rc"] == 0 for r in results)
+    if longest["hours"] >= 1.9 and "run" in longest:
+        run = longest["run"]
+        met = run["wall_s"] < 60 and run["peak_gb"] < 1.5
+        print(f"2-hour vesselid run: {run['wall_s']:.1f} s wall, {run['cpu_s']:.1f} s CPU, {run['peak_gb']:.2f} GB "
+              f"(target < 60 s, < 1.5 GB): {'met' if met else 'missed'}")
+        ok &= met
+    else:
+        print("2-hour target not measured (no vesselid run on a trial of 2 hours)")
+    if "run" in fits:
+        ok &= fits["run"]["gb_per_hour"] < 0.5
+    ok &= all(r.get("baseline", {}).get("max_diff_in_se", 0.0) < 1.0 for r in results)
+    print("targets met" if ok else "targets missed (see above)")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
