@@ -100,8 +100,8 @@ def test_a_log_of_inputs_only_without_a_clock_is_refused(yaw_sim):
     ch = yaw_sim.log.channels
     a = _log("nav.csv", {n: (ch[n].t, ch[n].values) for n in ("r", "psi")})
     cmds = _log("cmds.csv", {"delta": (ch["delta"].t, ch["delta"].values)})
-    with pytest.raises(AlignError, match=r"runs: cmds.csv holds only inputs \(\['delta'\]\) and has no absolute "
-                                         r"time, so it must share a clock with another log"):
+    with pytest.raises(AlignError, match=r"runs: cmds.csv holds only inputs \(\['delta'\]\) and no absolute "
+                                         r"time: expected a measured response channel, or another log that shares its clock"):
         align([a, cmds])
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.errors import IngestError
+from pipeline.errors import IngestError, OutputError
 from pipeline.flow import load_trial
 from pipeline.ingest import read_csv_log, read_log
 from pipeline.records import ANGLE_CHANNELS, Channel, IngestSummary, RawLog
@@ -129,7 +129,7 @@ def test_failed_write_leaves_target_and_no_temp_files(sim, tmp_path):
     target = tmp_path / "trial.csv"
     target.mkdir()
     (target / "keep").write_text("x")
-    with pytest.raises(OSError):
+    with pytest.raises(OutputError, match="cannot write"):
         write_csv_log(sim.log, target)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["trial.csv"]
     assert target.is_dir() and (target / "keep").read_text() == "x"

@@ -121,6 +121,9 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
     if len(groups) > 1 or runs is not None:
         notes.append(f"runs: {len(groups)} - " + " | ".join(
             f"{g.name} ({', '.join(Path(s).name for s in g.sources)}): {g.reason}" for g in groups))
+    for g in groups:
+        # Before choosing a rate: a single epoch has none, and its error should say so.
+        check_duration([c for l in logs if l.source in g.sources for c in l.channels.values()])
     if fs is None:
         rates = [_native_rate(c) for l in logs for k, c in l.channels.items()
                  if k.split("@")[0] not in INPUT_UNITS and len(c.t) > 1]

@@ -226,8 +226,9 @@ def structure_estimates(estimates: Mapping[str, Estimate], choices: Mapping[str,
     Where the quadratic structure wins, the linear derivative (``X_u``) and the quadratic one
     (``X_|u|u``) come from the joint quadratic fit (single-DOF exponential fits are biased when the
     damping is quadratic). Where the linear structure wins, the single-DOF estimate stays (or the
-    joint linear fit's when there is none) and its message names the rejected quadratic model and
-    both held-out errors.
+    joint linear fit's when no single-DOF fit was made) and its message names the rejected
+    quadratic model and both held-out errors; a failed single-DOF estimate stays failed, with the
+    joint value in its message only.
 
     Parameters
     ----------
@@ -253,8 +254,15 @@ def structure_estimates(estimates: Mapping[str, Estimate], choices: Mapping[str,
             out[quad_name] = _joint_estimate(fit, quad_name, choice, n_seg)
             continue
         old = out.get(lin_name)
-        if old is None or not old.success:
+        if old is None:
             out[lin_name] = _joint_estimate(fit, lin_name, choice, n_seg)
+        elif not old.success:
+            # The single-segment fits failed on these very segments (too short, no excitation, ...):
+            # a joint fit of the same data would hide that reason behind a number, so it is only noted.
+            joint = _joint_estimate(fit, lin_name, choice, n_seg)
+            note = (f"joint linear fit over the same segments gave {joint.value:.4g} +- {joint.stderr:.2g} "
+                    f"{joint.unit}, not used because the single-segment fits failed")
+            out[lin_name] = replace(old, message="; ".join(m for m in (old.message, note) if m))
         else:
             note = f"linear structure kept: {choice.message}"
             out[lin_name] = replace(old, message="; ".join(m for m in (old.message, note) if m))
