@@ -20,11 +20,11 @@ run: $(STAMP)
 
 ## make test: the test suite without the slow regression runs (under 5 minutes on 2 cores)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -n 2 -m "not slow"
 
 ## make test-all: the whole suite: make test, then the slow regression runs (pytest -m slow)
 test-all: test
-	$(BIN)/python -m pytest -q -m slow
+	$(BIN)/python -m pytest -q -n 2 -m slow
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/ingest.py

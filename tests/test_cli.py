@@ -35,15 +35,20 @@ def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
     return code, out.out, out.err
 
 
-def test_every_command_has_help():
+def test_every_command_has_help(capsys):
+    # The installed console script once (a real process), then every subcommand's --help in process.
     exe = shutil.which("vesselid", path=str(Path(sys.executable).parent))
     assert exe, "console script vesselid is installed in the venv"
     top = subprocess.run([exe, "--help"], capture_output=True, text=True)
     assert top.returncode == 0
-    for cmd in ("ingest", "align", "segment", "fit", "report", "simulate", "run"):
+    commands = ("ingest", "align", "segment", "fit", "report", "waves", "autopilot", "diagnose", "export",
+                "batch", "catalog", "simulate", "run")
+    for cmd in commands:
         assert cmd in top.stdout
-        res = subprocess.run([exe, cmd, "--help"], capture_output=True, text=True)
-        assert res.returncode == 0 and "usage:" in res.stdout, cmd
+        with pytest.raises(SystemExit) as done:
+            main([cmd, "--help"])
+        assert done.value.code == 0, cmd
+        assert "usage:" in capsys.readouterr().out, cmd
 
 
 def test_fit_writes_json_contract(capsys, surge_log, tmp_path):

@@ -78,6 +78,7 @@ def _surge_sway_yaw() -> tuple:
             zigzag(np.radians(10), np.radians(10), 40.0, {"tau_x": float(d[0])}))
 
 
+@pytest.mark.slow
 def test_thrust_asymmetry_is_named(tmp_path):
     rep = _verdict(tmp_path, AAUSHIP, chain(*_surge_sway_yaw(), rest_s=15.0), Effects(thrust_reverse_gain=0.5),
                    "asymmetry")
@@ -86,6 +87,7 @@ def test_thrust_asymmetry_is_named(tmp_path):
     assert abs(ratio - 0.5) < 0.05
 
 
+@pytest.mark.slow
 def test_current_over_ground_is_named(tmp_path):
     rep = _verdict(tmp_path, AAUSHIP, chain(*_surge_sway_yaw(), rest_s=15.0), Effects(current=(0.1, -0.08)),
                    "current5dof")
@@ -94,6 +96,7 @@ def test_current_over_ground_is_named(tmp_path):
     assert abs(vals["V_n"] - 0.1) < 0.02 and abs(vals["V_e"] + 0.08) < 0.02
 
 
+@pytest.mark.slow
 def test_missing_coupling_is_named(tmp_path):
     c = np.zeros((5, 5))
     c[4, 1] = 0.15  # N_v: sway velocity pushes the bow round

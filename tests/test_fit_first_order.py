@@ -223,6 +223,7 @@ def test_name_only_vessel_gets_time_constant_but_no_damping():
     assert np.isnan(fits.damping_matrix).all()
 
 
+@pytest.mark.slow
 def test_monte_carlo_coverage_of_T_interval():
     """The reported 95% interval of T covers the truth 90-98% of the time (200 seeds)."""
     n, hits, z = 200, 0, []
