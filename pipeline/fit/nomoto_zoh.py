@@ -13,24 +13,9 @@ import scipy.signal
 from ..model.discretise import zoh_fast
 
 
-def zoh_discretise(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretisation ``(A_d, B_d)`` (Van Loan 1978).
-
-    ``exp([[A, B], [0, 0]] h) = [[A_d, B_d], [0, I]]``: the same matrices as
-    :func:`scipy.signal.cont2discrete` with ``method="zoh"`` (the tests compare them); the
-    exponential is :func:`pipeline.model.discretise.expm_small`, which is cheap enough to call for
-    every candidate parameter vector of a fit.
-
-    Parameters
-    ----------
-    a : numpy.ndarray, shape (n, n)
-        Continuous system matrix [1/s].
-    b : numpy.ndarray, shape (n, m)
-        Continuous input matrix.
-    h : float
-        Sample time [s].
-    """
-    return zoh_fast(a, b, h)
+#: Exact zero-order-hold discretisation ``(A_d, B_d)`` (Van Loan 1978) for the fit's inner loop:
+#: the one in :mod:`pipeline.model.discretise`, under the name the Nomoto fits have always used.
+zoh_discretise = zoh_fast
 
 
 def state_tf(ad: np.ndarray, bd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
