@@ -9,8 +9,11 @@ downloaded from raw.githubusercontent.com at the pinned commit, else skipped wit
 For every file the table gives:
 
 - the format found by content sniffing, and the messages in the file as the format's own library
-  counts them (pyubx2 ``UBXReader`` over UBX/NMEA/RTCM streams, pynmeagps ``NMEAReader``,
-  pyrtcm ``RTCMReader``, pyulog ``ULog`` samples, pymavlink ``DFReader`` / ``mavlink_connection``);
+  counts them (pyubx2 ``UBXReader`` over UBX and RTCM streams (NMEA inside them included),
+  pyulog ``ULog`` samples, pymavlink ``DFReader`` / ``mavlink_connection``, rosbags ``AnyReader``);
+  for NMEA files, the sentences pynmeagps finds (those it rejects for a bad checksum, a malformed
+  field or a missing line end included) plus the lines whose header pynmeagps does not take at
+  all (AIS ``!AIVDM``, ``$QZ``, numeric talkers);
 - what ``read_log`` read and skipped (sums of the summary; for text formats the skipped count
   also holds lines that are not messages: garbage lines, bad checksums);
 - what ``vesselid ingest``, ``align``, ``segment`` and ``fit --vessel vessel_configs/aauship.toml``
@@ -18,7 +21,8 @@ For every file the table gives:
   of ``fit``. ``fit`` runs in a subprocess with a 300 s limit when segments were found.
 
 Checks (exit status 1 when one fails): no command lets a Python exception or traceback reach the
-user (an uncaught exception, or an ``error:`` line that starts with an exception name), every
+user (an uncaught exception, a traceback, or an exception class name such as ``ValueError`` anywhere
+in what a command writes to stderr), every
 error names what was expected and what was found (contains ``expected`` and ``found``), and
 ``fit`` ends within 300 s.
 
@@ -68,9 +72,11 @@ REMOTE = [
     ("ntpsec/gpsd", "46977faa8f94eb036ca68c24a3fc0d233732e707", "test/daemon/ublox-glo.log", "BSD-2-Clause"),
     ("ntpsec/gpsd", "46977faa8f94eb036ca68c24a3fc0d233732e707", "test/daemon/quectel-l76k-nmea.log", "BSD-2-Clause"),
 ]
-#: Summary keys that count bytes or lines, not messages.
-_NOT_MESSAGES = ("garbage", "bad checksum", "bad_checksum", "incomplete sentence")
-_EXC_NAME = re.compile(r"^error: [A-Z][A-Za-z]*(Error|Exception|Warning)\b")
+#: Summary keys that count bytes or lines that hold no message (bad checksums and incomplete
+#: sentences are messages: the libraries find them too).
+_NOT_MESSAGES = ("garbage",)
+#: A Python exception's class name anywhere in an error line (``ValueError``, ``AnyReaderError``...).
+_EXC_NAME = re.compile(r"\b[A-Z][A-Za-z]*(Error|Exception)\b")
 
 
 def fetch_remote(repo: str, commit: str, path: str, mirror: Path, cache: Path) -> Path | None:
@@ -96,10 +102,41 @@ def fetch_remote(repo: str, commit: str, path: str, mirror: Path, cache: Path) -
         return None
 
 
+def nmea_library_count(path: Path) -> tuple[str, int]:
+    """Sentences in an NMEA file as pynmeagps counts them, and those outside its definition.
+
+    pynmeagps' ``NMEAReader`` finds a sentence at every ``$`` followed by a talker letter it knows
+    (``pynmeagps.NMEA_HDR``); a sentence it finds but cannot take (bad checksum, a field of the
+    wrong type, an unterminated last line) is reported to its error handler and counted here too:
+    it is still a sentence of the file. Lines that start with a header pynmeagps does not take at
+    all (AIS ``!AIVDM``, the QZSS talker ``$QZ``, numeric talkers ``$02``) are counted apart.
+    """
+    from pynmeagps import NMEAReader
+    from pynmeagps.nmeatypes_core import NMEA_HDR
+
+    parsed, errors = 0, []
+    with open(path, "rb") as fh:
+        for raw, _ in NMEAReader(fh, quitonerror=1, validate=1, errorhandler=errors.append):
+            if raw is not None:
+                parsed += 1
+    others: Counter = Counter()
+    for line in path.read_bytes().splitlines():
+        line = line.strip()
+        if line[:1] in (b"$", b"!") and line[:2] not in NMEA_HDR:
+            others["".join(c if c.isprintable() and c not in "|`" else "?" for c in line[:3].decode("latin-1"))] += 1
+    label = f"NMEA {parsed + len(errors)} (pynmeagps" + (f"; {len(errors)} it rejects" if errors else "") + ")"
+    if others:
+        label += f" + {sum(others.values())} it does not take (" + ", ".join(
+            f"{k} {v}" for k, v in sorted(others.items())) + ")"
+    return label, parsed + len(errors) + sum(others.values())
+
+
 def library_count(path: Path, fmt: str | None) -> tuple[str, int | None]:
     """Messages in the file as the format's own library counts them (by protocol where mixed), and the total."""
     try:
-        if fmt in ("ubx", "nmea", "rtcm3"):
+        if fmt == "nmea":
+            return nmea_library_count(path)
+        if fmt in ("ubx", "rtcm3"):
             from pyubx2 import UBXReader
 
             counts: Counter = Counter()
@@ -132,8 +169,17 @@ def library_count(path: Path, fmt: str | None) -> tuple[str, int | None]:
             while m.recv_match() is not None:
                 n += 1
             return f"{n} messages (pymavlink)", n
+        if fmt == "rosbag":
+            from rosbags.highlevel import AnyReader
+            from rosbags.typesys import Stores, get_typestore
+
+            store = get_typestore(Stores.ROS1_NOETIC if path.suffix == ".bag" else Stores.ROS2_HUMBLE)
+            with AnyReader([path], default_typestore=store) as r:
+                n = sum(c.msgcount for c in r.connections)
+                return f"{n} messages in {len(r.connections)} topics (rosbags)", n
     except Exception as exc:  # the library's own failure is a finding, not a crash of this script
-        return f"library failed: {type(exc).__name__}", None
+        first = (str(exc).splitlines() or [""])[0][:60]
+        return f"library failed: {type(exc).__name__} {first}".strip(), None
     return "-", None
 
 
@@ -152,8 +198,10 @@ def run_cli(argv: list[str]) -> tuple[int, str, float, bool]:
             err.write(f"TRACEBACK {type(exc).__name__}: {exc}\n")
     dt = time.perf_counter() - t0
     text = err.getvalue() + out.getvalue()
-    tb = tb or "Traceback" in text
+    tb = tb or "Traceback" in text or bool(_EXC_NAME.search(err.getvalue()))
     first = next((ln for ln in err.getvalue().splitlines() if ln.startswith(("error:", "TRACEBACK"))), "")
+    if tb and not first:
+        first = next((ln for ln in err.getvalue().splitlines() if _EXC_NAME.search(ln)), "Traceback")
     return code, first, dt, tb
 
 
@@ -175,7 +223,7 @@ def fit_subprocess(path: Path) -> tuple[int, str, float, bool]:
         dt = time.perf_counter() - t0
         res = subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
     first = next((ln for ln in res.stderr.splitlines() if ln.startswith("error:")), "")
-    return res.returncode, first, dt, "Traceback" in res.stderr + res.stdout
+    return res.returncode, first, dt, "Traceback" in res.stderr + res.stdout or bool(_EXC_NAME.search(res.stderr))
 
 
 def _short(s: str, n: int = 110) -> str:
@@ -195,6 +243,7 @@ def main(argv=None) -> int:
     ap.add_argument("--mirror", type=Path, default=Path("/work/.mirror"), help="local git mirrors (owner+name/repo)")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "vesselid-realfiles")
     ap.add_argument("--only", default="", help="only files whose path contains this")
+    ap.add_argument("--counts-only", action="store_true", help="only the message accounting, no commands")
     args = ap.parse_args(argv)
     files: list[tuple[str, Path]] = [(p.parent.name, p) for p in sorted(DATA.glob("*/*")) if p.name != "SOURCE.md"]
     skipped_remote = []
@@ -233,6 +282,10 @@ def main(argv=None) -> int:
             n_read = n_skip = "-"
         except Exception as exc:  # noqa: BLE001 - counted as a defect below
             n_read = n_skip = f"TRACEBACK {type(exc).__name__}"
+        if args.counts_only:
+            print(f"| {repo} | `{path.name}` | {path.stat().st_size} | {fmt or '-'} | {lib} | {n_read} | {n_skip} | "
+                  f"{accounted} |")
+            continue
         cells = []
         tracebacks = []
         stop = False
@@ -245,7 +298,7 @@ def main(argv=None) -> int:
             seg_json.unlink(missing_ok=True)
             extra = ["--json", str(seg_json)] if cmd == "segment" else []
             code, first, _, tb = run_cli([cmd, str(path), *extra])
-            if tb or _EXC_NAME.match(first):
+            if tb:
                 tracebacks.append(f"{cmd}: {first}")
             if code == 0:
                 cells.append("ok")
@@ -263,7 +316,7 @@ def main(argv=None) -> int:
             code, first, dt, tb = fit_subprocess(path)
         else:
             code, first, dt, tb = run_cli(["fit", "--vessel", str(VESSEL), str(path), "--json", os.devnull])
-        if tb or _EXC_NAME.match(first):
+        if tb:
             tracebacks.append(f"fit: {first}")
         fit_cell = "ok" if code == 0 else f"exit {code}: {_short(first, 80)}"
         if dt > FIT_LIMIT_S or code == 124:

@@ -31,3 +31,36 @@ def increasing(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarra
     keep = np.ones(len(t), bool)
     keep[1:] = t[1:] > np.maximum.accumulate(t)[:-1]
     return t[keep], np.asarray(values)[keep], int((~keep).sum())
+
+
+def describe_failure(exc: BaseException, limit: int = 160) -> str:
+    """A library's failure in one line for an error message, without the exception's class name.
+
+    Libraries raise many low-level types on damaged files (``struct.error``, ``KeyError``,
+    ``AnyReaderError`` with a multi-line message, ...). The user needs what went wrong, on one
+    line; a Python class name means nothing to them. The first non-empty line of the message is
+    kept (cut to ``limit`` characters); a message-less failure is described by its kind.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The library's exception.
+    limit : int
+        Most characters kept.
+
+    Returns
+    -------
+    str
+        One line, never empty.
+    """
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    text = lines[0] if lines else ""
+    if isinstance(exc, KeyError) and text:
+        text = f"missing entry {text}"
+    if not text:
+        text = {"KeyError": "a missing entry", "IndexError": "data shorter than its header says",
+                "UnicodeDecodeError": "bytes that are not text", "EOFError": "an unexpected end of file",
+                "MemoryError": "more data than fits in memory"}.get(type(exc).__name__, "data the library cannot parse")
+    if len(lines) > 1:
+        text += " ..."
+    return text if len(text) <= limit else text[:limit - 3] + "..."

@@ -63,7 +63,7 @@ from pymavlink.DFReader import FORMAT_TO_STRUCT, DFFormat, DFReader_binary, null
 from ..errors import IngestError
 from ..records import Channel, IngestSummary, RawLog
 from ..vessel import ActuatorMap, Vessel
-from ._common import check_file
+from ._common import check_file, describe_failure
 from ._gpstime import GPS_EPOCH_UNIX, WEEK_S, leap_seconds, unix_text
 
 HEAD1, HEAD2 = 0xA3, 0x95
@@ -333,7 +333,7 @@ def _open(p: Path) -> _IndexedDFReader:
     try:
         return _IndexedDFReader(str(p))
     except (OSError, ValueError) as exc:
-        raise IngestError(f"{p}: expected a readable DataFlash log, found an error opening it ({exc})") from None
+        raise IngestError(f"{p}: expected a readable DataFlash log, found an error opening it ({describe_failure(exc)})") from None
 
 
 # ----------------------------------------------------------------------------- decode

@@ -75,7 +75,7 @@ import numpy as np
 
 from ..errors import IngestError
 from ..records import ANGLE_CHANNELS, Channel, IngestSummary, RawLog
-from ._common import check_file, increasing
+from ._common import check_file, describe_failure, increasing
 
 _DEG = math.pi / 180.0
 _KNOT = 1852.0 / 3600.0   # [m/s] per knot
@@ -745,7 +745,7 @@ def read_nmea(path: str | Path, sensor: str = "", progress: bool | None = None) 
     try:
         data = p.read_bytes()
     except OSError as exc:
-        raise IngestError(f"{p}: expected a readable NMEA 0183 log, found {type(exc).__name__}: {exc}") from None
+        raise IngestError(f"{p}: expected a readable NMEA 0183 log, found a file that cannot be read ({exc.strerror or describe_failure(exc)})") from None
 
     lines = data.splitlines()
     it = lines

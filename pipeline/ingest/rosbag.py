@@ -71,7 +71,7 @@ import numpy as np
 
 from ..errors import IngestError
 from ..records import ANGLE_CHANNELS, CHANNEL_UNITS, INPUT_UNITS, Channel, IngestSummary, RawLog
-from ._common import increasing
+from ._common import describe_failure, increasing
 
 #: Roles a topic can have (besides ``float64:<channel>``).
 ROLES = ("imu", "navsatfix", "twist", "odometry", "rudder", "actuators", "ignore")
@@ -556,8 +556,12 @@ def read_rosbag(path: str | Path, topics: Mapping[str, str] | None = None,
         # (ReaderError, struct.error, sqlite3.DatabaseError, KeyError, UnicodeDecodeError, YAML
         # errors ...); all mean the same thing to the user: this bag cannot be opened.
         hint = "; a truncated ROS 1 bag has lost its index (try `rosbag reindex`)" if is_ros1 else ""
+        undefined = re.search(r"MSG: ([\w/]+)", str(exc)) if "Could not parse" in str(exc) else None
+        if undefined:  # rosbags cannot parse a stored message definition (e.g. a service event type)
+            raise IngestError(f"{p}: expected message definitions rosbags can parse, found one it cannot "
+                              f"({undefined.group(1)})") from None
         raise IngestError(f"{p}: expected a readable {fmt} bag, found one that cannot be opened "
-                          f"({type(exc).__name__}: {exc}){hint}") from None
+                          f"({describe_failure(exc)}){hint}") from None
     try:
         return _read_open(p, reader, fallback, roles_given, fmt, is_ros1, progress)
     finally:
@@ -659,8 +663,8 @@ def _read_open(p: Path, reader: Any, fallback: Any, roles_given: Mapping[str, Ro
     except Exception as exc:  # noqa: BLE001 - storage-level damage (truncated chunk, bad page, ...)
         if n_seen == 0:
             raise IngestError(f"{p}: expected readable messages, found damaged storage "
-                              f"({type(exc).__name__}: {exc})") from None
-        warnings.append(f"bag damaged: reading stopped after {n_seen} message(s) ({type(exc).__name__}: {exc})")
+                              f"({describe_failure(exc)})") from None
+        warnings.append(f"bag damaged: reading stopped after {n_seen} message(s) ({describe_failure(exc)})")
 
     deser_bag = reader.deserialize
     deser_fallback = fallback.deserialize_ros1 if is_ros1 else fallback.deserialize_cdr

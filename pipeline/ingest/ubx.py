@@ -18,8 +18,8 @@ NAV-PVT        lat, lon [1e-7 deg]   -> lat<s>, lon<s> [deg]
                headMot [1e-5 deg]    -> cog<s> [rad, wrapped to (-pi, pi]]
                only samples with gnssFixOK, fixType 2D/3D/GNSS+DR and a valid position
 NAV-RELPOSNED  relPosHeading [deg]   -> psi@<sensor or 'dual'> [rad], only with relPosHeadingValid
-ESF-RAW        gyro x/y/z [2^-12 deg/s]   -> p@esf, q@esf, r@esf [rad/s]
-               accel x/y/z [2^-10 m/s^2]  -> ax@esf, ay@esf, az@esf [m/s^2]
+ESF-RAW        gyro x/y/z [2^-12 deg/s]   -> p@esf, -q@esf, -r@esf [rad/s]
+               accel x/y/z [2^-10 m/s^2]  -> ax@esf, -ay@esf, -az@esf [m/s^2] (ESF axes below)
                (``@esf_<sensor>`` when a sensor name is given)
 ESF-MEAS       the same data types and scales as ESF-RAW (``@esfmeas`` when the log has ESF-RAW too)
 NAV-ATT        roll, pitch, heading [1e-5 deg] -> phi<s>, theta<s>, psi<s> [rad] (``@att`` when NAV-PVAT
@@ -34,6 +34,20 @@ NMEA           sentences between the frames are read by :func:`pipeline.ingest.n
                the same channel; plain names when the log has no UBX channels at all)
 RTCM 3         correction frames between the frames are recognised (CRC-24Q) and counted per
                message number in ``summary.skipped`` (``RTCM3-1005`` ...)
+
+ESF axes
+--------
+The ESF-RAW / ESF-MEAS IMU data are taken as x forward, y left, z up (specific force, so a level
+receiver at rest reads +9.8 m/s^2 on z), and turned into Fossen's body frame (x forward, y
+starboard, z down) by negating y and z, as for ROS FLU data. u-blox's manuals define the vehicle
+frame (x forward, y right, z down) and the data types, but no sign for the raw sensor axes; the
+convention here is measured on real logs (tests/data): three receivers (gpsd ``ublox-neo-m8l.log``,
+``ublox-neo-m8u.log``, pyubx2 ``pygpsdata-ESF.log``) read z = +9.76, +10.03, +9.88 m/s^2 with x, y
+near 0; in the NEO-M8L drive (ESF-ALG mount angles 0, HNR-ATT pitch +10.8 deg) the raw gyro z
+against the receiver's own vehicle-frame rate (ESF-INS, gravity-free, 19 epochs) has correlation
+-0.95 and slope -1.08, raw accel y against ESF-INS y -0.78, raw gyro x against ESF-INS x +0.72,
+and the raw gyro z averages -4.4 deg/s while the HNR-ATT heading turns at +4.3 deg/s. A receiver
+mounted otherwise shows up in ``align``'s mounting check (gravity on the wrong axis).
 
 Time
 ----
@@ -101,12 +115,14 @@ VARIABLE_MAP: dict[tuple[str, str | int], tuple[str, float]] = {
     ("NAV-PVT", "gSpeed"): ("sog", 1e-3),
     ("NAV-PVT", "headMot"): ("cog", 1e-5 * _DEG),
     ("NAV-RELPOSNED", "relPosHeading"): ("psi", _DEG),
+    # ESF axes are x forward, y left, z up (see "ESF axes" in the module docstring): y and z
+    # change sign into Fossen's body frame (x forward, y starboard, z down).
     ("ESF-RAW", 14): ("p", 2.0**-12 * _DEG),
-    ("ESF-RAW", 13): ("q", 2.0**-12 * _DEG),
-    ("ESF-RAW", 5): ("r", 2.0**-12 * _DEG),
+    ("ESF-RAW", 13): ("q", -(2.0**-12) * _DEG),
+    ("ESF-RAW", 5): ("r", -(2.0**-12) * _DEG),
     ("ESF-RAW", 16): ("ax", 2.0**-10),
-    ("ESF-RAW", 17): ("ay", 2.0**-10),
-    ("ESF-RAW", 18): ("az", 2.0**-10),
+    ("ESF-RAW", 17): ("ay", -(2.0**-10)),
+    ("ESF-RAW", 18): ("az", -(2.0**-10)),
 }
 
 #: NAV-PVT payload up to headVeh: the 84 bytes every protocol version (>= 14) has; version 15+
@@ -643,7 +659,9 @@ def _esf_channels(rows: np.ndarray, decoded: np.ndarray, esf_idx: np.ndarray, pv
         if bad:
             warnings.append(f"{msg} {base}: {bad} sample(s) with a duplicate or out-of-order sensor time tag "
                             "skipped (first kept)")
-        chans[base + suffix] = Channel(base + suffix, t[ok], value[sel][ok] * scale, source=f"{msg} ({src_note})")
+        axes = "; y and z negated from the ESF axes x fwd, y left, z up" if base in ("q", "r", "ay", "az") else ""
+        chans[base + suffix] = Channel(base + suffix, t[ok], value[sel][ok] * scale,
+                                       source=f"{msg} ({src_note}{axes})")
         used_msgs[msg_no[sel][ok]] = True
     read[msg] += int(used_msgs.sum())
     skipped[msg] += int(n_msgs - used_msgs.sum())

@@ -47,7 +47,7 @@ import numpy as np
 from ..errors import IngestError
 from ..records import Channel, IngestSummary, RawLog
 from ..vessel import Vessel
-from ._common import check_file
+from ._common import check_file, describe_failure
 
 #: (topic, field) -> (canonical channel, scale to SI). Euler angles come from the quaternion.
 VARIABLE_MAP: dict[tuple[str, str], tuple[str, float]] = {
@@ -144,7 +144,7 @@ def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
         ulog = ULog(str(p))
     except Exception as exc:  # pyulog raises bare exceptions of many kinds on a corrupt file
         raise IngestError(f"{p}: expected a readable PX4 ULog, found a file pyulog cannot parse "
-                          f"({type(exc).__name__}: {exc})") from None
+                          f"({describe_failure(exc)})") from None
 
     read: Counter = Counter()
     skipped: Counter = Counter()

@@ -16,7 +16,8 @@ NAV-RELPOSNED  (``include_relposned``) moving-base dual-antenna heading at the s
                flags gnssFixOK, diffSoln, relPosValid, carrSoln, isMoving, relPosHeadingValid
 ESF-RAW        (``include_esf``) at the IMU stamps: gyro x/y/z [2^-12 deg/s] from p q r (or
                ``p@imu``...), accelerometer x/y/z [2^-10 m/s^2] from ax ay az, gyro temperature
-               [0.01 degC]; body axes (x fwd, y stbd, z down: a receiver mounted aligned)
+               [0.01 degC]; u-blox ESF axes (x fwd, y left, z up: a receiver mounted aligned), so
+               q, r, ay, az are written with their sign changed (see pipeline.ingest.ubx, ESF axes)
 
 Time: ``t = 0`` is the UTC instant ``week_start``; iTOW is GPS time of week [ms] (GPS = UTC +
 :data:`GPS_LEAP_S`). The ESF sensor time tag ``sTag`` is written as milliseconds of a
@@ -247,8 +248,9 @@ def _esf_items(ch) -> list[tuple[float, int, Callable[[], bytes]]]:
     items: list[tuple[float, int, Callable[[], bytes]]] = []
     for i in range(len(t)):
         def build(i: int = i) -> bytes:
-            return _esf(int(tags[i]), {"temp": 31.5, "p": gyro["p"][i], "q": gyro["q"][i], "r": gyro["r"][i],
-                                       "ax": vals["ax"][i], "ay": vals["ay"][i], "az": vals["az"][i]})
+            # Fossen body axes (y starboard, z down) -> u-blox ESF axes (y left, z up).
+            return _esf(int(tags[i]), {"temp": 31.5, "p": gyro["p"][i], "q": -gyro["q"][i], "r": -gyro["r"][i],
+                                       "ax": vals["ax"][i], "ay": -vals["ay"][i], "az": -vals["az"][i]})
         items.append((float(t[i]), _RANK["ESF-RAW"], build))
     return items
 
