@@ -379,33 +379,10 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
 
     rel_itow = np.array([m.iTOW if m is not None else -1 for m in rel], np.int64)
     par_itow = np.array([int(m.iTOW) if m is not None else -1 for m in parsed], np.int64)
-    n_rel = int((rel_itow >= 0).sum())
-    timed_idx = np.concatenate([pvt_idx, rel_idx[rel_itow >= 0], parsed_idx[par_itow >= 0]])
-    timed_ms = np.concatenate([pvt["iTOW"].astype(np.int64), rel_itow[rel_itow >= 0], par_itow[par_itow >= 0]])
-    order = np.argsort(timed_idx, kind="stable")
-    t_ms = np.empty(len(order), np.int64)
-    t_ms[order] = _unwrap_itow(timed_ms[order])
-    t_pvt_ms = t_ms[:len(pvt_idx)]
-    t_rel_ms = t_ms[len(pvt_idx):len(pvt_idx) + n_rel]
-    t_par_ms = np.full(len(parsed), -1, np.int64)
-    t_par_ms[par_itow >= 0] = t_ms[len(pvt_idx) + n_rel:]
+    t_pvt_ms, t_rel_ms, t_par_ms = _itow_clock(pvt["iTOW"].astype(np.int64), pvt_idx, rel_itow, rel_idx,
+                                               par_itow, parsed_idx)
 
-    week, _, leap = _week_of(pvt, t_pvt_ms) if len(pvt) else (None, -1, None)
-    if week is None:
-        week, leap = _week_of_parsed(parsed, t_par_ms)
-    start_time = math.nan
-    if week is not None:
-        day = (GPS_EPOCH + timedelta(weeks=week)).date().isoformat()
-        week_start_unix = GPS_EPOCH_UNIX + week * WEEK_S
-        leap_from = "receiver"
-        if leap is None:
-            leap, leap_from = leap_seconds(week_start_unix), "leap-second table"
-        # t is GPS time from the week start; UTC lags GPS by the leap seconds.
-        start_time = week_start_unix - leap
-        week_note = (f"t = 0 is the start of GPS week {week} ({day} 00:00:00 GPS time) = {unix_text(start_time)} "
-                     f"UTC (GPS - UTC = {leap} s, {leap_from})")
-    else:
-        week_note = "GPS week unknown (no NAV-PVT with a valid UTC date): t is time of week only"
+    week, start_time, week_note = _gps_week(pvt, t_pvt_ms, parsed, t_par_ms)
     warnings.append(week_note)
     src_note = f"GPS week {week}" if week is not None else "GPS week unknown"
 
@@ -435,35 +412,7 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
                       esf_suffix.replace("@esf", "@esfmeas") if len(esf_idx) else esf_suffix, src_note, chans,
                       read, skipped, warnings, msg="ESF-MEAS")
 
-    if fr["bad_crc"]:
-        skipped["BAD_CHECKSUM"] += fr["bad_crc"]
-        warnings.append(f"bad checksum: {fr['bad_crc']} frame(s) skipped")
-    nmea_count = nmea_bytes = garbage = 0
-    nmea_lines: list[bytes] = []
-    rtcm: Counter = Counter()
-    for a, b in fr["gaps"]:
-        chunk = data[a:b]
-        hits = _NMEA.findall(chunk)
-        nmea_count += len(hits)
-        nmea_lines += hits
-        nb = sum(len(h) for h in hits)
-        nmea_bytes += nb
-        rest = _NMEA.sub(b"", chunk) if hits else chunk
-        frames = rtcm3_frames(rest) if b"\xd3" in rest else {}
-        rtcm.update(frames)
-        garbage += len(rest) - _rtcm_bytes(rest, frames)
-    for msg_no, count in rtcm.items():
-        skipped[f"RTCM3-{msg_no}"] += count
-    if rtcm:
-        warnings.append("RTCM 3 correction frames between UBX frames counted, not used: "
-                        + ", ".join(f"{k} x{v}" for k, v in sorted(rtcm.items())))
-    if nmea_count:
-        start_time = _nmea_inside(nmea_lines, chans, read, skipped, warnings, start_time, suffix)
-    if garbage:
-        skipped["GARBAGE_BYTES"] += garbage
-        warnings.append(f"garbage: {garbage} byte(s) between frames skipped")
-    if fr["truncated"]:
-        warnings.append(f"truncated: {fr['truncated']} trailing bytes (an incomplete last frame) ignored")
+    start_time = _between_frames(data, fr, chans, read, skipped, warnings, start_time, suffix)
 
     if not chans:
         found = ", ".join(f"{k} {v}" for k, v in sorted((read + skipped).items())) or "none"
@@ -474,6 +423,86 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
                             warnings=tuple(warnings))
     return RawLog(source=str(p), format="ubx", channels=chans, summary=summary, time_reference="gps",
                   start_time=start_time)
+
+
+def _itow_clock(pvt_itow: np.ndarray, pvt_idx: np.ndarray, rel_itow: np.ndarray, rel_idx: np.ndarray,
+                par_itow: np.ndarray, parsed_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """iTOW [ms] of NAV-PVT, NAV-RELPOSNED and the pyubx2-decoded messages, unwrapped together.
+
+    The messages are put in stream order (``*_idx`` are frame numbers) and unwrapped across GPS
+    week rollovers as one sequence. ``rel_itow`` / ``par_itow`` are -1 for undecodable messages:
+    those get no time (RELPOSNED: left out of the result; parsed: -1).
+    """
+    n_pvt, n_rel = len(pvt_idx), int((rel_itow >= 0).sum())
+    timed_idx = np.concatenate([pvt_idx, rel_idx[rel_itow >= 0], parsed_idx[par_itow >= 0]])
+    timed_ms = np.concatenate([pvt_itow, rel_itow[rel_itow >= 0], par_itow[par_itow >= 0]])
+    order = np.argsort(timed_idx, kind="stable")
+    t_ms = np.empty(len(order), np.int64)
+    t_ms[order] = _unwrap_itow(timed_ms[order])
+    t_par_ms = np.full(len(par_itow), -1, np.int64)
+    t_par_ms[par_itow >= 0] = t_ms[n_pvt + n_rel:]
+    return t_ms[:n_pvt], t_ms[n_pvt:n_pvt + n_rel], t_par_ms
+
+
+def _gps_week(pvt: np.ndarray, t_pvt_ms: np.ndarray, parsed: list, t_par_ms: np.ndarray
+              ) -> tuple[int | None, float, str]:
+    """GPS week of ``t = 0``, its UTC instant [s, Unix] (NaN when unknown), and the summary note.
+
+    The week comes from NAV-PVT's UTC date, else from a NAV-PVAT / HNR-PVT date; GPS - UTC from the
+    receiver when it flags it resolved, else from the leap-second table.
+    """
+    week, _, leap = _week_of(pvt, t_pvt_ms) if len(pvt) else (None, -1, None)
+    if week is None:
+        week, leap = _week_of_parsed(parsed, t_par_ms)
+    if week is None:
+        return None, math.nan, "GPS week unknown (no NAV-PVT with a valid UTC date): t is time of week only"
+    day = (GPS_EPOCH + timedelta(weeks=week)).date().isoformat()
+    week_start_unix = GPS_EPOCH_UNIX + week * WEEK_S
+    leap_from = "receiver"
+    if leap is None:
+        leap, leap_from = leap_seconds(week_start_unix), "leap-second table"
+    # t is GPS time from the week start; UTC lags GPS by the leap seconds.
+    start_time = week_start_unix - leap
+    return week, start_time, (f"t = 0 is the start of GPS week {week} ({day} 00:00:00 GPS time) = "
+                              f"{unix_text(start_time)} UTC (GPS - UTC = {leap} s, {leap_from})")
+
+
+def _between_frames(data: bytes, fr: Mapping[str, Any], chans: dict, read: Counter, skipped: Counter,
+                    warnings: list, start_time: float, suffix: str) -> float:
+    """Account for everything outside the valid UBX frames; read the NMEA found there.
+
+    Bad-checksum frames, NMEA sentences (read onto the UBX clock by :func:`_nmea_inside`), RTCM 3
+    frames (counted per message number), garbage bytes and a truncated tail are counted in
+    ``skipped`` / ``warnings``. Returns ``start_time`` [s, Unix], set from the NMEA dates when the
+    UBX messages gave none.
+    """
+    if fr["bad_crc"]:
+        skipped["BAD_CHECKSUM"] += fr["bad_crc"]
+        warnings.append(f"bad checksum: {fr['bad_crc']} frame(s) skipped")
+    garbage = 0
+    nmea_lines: list[bytes] = []
+    rtcm: Counter = Counter()
+    for a, b in fr["gaps"]:
+        chunk = data[a:b]
+        hits = _NMEA.findall(chunk)
+        nmea_lines += hits
+        rest = _NMEA.sub(b"", chunk) if hits else chunk
+        frames = rtcm3_frames(rest) if b"\xd3" in rest else {}
+        rtcm.update(frames)
+        garbage += len(rest) - _rtcm_bytes(rest, frames)
+    for msg_no, count in rtcm.items():
+        skipped[f"RTCM3-{msg_no}"] += count
+    if rtcm:
+        warnings.append("RTCM 3 correction frames between UBX frames counted, not used: "
+                        + ", ".join(f"{k} x{v}" for k, v in sorted(rtcm.items())))
+    if nmea_lines:
+        start_time = _nmea_inside(nmea_lines, chans, read, skipped, warnings, start_time, suffix)
+    if garbage:
+        skipped["GARBAGE_BYTES"] += garbage
+        warnings.append(f"garbage: {garbage} byte(s) between frames skipped")
+    if fr["truncated"]:
+        warnings.append(f"truncated: {fr['truncated']} trailing bytes (an incomplete last frame) ignored")
+    return start_time
 
 
 def _parse_many(data: bytes, starts: np.ndarray, ends: np.ndarray, which: np.ndarray, bar: Any) -> list:
