@@ -1,7 +1,9 @@
 """Vessel configuration: the TOML of DESIGN.md, read into a frozen :class:`Vessel`.
 
 Minimal form is ``name`` alone (a rudder ship whose mass is unknown: only Nomoto is identified).
-All sections are optional; unknown keys are errors that name the key and the allowed ones.
+All sections are optional; unknown keys are errors that name the key and the allowed ones. Every
+table, including those later stages read (``[thrusters]``, ``[topics]``, ``[sensors]``), is also
+checked against :data:`pipeline.config_schema.VESSEL_SCHEMA` when the file is read, before any work.
 
 Sections
 --------
@@ -25,6 +27,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .config_schema import validate_vessel
 from .errors import ConfigError
 from .records import DOF_NAMES, DOFS, INPUT_UNITS
 
@@ -354,6 +357,7 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
                                 reverse_scale=_number(f"{where}.reverse_scale", a.get("reverse_scale", fs))))
     kw["actuators"] = tuple(acts)
     kw["extra"] = {k: doc[k] for k in ("thrusters", "topics", "sensors") if k in doc}
+    validate_vessel(doc, path)  # every table, incl. [thrusters] [topics] [sensors] (pipeline.config_schema)
     return Vessel(**kw)
 
 
