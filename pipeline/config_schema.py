@@ -2,7 +2,7 @@
 
 Every table of both files is declared here (``VESSEL_SCHEMA``, ``MANIFEST_SCHEMA``) and checked by
 :func:`validate` before any work starts (:func:`pipeline.vessel.parse_vessel` and
-:func:`pipeline.manifest.load_manifest` call it first): key names, types, lengths and allowed
+:func:`pipeline.manifest.load_manifest` call it when the file is read): key names, types, lengths and allowed
 words. An error names the place as a TOML key path (``aauship.toml: thrusters.surge.gain``), what was expected and
 what was found, and lists every problem at once. What a schema cannot say (a positive definite
 damping matrix, logs that exist, a thruster table with increasing commands, segment bounds inside
@@ -216,45 +216,12 @@ def validate(doc: Mapping[str, Any], schema, source: str) -> None:
     ConfigError
         ``source: <place>: expected ..., found ...``, one line per problem.
     """
-    errors: list[str] = []
     if not isinstance(doc, Mapping):
         raise ConfigError(f"{source}: expected a TOML table at the top level, found {_kind(doc)}")
-    keys, required = schema[1], schema[2]
-    unknown = sorted(set(doc) - set(keys))
-    if unknown:
-        errors.append(f"unknown key(s) {unknown}; allowed: {list(keys)}")
-    missing = [k for k in required if k not in doc]
-    if missing:
-        errors.append(f"missing key(s) {missing}; found {sorted(doc)}")
-    for k, sub in keys.items():
-        if k in doc:
-            _check(k, doc[k], sub, errors)
+    errors: list[str] = []
+    _check("", doc, schema, errors)
+    errors = [e.removeprefix(": ") for e in errors]  # the top level has no key path
     if errors:
         head = f"{source}: " if len(errors) == 1 else f"{source}: {len(errors)} problems:\n  "
         raise ConfigError(head + "\n  ".join(errors))
 
-
-def validate_vessel(doc: Mapping[str, Any], source: str) -> None:
-    """:func:`validate` against ``VESSEL_SCHEMA``.
-
-    Parameters
-    ----------
-    doc : Mapping
-        Parsed vessel TOML.
-    source : str
-        File name for the messages.
-    """
-    validate(doc, VESSEL_SCHEMA, source)
-
-
-def validate_manifest(doc: Mapping[str, Any], source: str) -> None:
-    """:func:`validate` against ``MANIFEST_SCHEMA``.
-
-    Parameters
-    ----------
-    doc : Mapping
-        Parsed trial manifest.
-    source : str
-        File name for the messages.
-    """
-    validate(doc, MANIFEST_SCHEMA, source)

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from .config_schema import validate_manifest
+from .config_schema import MANIFEST_SCHEMA, validate
 from .errors import ConfigError
 
 _KEYS = {"name", "vessel", "logs", "fs", "segments_mode", "segments", "columns", "units", "autopilot", "waves",
@@ -213,7 +213,7 @@ def load_manifest(path: str | Path) -> Manifest:
         table = doc.get(key, {})
         if not isinstance(table, dict) or not all(isinstance(v, str) for v in table.values()):
             raise ConfigError(f"{p}: '{key}' expected a table of raw column name = \"name\", found {table!r}")
-    validate_manifest(doc, str(p))  # every table ([autopilot], [[segments]], ...; [waves] refused), before any work
+    validate(doc, MANIFEST_SCHEMA, str(p))  # every table ([autopilot], [[segments]], ...; [waves] refused), before any work
     return Manifest(name=str(doc.get("name", p.stem)), vessel=(base / doc["vessel"]).resolve(), logs=log_paths,
                     fs=float(fs) if fs is not None else None, segments=tuple(doc.get("segments", [])),
                     segments_mode=str(doc.get("segments_mode", "replace")), columns=dict(doc.get("columns", {})),

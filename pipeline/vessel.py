@@ -27,7 +27,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .config_schema import validate_vessel
+from .config_schema import VESSEL_SCHEMA, validate
 from .errors import ConfigError
 from .records import DOF_NAMES, DOFS, INPUT_UNITS
 
@@ -357,7 +357,7 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
                                 reverse_scale=_number(f"{where}.reverse_scale", a.get("reverse_scale", fs))))
     kw["actuators"] = tuple(acts)
     kw["extra"] = {k: doc[k] for k in ("thrusters", "topics", "sensors") if k in doc}
-    validate_vessel(doc, path)  # every table, incl. [thrusters] [topics] [sensors] (pipeline.config_schema)
+    validate(doc, VESSEL_SCHEMA, path)  # every table, incl. [thrusters] [topics] [sensors] (pipeline.config_schema)
     return Vessel(**kw)
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.config_schema import MANIFEST_SCHEMA, VESSEL_SCHEMA, validate_manifest, validate_vessel
+from pipeline.config_schema import MANIFEST_SCHEMA, VESSEL_SCHEMA, validate
 from pipeline.errors import ConfigError
 from pipeline.manifest import load_manifest
 from pipeline.vessel import load_vessel, parse_vessel
@@ -34,7 +34,7 @@ def test_shipped_configs_and_every_optional_table_pass():
     for path in sorted((ROOT / "vessel_configs").glob("*.toml")):
         load_vessel(path)
     for path in sorted((ROOT / "trials").rglob("*.toml")):
-        validate_manifest(tomllib.loads(path.read_text()), str(path))
+        validate(tomllib.loads(path.read_text()), MANIFEST_SCHEMA, str(path))
     vessel = parse_vessel(_vessel_doc(), "v.toml")
     assert vessel.extra["thrusters"]["surge"]["gain"] == 0.27      # passed through untouched
     assert set(VESSEL_SCHEMA[1]) >= {"sensors", "thrusters", "topics", "actuators"}
@@ -66,7 +66,7 @@ def test_all_problems_reported_at_once_and_input_not_modified():
     doc["rudder"] = {"max_angle": -1.0}
     before = copy.deepcopy(doc)
     with pytest.raises(ConfigError, match="2 problems") as exc:
-        validate_vessel(doc, "v.toml")
+        validate(doc, VESSEL_SCHEMA, "v.toml")
     assert "topics./imu" in str(exc.value) and "rudder.max_angle" in str(exc.value)
     assert doc == before
 
