@@ -242,8 +242,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
         atomic_write_text(args.review, segment_review_html(result.trial, result.segments, fits,
                                                            segments_to_json(result.segments)))
-    ok = sum(e.success for e in fits.estimates.values())
-    print(f"fitted {len(fits.segment_fits)} segments; {ok} of {len(fits.estimates)} coefficients identified; "
+    params = fits.to_fit_result().params
+    ok = sum(p.success for p in params.values())
+    print(f"fitted {len(fits.segment_fits)} segments; {ok} of {len(params)} coefficients identified; "
           f"wrote {args.json} (details and messages there)")
     found = findings(fits, [segment_quality(sf, result.trial) for sf in fits.segment_fits])
     print_summary(fits, found.warnings)

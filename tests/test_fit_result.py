@@ -18,7 +18,7 @@ from pipeline.fit.least_squares import fit_least_squares
 from pipeline.fit.nomoto_oe import NomotoRecord, fit_nomoto
 from pipeline.fit.segment_fit import build_segment_fit
 from pipeline.model.waves import WaveParams, simulate_waves
-from pipeline.records import Estimate, FitParameter, FitResult, Fits, Segment, confidence_interval
+from pipeline.records import DampingFit, Estimate, FitParameter, FitResult, Fits, Segment, confidence_interval
 from pipeline.report.coefficients_json import fits_to_dict, write_coefficients_json
 from pipeline.report.fit_results import as_fit_result
 from pipeline.report.rows import coefficient_rows
@@ -134,3 +134,23 @@ def test_bad_shapes_are_refused_with_what_was_expected():
         FitResult("m", {"a": FitParameter("b", 1.0)}, np.zeros((1, 1)))
     with pytest.raises(TypeError, match="expected one of .*NomotoFit.*found str"):
         as_fit_result("not a fit")
+
+
+def test_damping_fit_converts_terms_and_shared_parameters():
+    cov = np.array([[4e-4, 1e-5], [1e-5, 9e-4]])
+    fit = DampingFit(dof="surge", structure="quadratic", names=("a", "b"), values=np.array([0.22, 0.9]),
+                     stderr=np.array([0.01, 0.02]), covariance=np.diag([1e-4, 4e-4]),
+                     terms={"X_u": (-2.86, 0.02, "kg/s"), "X_|u|u": (-11.7, 0.03, "kg/m")}, term_covariance=cov,
+                     rmse=1.02, lag1=0.1, n=400, dof_resid=396, inertia=13.0)
+    terms = fit.to_fit_result()
+    assert terms.names == ("X_u", "X_|u|u") and terms.params["X_|u|u"].unit == "kg/m"
+    np.testing.assert_allclose(terms.covariance, cov)
+    assert terms.params["X_u"].ci95 == pytest.approx(confidence_interval(-2.86, 0.02, 396))
+    shared = fit.shared_fit_result()
+    assert shared.names == ("a", "b") and shared.stderr("b") == pytest.approx(0.02)
+    assert shared.statistics["inertia"] == 13.0 and shared.ndata == 400
+    # Without a mass there are no Fossen terms: the shared parameters stand in.
+    bare = DampingFit(dof="surge", structure="linear", names=("a",), values=np.array([0.2]), stderr=np.array([0.01]),
+                      covariance=np.array([[1e-4]]), terms={}, term_covariance=np.zeros((0, 0)), rmse=1.0, lag1=0.0,
+                      n=100, dof_resid=99)
+    assert bare.to_fit_result().names == ("a",)
