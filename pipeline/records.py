@@ -610,13 +610,13 @@ class DampingFit:
         return fit_result_from_arrays(
             f"damping_{self.structure}", names, [self.terms[k][0] for k in names],
             [self.terms[k][1] for k in names], self.term_covariance, {k: self.terms[k][2] for k in names},
-            dof=self.dof_resid if self.dof_resid > 0 else math.inf, **self._fit_result_fields())
+            dof=self.dof_resid, **self._fit_result_fields())
 
     def shared_fit_result(self) -> "FitResult":
         """The shared parameters (``a``, ``b``, ``c``, ``g_<input>``) as a :class:`FitResult`."""
         return fit_result_from_arrays(
             f"damping_{self.structure}_shared", self.names, self.values, self.stderr, self.covariance,
-            dof=self.dof_resid if self.dof_resid > 0 else math.inf, **self._fit_result_fields())
+            dof=self.dof_resid, **self._fit_result_fields())
 
     def _fit_result_fields(self) -> dict:
         return dict(success=bool(self.success), message=self.message, ndata=int(self.n),
