@@ -27,6 +27,8 @@ fits).
 from __future__ import annotations
 
 import math
+import tomllib
+from pathlib import Path
 from typing import Any, Mapping
 
 from .errors import ConfigError
@@ -197,6 +199,30 @@ def _check(where: str, value: Any, spec, errors: list[str]) -> None:
             errors.append(f"{where}: expected {_describe(spec)}, found {_kind(value)}")
     else:  # a programming error in the schema itself
         raise ValueError(f"config_schema: unknown spec {spec!r}")
+
+
+def read_toml(path: str | Path, what: str) -> tuple[Path, dict]:
+    """Read a configuration TOML; a missing file or a parse error is a ConfigError naming ``what``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    what : str
+        What it should be (``vessel config``, ``trial manifest``), for the message.
+
+    Returns
+    -------
+    tuple[Path, dict]
+        The path and the parsed document (not yet validated).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{what}: expected a TOML file, found nothing at {p}")
+    try:
+        return p, tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: expected valid TOML, found a parse error: {exc}") from None
 
 
 def validate(doc: Mapping[str, Any], schema, source: str) -> None:

@@ -27,12 +27,11 @@ input_channel = "tau_x"
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from .config_schema import MANIFEST_SCHEMA, validate
+from .config_schema import MANIFEST_SCHEMA, read_toml, validate
 from .errors import ConfigError
 
 _KEYS = {"name", "vessel", "logs", "fs", "segments_mode", "segments", "columns", "units", "autopilot", "waves",
@@ -168,13 +167,7 @@ def load_manifest(path: str | Path) -> Manifest:
     ConfigError
         Missing file, invalid TOML, unknown keys, missing vessel or logs, logs that do not exist.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"trial manifest: expected a TOML file, found nothing at {p}")
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: expected valid TOML, found a parse error: {exc}") from None
+    p, doc = read_toml(path, "trial manifest")
     unknown = sorted(set(doc) - _KEYS)
     if unknown:
         raise ConfigError(f"{p}: unknown key(s) {unknown}; allowed: {sorted(_KEYS)}")

@@ -20,14 +20,13 @@ Sections
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from .config_schema import VESSEL_SCHEMA, validate
+from .config_schema import VESSEL_SCHEMA, read_toml, validate
 from .errors import ConfigError
 from .records import DOF_NAMES, DOFS, INPUT_UNITS
 
@@ -374,11 +373,5 @@ def load_vessel(path: str | Path) -> Vessel:
     ConfigError
         Missing file, invalid TOML, or invalid content.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"vessel config: expected a TOML file, found no file at {p}")
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: expected valid TOML, found a parse error: {exc}") from None
+    p, doc = read_toml(path, "vessel config")
     return parse_vessel(doc, str(p))
