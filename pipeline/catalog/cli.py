@@ -24,13 +24,13 @@ def _open(path: str):
 def _is_missing(x) -> bool:
     import pandas as pd
 
-    return bool(_is_missing(x))
+    return bool(pd.isna(x))
 
 
 def _timestamp(x):
     import pandas as pd
 
-    return _timestamp(x)
+    return pd.Timestamp(x)
 
 
 def _add_catalog_option(p: argparse.ArgumentParser) -> None:
