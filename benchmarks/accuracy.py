@@ -29,7 +29,7 @@ Scenarios
   records as the PEM and OE fits.
 
 Baselines: the seeds' two-frequency amplitude method; ARX(2, 2, 1) + offset by least squares on
-the sampled records, converted to K and T by inverting the ZOH (:mod:`pipeline.fit.arx`).
+the sampled records, converted to K and T by inverting the ZOH (``benchmarks/baselines/arx.py``).
 
 Run: ``.venv/bin/python benchmarks/accuracy.py`` (100 trials per scenario; ``--quick`` for 20).
 Results are printed and written to benchmarks/RESULTS.md under "## Accuracy (Nomoto, first-order fits)".
@@ -59,9 +59,9 @@ sys.path.insert(0, str(ROOT))
 
 from pipeline.align import align  # noqa: E402
 from pipeline.errors import FitError  # noqa: E402
-from pipeline.fit import (fit_arx_nomoto, fit_coast_down, fit_nomoto, nomoto_amplitude_method,  # noqa: E402
-                          nomoto_crlb, sinusoid_amplitude)
-from pipeline.fit.crlb import decay_crlb  # noqa: E402
+from benchmarks.baselines import (decay_crlb, fit_arx_nomoto, nomoto_amplitude_method, nomoto_crlb,  # noqa: E402
+                                  sinusoid_amplitude)
+from pipeline.fit import fit_coast_down, fit_nomoto  # noqa: E402
 from pipeline.fit.nomoto_oe import NomotoRecord  # noqa: E402
 from pipeline.flow import show_progress  # noqa: E402
 from pipeline.model.waves import WaveParams, simulate_waves  # noqa: E402

@@ -56,7 +56,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pipeline.errors import VesselidError  # noqa: E402
-from pipeline.fit import fit_trial, nomoto_amplitude_method, sinusoid_amplitude  # noqa: E402
+from benchmarks.baselines import nomoto_amplitude_method, sinusoid_amplitude  # noqa: E402
+from pipeline.fit import fit_trial  # noqa: E402
 from pipeline.flow import load_trial  # noqa: E402
 from pipeline.segment import detect_segments  # noqa: E402
 from pipeline.vessel import parse_vessel  # noqa: E402

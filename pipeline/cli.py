@@ -2,23 +2,41 @@
 
 Every command has ``--help``, returns 0 on success, and on bad input prints ``error: ...`` (what
 was expected and what was found) to stderr and returns a non-zero code, never a traceback.
+
+Start-up stays fast: a stage is imported only when its command runs. The subcommands that live in
+their stage's package (``LAZY_COMMANDS``) get their full parser only when named on the command
+line; otherwise a one-line entry lists them in ``vesselid --help``.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from pathlib import Path
 from typing import Sequence
 
 from . import __version__
-from .autopilot.cli import add_autopilot_parser, add_waves_parser
-from .catalog.cli import add_batch_parser, add_catalog_parser
-from .diagnose.cli import add_diagnose_parser
-from .export.cli import add_export_parser
 from .errors import VesselidError
 
 EXIT_BAD_INPUT = 2
+
+#: Subcommands whose parser lives in their stage's package: name -> (module, function that adds the
+#: parser, the one-line help ``vesselid --help`` lists; the module's own parser must say the same).
+LAZY_COMMANDS: dict[str, tuple[str, str, str]] = {
+    "waves": ("pipeline.autopilot.cli", "add_waves_parser",
+              "fit the second-order wave model to a wave-induced heading record"),
+    "autopilot": ("pipeline.autopilot.cli", "add_autopilot_parser",
+                  "PD heading autopilot and discrete Kalman filter from the identified Nomoto model"),
+    "diagnose": ("pipeline.diagnose.cli", "add_diagnose_parser",
+                 "where and why the identified model disagrees with the boat, and what would fix it"),
+    "export": ("pipeline.export.cli", "add_export_parser",
+               "write the identified model for Gazebo/VRX, PythonVehicleSimulator, ArduPilot or ROS 2"),
+    "batch": ("pipeline.catalog.cli", "add_batch_parser",
+              "process every trial manifest under a folder in parallel (Dask) into the catalogue"),
+    "catalog": ("pipeline.catalog.cli", "add_catalog_parser",
+                "list, show, compare, trend and export the trials in the catalogue"),
+}
 
 
 def _vessel(path: str | None):
@@ -224,8 +242,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
         atomic_write_text(args.review, segment_review_html(result.trial, result.segments, fits,
                                                            segments_to_json(result.segments)))
-    ok = sum(e.success for e in fits.estimates.values())
-    print(f"fitted {len(fits.segment_fits)} segments; {ok} of {len(fits.estimates)} coefficients identified; "
+    params = fits.to_fit_result().params
+    ok = sum(p.success for p in params.values())
+    print(f"fitted {len(fits.segment_fits)} segments; {ok} of {len(params)} coefficients identified; "
           f"wrote {args.json} (details and messages there)")
     found = findings(fits, [segment_quality(sf, result.trial) for sf in fits.segment_fits])
     print_summary(fits, found.warnings)
@@ -332,8 +351,35 @@ def _add_logs(p: argparse.ArgumentParser, vessel_required: bool = False) -> None
     p.add_argument("--vessel", required=vessel_required, metavar="VESSEL.toml", help="vessel config")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argparse parser of ``vesselid`` with every subcommand."""
+def command_name(argv: Sequence[str]) -> str:
+    """The subcommand named in ``argv`` (the first word that is not an option), or ``""``.
+
+    Parameters
+    ----------
+    argv : Sequence[str]
+        Arguments without the program name.
+    """
+    return next((a for a in argv if not a.startswith("-")), "")
+
+
+def _add_stage_parser(sub, name: str, full: bool) -> None:
+    module, function, help_text = LAZY_COMMANDS[name]
+    if full:
+        getattr(importlib.import_module(module), function)(sub)
+    else:
+        sub.add_parser(name, help=help_text)
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The argparse parser of ``vesselid``.
+
+    Parameters
+    ----------
+    command : str, optional
+        The subcommand about to run: only its stage package is imported for its parser, the
+        others in ``LAZY_COMMANDS`` are listed by name and help only. None (default): every
+        subcommand's full parser.
+    """
     parser = argparse.ArgumentParser(prog="vesselid", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"vesselid {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -376,13 +422,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="DIR", help="report folder")
     p.set_defaults(func=cmd_report)
 
-    add_waves_parser(sub)
-    add_autopilot_parser(sub)
-    add_diagnose_parser(sub)
-
-    add_export_parser(sub)
-    add_batch_parser(sub)
-    add_catalog_parser(sub)
+    for name in LAZY_COMMANDS:
+        _add_stage_parser(sub, name, command is None or command == name)
 
     p = sub.add_parser("simulate", help="simulate a sea trial of a vessel and write it as a log file")
     p.add_argument("--vessel", required=True, metavar="VESSEL.toml", help="vessel config with [damping] or [nomoto]")
@@ -414,8 +455,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         Exit code: the command's (0 on success), ``EXIT_BAD_INPUT`` (2) on a pipeline, OS or
         value error (printed as ``error: ...``), 130 when interrupted.
     """
-    parser = build_parser()
     argv = [str(a) for a in (sys.argv[1:] if argv is None else argv)]
+    parser = build_parser(command_name(argv))
     args = parser.parse_args(argv)
     args.argv = argv  # the command line for the report footer
     try:

@@ -27,11 +27,11 @@ input_channel = "tau_x"
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from .config_schema import MANIFEST_SCHEMA, read_toml, validate
 from .errors import ConfigError
 
 _KEYS = {"name", "vessel", "logs", "fs", "segments_mode", "segments", "columns", "units", "autopilot", "waves",
@@ -61,7 +61,7 @@ class Manifest:
     columns, units : Mapping[str, str]
         CSV column map and raw units.
     options : Mapping[str, Any]
-        Stage options (``autopilot``, ``waves`` tables).
+        Stage options (the ``autopilot`` table; a ``[waves]`` table is refused: no stage reads it).
     path : Path
         The manifest file.
     runs : tuple[tuple[str, tuple[Path, ...]], ...] or None
@@ -167,13 +167,7 @@ def load_manifest(path: str | Path) -> Manifest:
     ConfigError
         Missing file, invalid TOML, unknown keys, missing vessel or logs, logs that do not exist.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"trial manifest: expected a TOML file, found nothing at {p}")
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: expected valid TOML, found a parse error: {exc}") from None
+    p, doc = read_toml(path, "trial manifest")
     unknown = sorted(set(doc) - _KEYS)
     if unknown:
         raise ConfigError(f"{p}: unknown key(s) {unknown}; allowed: {sorted(_KEYS)}")
@@ -212,11 +206,12 @@ def load_manifest(path: str | Path) -> Manifest:
         table = doc.get(key, {})
         if not isinstance(table, dict) or not all(isinstance(v, str) for v in table.values()):
             raise ConfigError(f"{p}: '{key}' expected a table of raw column name = \"name\", found {table!r}")
+    validate(doc, MANIFEST_SCHEMA, str(p))  # every table ([autopilot], [[segments]], ...; [waves] refused), before any work
     return Manifest(name=str(doc.get("name", p.stem)), vessel=(base / doc["vessel"]).resolve(), logs=log_paths,
                     fs=float(fs) if fs is not None else None, segments=tuple(doc.get("segments", [])),
                     segments_mode=str(doc.get("segments_mode", "replace")), columns=dict(doc.get("columns", {})),
                     units=dict(doc.get("units", {})),
-                    options={k: doc[k] for k in ("autopilot", "waves") if k in doc}, path=p.resolve(),
+                    options={k: doc[k] for k in ("autopilot",) if k in doc}, path=p.resolve(),
                     runs=runs, inputs=dict(inputs))
 
 

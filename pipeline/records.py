@@ -465,6 +465,25 @@ class SegmentFit:
     success: bool
     message: str = ""
 
+    def to_fit_result(self) -> "FitResult":
+        """This fit as a :class:`FitResult` (units from ``PARAMETER_UNITS`` and the channel)."""
+        p = len(self.param_names)
+        n = int(np.size(self.y))
+        chan_unit = CHANNEL_UNITS.get(self.channel, "")
+        units = {k: parameter_unit(k, chan_unit) for k in self.param_names}
+        values = [self.params.get(k, math.nan) for k in self.param_names]
+        errors = [self.stderr.get(k, math.nan) for k in self.param_names]
+        seg = self.segment
+        res = fit_result_from_arrays(
+            self.model, self.param_names, values, errors, self.covariance, units, dof=max(n - p, 0) or math.inf,
+            aic=float(self.aic), bic=float(self.bic), success=bool(self.success), message=self.message, ndata=n,
+            provenance={"fitter": f"pipeline.fit segment model {self.model}",
+                        "data": f"{seg.kind} {seg.dof} segment {seg.t_start:.2f}-{seg.t_end:.2f} s of run {seg.run}, "
+                                f"channel {self.channel}",
+                        "covariance": "Jacobian (J^T J)^-1 scaled by the residual variance"},
+            statistics={"rmse": float(self.rmse)})
+        return res
+
 
 @dataclass(frozen=True)
 class Estimate:
@@ -506,6 +525,13 @@ class Estimate:
     message: str = ""
     consistency_p: float = math.nan
     per_segment: tuple[float, ...] = ()
+
+    def to_parameter(self) -> "FitParameter":
+        """This estimate as a :class:`FitParameter`."""
+        ci = tuple(self.ci95) if self.ci95 is not None else (math.nan, math.nan)
+        return FitParameter(name=self.name, value=float(self.value), stderr=float(self.stderr), unit=self.unit,
+                            ci95=ci, success=bool(self.success), message=self.message, method=self.method,
+                            n_segments=int(self.n_segments), consistency_p=float(self.consistency_p))
 
 
 @dataclass(frozen=True)
@@ -571,6 +597,34 @@ class DampingFit:
             ``a``, ``b``, ``c`` or ``g_<input>``.
         """
         return float(self.values[self.names.index(name)]) if name in self.names else math.nan
+
+    def to_fit_result(self) -> "FitResult":
+        """The Fossen terms (``terms``, ``term_covariance``) as a :class:`FitResult`.
+
+        Without terms (no mass in the vessel config) the shared parameters instead, as
+        :meth:`shared_fit_result`.
+        """
+        if not self.terms:
+            return self.shared_fit_result()
+        names = tuple(self.terms)
+        return fit_result_from_arrays(
+            f"damping_{self.structure}", names, [self.terms[k][0] for k in names],
+            [self.terms[k][1] for k in names], self.term_covariance, {k: self.terms[k][2] for k in names},
+            dof=self.dof_resid, **self._fit_result_fields())
+
+    def shared_fit_result(self) -> "FitResult":
+        """The shared parameters (``a``, ``b``, ``c``, ``g_<input>``) as a :class:`FitResult`."""
+        return fit_result_from_arrays(
+            f"damping_{self.structure}_shared", self.names, self.values, self.stderr, self.covariance,
+            dof=self.dof_resid, **self._fit_result_fields())
+
+    def _fit_result_fields(self) -> dict:
+        return dict(success=bool(self.success), message=self.message, ndata=int(self.n),
+                    provenance={"fitter": "pipeline.fit.quadratic (joint fit of one DOF's segments)",
+                                "data": f"{self.dof} segments, {self.n} residuals",
+                                "covariance": "Jacobian, per-segment initial states profiled out"},
+                    statistics={"rmse_noise_units": float(self.rmse), "residual_lag1": float(self.lag1),
+                                "inertia": float(self.inertia), "dof_resid": float(self.dof_resid)})
 
 
 @dataclass(frozen=True)
@@ -733,6 +787,242 @@ class Fits:
     )
     structures: Mapping[str, StructureChoice] = field(default_factory=dict)
     decay_analyses: Mapping[str, DecayAnalysis] = field(default_factory=dict)
+
+    def to_fit_result(self) -> "FitResult":
+        """Every estimate as one :class:`FitResult` (parameters in ``estimates`` order).
+
+        The coefficients are combined over different segments and fits, so only their variances
+        are known: the covariance is diagonal with NaN off the diagonal, and there is no single
+        AIC/BIC. ``success`` is True when every estimate succeeded.
+        """
+        params = {k: e.to_parameter() for k, e in self.estimates.items()}
+        cov = np.full((len(params), len(params)), math.nan)
+        for i, par in enumerate(params.values()):
+            cov[i, i] = par.stderr ** 2
+        failed = [k for k, par in params.items() if not par.success]
+        message = (f"{len(failed)} of {len(params)} coefficients not identified: {', '.join(failed)}"
+                   if failed else "")
+        return FitResult(model="vessel coefficients", params=params, covariance=cov, success=not failed,
+                         message=message,
+                         provenance={"fitter": "pipeline.fit.trial.fit_trial", "vessel": str(self.vessel),
+                                     "data": f"{len(self.segment_fits)} segment fits",
+                                     "covariance": "per coefficient only (combined over separate fits)"})
+
+
+# --------------------------------------------------------------------------- one fit result
+#: SI unit of the fit parameters that keep one meaning across models (``psi0[2]``: the name before
+#: ``[``); amplitudes and offsets (``y0``, ``y_ss``, ``A``, ``offset``) take the fitted channel's unit.
+PARAMETER_UNITS: Mapping[str, str] = {
+    "T": "s", "T1": "s", "T2": "s", "T3": "s", "T12": "s", "T1T2": "s^2", "t_servo": "s",
+    "K": "1/s", "b": "rad", "psi0": "rad", "r0": "rad/s", "rate_servo": "rad/s",
+    "omega0": "rad/s", "wn": "rad/s", "lambda": "", "lam": "", "zeta": "", "phase": "rad",
+    "kw_ratio": "s^-1/2", "kw": "rad s^-1/2", "sigma": "rad s^1/2",
+}
+#: Parameters in the unit of the fitted channel.
+CHANNEL_PARAMETERS = frozenset({"y0", "y_ss", "A", "offset"})
+
+
+def parameter_unit(name: str, channel_unit: str = "") -> str:
+    """SI unit of fit parameter ``name`` (``""`` when not known).
+
+    Parameters
+    ----------
+    name : str
+        Parameter name; an index suffix (``psi0[1]``) is ignored.
+    channel_unit : str
+        Unit of the fitted channel, for amplitudes and offsets.
+    """
+    base = name.split("[", 1)[0]
+    if base in CHANNEL_PARAMETERS:
+        return channel_unit
+    return PARAMETER_UNITS.get(base, "")
+
+
+def confidence_interval(value: float, stderr: float, dof: float, level: float = 0.95) -> tuple[float, float]:
+    """Two-sided confidence interval from Student's t distribution.
+
+    Parameters
+    ----------
+    value, stderr : float
+        Estimate and standard error [any unit].
+    dof : float
+        Degrees of freedom; ``inf`` gives the normal interval.
+    level : float
+        Coverage (0.95 for a 95% interval).
+
+    Returns
+    -------
+    tuple[float, float]
+        Lower and upper bound (NaN when ``stderr`` is not finite).
+    """
+    if not (math.isfinite(value) and math.isfinite(stderr)) or dof <= 0:
+        return (math.nan, math.nan)
+    from scipy import stats  # scipy.stats costs ~0.5 s to import; only a fit needs it
+
+    q = stats.norm.ppf(0.5 + level / 2) if math.isinf(dof) else stats.t.ppf(0.5 + level / 2, dof)
+    return (float(value - q * stderr), float(value + q * stderr))
+
+
+@dataclass(frozen=True)
+class FitParameter:
+    """One estimated parameter: lmfit's ``Parameter`` with what a report needs to print it.
+
+    Attributes
+    ----------
+    name : str
+        Parameter name (``K``, ``T``, ``Y_r``, ``omega0``, ...).
+    value, stderr : float
+        Estimate and standard error [``unit``]; NaN when not estimated (``message`` says why),
+        ``inf`` stderr along directions the data do not determine.
+    unit : str
+        SI unit (``""`` dimensionless or not known).
+    ci95 : tuple[float, float]
+        95% confidence interval [``unit``] (NaN when not available).
+    success : bool
+        False when this parameter was not identified (the fit may succeed for others).
+    message : str
+        Why it failed, or what is doubtful about it.
+    method : str
+        Model and rule that gave it (e.g. ``first_order_decay; inverse-variance mean``).
+    n_segments : int
+        Segments or records it rests on (0: not known).
+    consistency_p : float
+        p-value that the per-segment values agree (NaN: single segment or not tested).
+    """
+
+    name: str
+    value: float
+    stderr: float = math.nan
+    unit: str = ""
+    ci95: tuple[float, float] = (math.nan, math.nan)
+    success: bool = True
+    message: str = ""
+    method: str = ""
+    n_segments: int = 0
+    consistency_p: float = math.nan
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Any fitter's output in one shape (lmfit's ``ModelResult`` in the parts vesselid uses).
+
+    Every result type of the pipeline converts to it (``to_fit_result`` on the records here,
+    :func:`pipeline.report.fit_results.as_fit_result` for the rest), and the report reads only this
+    shape. lmfit itself is not a dependency: its ``Parameters``/``MinimizerResult`` hold
+    the same numbers, but the pipeline's fitters are exact-ZOH, prediction-error and casadi
+    problems lmfit cannot pose, so lmfit would add a dependency only to be a container.
+
+    Attributes
+    ----------
+    model : str
+        What was fitted (``first_order_decay``, ``nomoto_pem``, ``greybox_coupled``, ...).
+    params : Mapping[str, FitParameter]
+        Parameters by name, in covariance order.
+    covariance : numpy.ndarray, shape (p, p)
+        Parameter covariance in ``params`` order [products of the units]; NaN entries where a
+        covariance was not estimated (e.g. between coefficients combined separately).
+    aic, bic : float
+        Akaike and Bayesian information criteria (NaN when the fit has no single likelihood).
+    success : bool
+        The fit converged and passed its checks.
+    message : str
+        Solver status and doubts.
+    provenance : Mapping[str, str]
+        Where the numbers come from: ``fitter`` (function or class), ``data`` (segments,
+        records), ``covariance`` (how it was estimated), and any others a converter adds.
+    ndata : int
+        Residuals (data points) used (0: not known).
+    statistics : Mapping[str, float]
+        Other scalar fit statistics (``rmse``, ``lag1``, ``s2``, ...) in the fitter's units.
+    """
+
+    model: str
+    params: Mapping[str, FitParameter]
+    covariance: np.ndarray
+    aic: float = math.nan
+    bic: float = math.nan
+    success: bool = True
+    message: str = ""
+    provenance: Mapping[str, str] = field(default_factory=dict)
+    ndata: int = 0
+    statistics: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self):
+        cov = np.asarray(self.covariance, dtype=float)
+        p = len(self.params)
+        if cov.shape != (p, p):
+            raise ValueError(f"FitResult {self.model!r}: covariance expected shape ({p}, {p}) for the "
+                             f"parameters {list(self.params)}, found {cov.shape}")
+        for key, par in self.params.items():
+            if par.name != key:
+                raise ValueError(f"FitResult {self.model!r}: parameter stored under {key!r} is named {par.name!r}")
+        object.__setattr__(self, "covariance", cov)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Parameter names in covariance order."""
+        return tuple(self.params)
+
+    @property
+    def nvarys(self) -> int:
+        """Number of parameters estimated."""
+        return len(self.params)
+
+    def value(self, name: str) -> float:
+        """Estimate of parameter ``name`` [its unit] (``KeyError`` for an unknown name).
+
+        Parameters
+        ----------
+        name : str
+            One of ``names``.
+        """
+        return float(self.params[name].value)
+
+    def stderr(self, name: str) -> float:
+        """Standard error of parameter ``name`` [its unit].
+
+        Parameters
+        ----------
+        name : str
+            One of ``names``.
+        """
+        return float(self.params[name].stderr)
+
+
+def fit_result_from_arrays(model: str, names, values, stderr, covariance, units: Mapping[str, str] | None = None,
+                           dof: float = math.inf, **kwargs) -> FitResult:
+    """A :class:`FitResult` from the parallel arrays most fitters keep.
+
+    Parameters
+    ----------
+    model : str
+        What was fitted.
+    names : sequence of str
+        Parameter names, in covariance order.
+    values, stderr : array_like
+        Estimates and standard errors [parameter units].
+    covariance : array_like, shape (p, p)
+        Covariance; None or an empty array gives NaN.
+    units : Mapping[str, str], optional
+        Unit per name (missing names: ``""``).
+    dof : float
+        Residual degrees of freedom for the 95% intervals (``inf``: normal).
+    **kwargs
+        The other :class:`FitResult` fields (``aic``, ``bic``, ``success``, ``message``,
+        ``provenance``, ``ndata``, ``statistics``).
+    """
+    names = tuple(str(n) for n in names)
+    values = np.asarray(values, dtype=float).reshape(-1)
+    stderr = np.asarray(stderr, dtype=float).reshape(-1) if stderr is not None else np.full(len(names), math.nan)
+    if values.size != len(names) or stderr.size != len(names):
+        raise ValueError(f"{model}: {len(names)} names but {values.size} values and {stderr.size} errors")
+    cov = np.full((len(names), len(names)), math.nan) if covariance is None or np.size(covariance) == 0 \
+        else np.asarray(covariance, dtype=float)
+    units = units or {}
+    params = {n: FitParameter(n, float(v), float(e), units.get(n, ""), confidence_interval(float(v), float(e), dof),
+                              method=model)
+              for n, v, e in zip(names, values, stderr)}
+    return FitResult(model=model, params=params, covariance=cov, **kwargs)
 
 
 # --------------------------------------------------------------------------- report

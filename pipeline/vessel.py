@@ -1,7 +1,9 @@
 """Vessel configuration: the TOML of DESIGN.md, read into a frozen :class:`Vessel`.
 
 Minimal form is ``name`` alone (a rudder ship whose mass is unknown: only Nomoto is identified).
-All sections are optional; unknown keys are errors that name the key and the allowed ones.
+All sections are optional; unknown keys are errors that name the key and the allowed ones. Every
+table, including those later stages read (``[thrusters]``, ``[topics]``, ``[sensors]``), is also
+checked against :data:`pipeline.config_schema.VESSEL_SCHEMA` when the file is read, before any work.
 
 Sections
 --------
@@ -18,13 +20,13 @@ Sections
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
+from .config_schema import VESSEL_SCHEMA, read_toml, validate
 from .errors import ConfigError
 from .records import DOF_NAMES, DOFS, INPUT_UNITS
 
@@ -354,6 +356,7 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
                                 reverse_scale=_number(f"{where}.reverse_scale", a.get("reverse_scale", fs))))
     kw["actuators"] = tuple(acts)
     kw["extra"] = {k: doc[k] for k in ("thrusters", "topics", "sensors") if k in doc}
+    validate(doc, VESSEL_SCHEMA, path)  # every table, incl. [thrusters] [topics] [sensors] (pipeline.config_schema)
     return Vessel(**kw)
 
 
@@ -370,11 +373,5 @@ def load_vessel(path: str | Path) -> Vessel:
     ConfigError
         Missing file, invalid TOML, or invalid content.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"vessel config: expected a TOML file, found no file at {p}")
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: expected valid TOML, found a parse error: {exc}") from None
+    p, doc = read_toml(path, "vessel config")
     return parse_vessel(doc, str(p))

@@ -7,10 +7,11 @@ import pytest
 import scipy.integrate
 import scipy.linalg
 
-from pipeline.autopilot.kalman import (DEFAULT_Q, continuous_model, continuous_noise_intensity, kalman_model,
-                                       kalman_predict, kalman_update, observability, run_kalman_filter,
-                                       sampled_noise_from_intensity, sampled_noise_variance, steady_state,
-                                       van_loan)
+from pipeline.autopilot.kalman import (DEFAULT_Q, continuous_noise_intensity, kalman_model, kalman_predict,
+                                       kalman_update, observability, run_kalman_filter, sampled_noise_from_intensity,
+                                       sampled_noise_variance, steady_state)
+from pipeline.model import heading_model_matrices as continuous_model
+from pipeline.model import van_loan
 from pipeline.errors import AutopilotError
 from pipeline.model.waves import WaveParams
 
@@ -177,7 +178,7 @@ def test_bad_filter_input(kwargs, match):
 
 def test_bad_model_and_records():
     with pytest.raises(AutopilotError, match="T > 0"):
-        continuous_model(0.1, 0.0, WAVES_SEED)
+        kalman_model(0.1, 0.0, WAVES_SEED, TS)
     with pytest.raises(AutopilotError, match="sample time"):
         kalman_model(K_SEED, T_SEED, WAVES_SEED, 0.0)
     with pytest.raises(AutopilotError, match="at least 10 samples"):

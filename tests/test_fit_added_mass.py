@@ -78,11 +78,15 @@ def test_bad_thruster_sections_name_what_was_expected(section, match):
         parse_thrusters(section, "boat.toml [thrusters]")
 
 
-def test_vessel_config_passes_thrusters_through_and_fit_rejects_bad_ones():
-    vessel = parse_vessel({**DOC, "thrusters": {"surge": {"gain": "x"}}})
+def test_bad_thrusters_are_refused_when_read_and_by_the_fit():
+    # Types and keys: refused when the vessel config is read (pipeline.config_schema), before any work.
+    with pytest.raises(ConfigError, match=r"thrusters.surge.gain: expected a finite number, found 'x'"):
+        parse_vessel({**DOC, "thrusters": {"surge": {"gain": "x"}}})
+    # What a schema cannot judge (commands that do not increase): refused by the fit stage.
+    vessel = parse_vessel({**DOC, "thrusters": {"surge": {"table": [[100, 7.0], [60, 0.0]]}}})
     trial = Trial("t", pd.DataFrame({"t": np.arange(10.0), "u": np.zeros(10)}), 1.0)
     fits = single_dof_fits(trial, type("S", (), {"items": (), "trial": "t"})(), vessel)
-    with pytest.raises(ConfigError, match=r"\[thrusters.surge\].gain: expected a finite number, found 'x'"):
+    with pytest.raises(ConfigError, match=r"table: expected strictly increasing commands"):
         fit_added_mass(fits, trial, vessel)
 
 

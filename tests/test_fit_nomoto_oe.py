@@ -20,8 +20,8 @@ import scipy.linalg
 import scipy.signal
 
 from pipeline.errors import FitError
-from pipeline.fit import (fit_arx_nomoto, fit_nomoto, fit_trial, nomoto2_rhs, nomoto_amplitude_method,
-                          nomoto_crlb, sinusoid_amplitude)
+from benchmarks.baselines import fit_arx_nomoto, nomoto_amplitude_method, nomoto_crlb, sinusoid_amplitude
+from pipeline.fit import fit_nomoto, fit_trial, nomoto2_rhs
 from pipeline.fit.nomoto_oe import (Nomoto2Params, NomotoRecord, nomoto_matrices, simulate_zoh,
                                     zoh_discretise)
 from pipeline.fit.nomoto_pem import (augmented_matrices, dare_filter_2x2, expm_small, innovation_filter,

@@ -35,7 +35,7 @@ heading_deg = "psi"
 [units]
 heading_deg = "deg"
 [autopilot]
-bandwidth = 0.3
+crossover = 0.3
 [[segments]]
 kind = "coast_down"
 dof = "surge"
@@ -55,7 +55,7 @@ def test_load_good_manifest(folder):
     assert m.fs == 50.0 and isinstance(m.fs, float)
     assert m.segments_mode == "add"
     assert m.columns == {"heading_deg": "psi"} and m.units == {"heading_deg": "deg"}
-    assert m.options == {"autopilot": {"bandwidth": 0.3}}
+    assert m.options == {"autopilot": {"crossover": 0.3}}
     assert m.segments == ({"kind": "coast_down", "dof": "surge", "t_start": 40.9, "t_end": 70.0},)
 
 

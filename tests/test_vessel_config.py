@@ -56,7 +56,7 @@ def test_minimal_rudder_ship_has_no_rigid_body():
 
 
 def test_load_missing_file_and_bad_toml(tmp_path):
-    with pytest.raises(ConfigError, match="expected a TOML file, found no file at"):
+    with pytest.raises(ConfigError, match="vessel config: expected a TOML file, found nothing at"):
         load_vessel(tmp_path / "nope.toml")
     bad = tmp_path / "bad.toml"
     bad.write_text('name = "x"\n[rigid_body\nmass = 1\n')

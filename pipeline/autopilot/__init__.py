@@ -20,9 +20,8 @@ from .closed_loop import (CASES, ClosedLoopCheck, ClosedLoopRun, LoopMetrics, Sc
 from .config import (ArduPilotExport, AutopilotConfig, NomotoCoefficients, SourceFile, ardupilot_params,
                      build_autopilot_config, read_autopilot_toml, read_coefficients_json, read_waves_json,
                      write_ardupilot_params, write_autopilot_toml)
-from .kalman import (KALMAN_STATES, KalmanModel, KalmanRun, continuous_model, kalman_model, kalman_predict,
-                     kalman_update, observability, run_kalman_filter, sampled_noise_variance, steady_state,
-                     van_loan)
+from .kalman import (KALMAN_STATES, KalmanModel, KalmanRun, kalman_model, kalman_predict,
+                     kalman_update, observability, run_kalman_filter, sampled_noise_variance, steady_state)
 from .pd import DiscretePD, PDGains, default_crossover, discretise_pd, loop_margins, margin_table, pd_gains
 from .report_section import autopilot_html_section
 from .design import AutopilotResult, build_autopilot, nomoto_from_fits, write_autopilot_outputs
@@ -34,8 +33,8 @@ __all__ = [
     "ArduPilotExport", "AutopilotConfig", "NomotoCoefficients", "SourceFile", "ardupilot_params",
     "build_autopilot_config", "read_autopilot_toml", "read_coefficients_json", "read_waves_json",
     "write_ardupilot_params", "write_autopilot_toml",
-    "KALMAN_STATES", "KalmanModel", "KalmanRun", "continuous_model", "kalman_model", "kalman_predict",
-    "kalman_update", "observability", "run_kalman_filter", "sampled_noise_variance", "steady_state", "van_loan",
+    "KALMAN_STATES", "KalmanModel", "KalmanRun", "kalman_model", "kalman_predict",
+    "kalman_update", "observability", "run_kalman_filter", "sampled_noise_variance", "steady_state",
     "DiscretePD", "PDGains", "default_crossover", "discretise_pd", "loop_margins", "margin_table", "pd_gains",
     "autopilot_html_section",
     "AutopilotResult", "build_autopilot", "nomoto_from_fits", "write_autopilot_outputs",

@@ -27,7 +27,8 @@ from ..errors import AutopilotError
 from ..model.nomoto import NomotoParams, nomoto_rhs
 from ..model.waves import WaveParams, simulate_waves
 from .config import AutopilotConfig
-from .kalman import kalman_predict, kalman_update, ssa
+from ..geo import wrap_pi
+from .kalman import kalman_predict, kalman_update
 from .pd import discretise_pd
 
 #: Closed-loop cases, in report order.
@@ -271,7 +272,7 @@ def simulate_heading_loop(config: AutopilotConfig, scenario: Scenario, case: str
         y = x[0] + psi_w[k] + noise[k]
         x_post, p_post, _ = kalman_update(km, xk, pk, y)
         fb = x_post[2] if use_filter else y
-        e = float(ssa(scenario.psi_ref - fb))
+        e = float(wrap_pi(scenario.psi_ref - fb))
         cmd = pdd.output(z, e) + (x_post[4] if feed_forward else 0.0)
         z = pdd.next_state(z, e)
         delta = float(np.clip(delta_prev + np.clip(cmd - delta_prev, -max_step, max_step), -max_angle, max_angle))

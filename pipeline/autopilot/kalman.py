@@ -49,6 +49,7 @@ import numpy as np
 import scipy.linalg
 
 from ..errors import AutopilotError
+from ..geo import wrap_pi
 from ..model import discretise
 from ..model.nomoto import HEADING_MODEL_STATES, heading_model_matrices
 from ..model.waves import WaveParams
@@ -66,42 +67,9 @@ DEFAULT_P0 = (1.0, 0.013, math.pi**2, 1.0, 2.5e-3)
 DEFAULT_R = 0.002 * (math.pi / 180.0) ** 2
 
 
-def ssa(angle):
-    """Smallest signed angle, wrapped to [-pi, pi) [rad].
-
-    Parameters
-    ----------
-    angle : array_like
-        Angles [rad], any range.
-    """
-    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
-
-
 # --------------------------------------------------------------------------- continuous model
-def continuous_model(K: float, T: float, waves: WaveParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(A, B, E, C)`` of the 5-state heading model ``[xi_w, psi_w, psi, r, b]``.
-
-    :func:`pipeline.model.nomoto.heading_model_matrices`, with K and T checked first.
-
-    Parameters
-    ----------
-    K : float
-        Nomoto gain [1/s].
-    T : float
-        Nomoto time constant [s].
-    waves : WaveParams
-        Wave model (omega_0 [rad/s], lambda [-], K_w [rad s^-1/2]).
-
-    Returns
-    -------
-    A : numpy.ndarray, shape (5, 5)
-    B : numpy.ndarray, shape (5, 1)
-        Rudder input [rad].
-    E : numpy.ndarray, shape (5, 2)
-        Noise input ``[w_w, w_b]``.
-    C : numpy.ndarray, shape (1, 5)
-        Compass: ``y = psi + psi_w``.
-    """
+def _checked_model(K: float, T: float, waves: WaveParams):
+    """:func:`pipeline.model.nomoto.heading_model_matrices` after checking K and T."""
     if not (math.isfinite(K) and math.isfinite(T) and T > 0):
         raise AutopilotError(f"Nomoto model: expected finite K and T > 0, found K={K!r}, T={T!r}")
     return heading_model_matrices(K, T, waves)
@@ -157,7 +125,7 @@ def observability(K: float, T: float, waves: WaveParams) -> dict[str, dict]:
         Variant name -> ``{"states", "rank", "n", "observable", "condition"}``; ``condition`` is the
         2-norm condition number of the observability matrix (large values: weakly observable).
     """
-    a, _, _, c = continuous_model(K, T, waves)
+    a, _, _, c = _checked_model(K, T, waves)
     out = {}
     for name, keep in MODEL_VARIANTS.items():
         idx = np.array(keep)
@@ -170,41 +138,6 @@ def observability(K: float, T: float, waves: WaveParams) -> dict[str, dict]:
                      "observable": rank == len(idx),
                      "condition": float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf}
     return out
-
-
-# --------------------------------------------------------------------------- discretisation
-def van_loan(a: np.ndarray, b: np.ndarray, e: np.ndarray, q: np.ndarray, h: float
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Exact discretisation of ``x_dot = A x + B u + E w`` (Van Loan 1978).
-
-    Parameters
-    ----------
-    a : numpy.ndarray, shape (n, n)
-    b : numpy.ndarray, shape (n, m)
-        Input matrix (input held constant over a sample).
-    e : numpy.ndarray, shape (n, p)
-        Noise input matrix.
-    q : numpy.ndarray, shape (p, p)
-        Continuous noise intensity (power spectral density of w).
-    h : float
-        Sample time [s].
-
-    Returns
-    -------
-    ad : numpy.ndarray
-        ``exp(A h)``.
-    bd, ed : numpy.ndarray
-        ``int_0^h exp(A s) ds B`` and ``... E``.
-    qd : numpy.ndarray
-        ``int_0^h exp(A s) E Q E^T exp(A^T s) ds``, symmetrised.
-
-    References
-    ----------
-    Van Loan (1978); Brown & Hwang (2012), sec. 3.9.
-    """
-    if not (math.isfinite(h) and h > 0):
-        raise AutopilotError(f"sample time: expected a positive number [s], found {h!r}")
-    return discretise.van_loan(a, b, e, q, h)
 
 
 # --------------------------------------------------------------------------- the filter
@@ -295,8 +228,10 @@ def kalman_model(K: float, T: float, waves: WaveParams, ts: float, r: float = DE
     xm = np.zeros(5) if x0 is None else np.asarray(x0, float).copy()
     if xm.shape != (5,) or not np.all(np.isfinite(xm)):
         raise AutopilotError(f"initial state x0: expected 5 finite numbers {list(KALMAN_STATES)}, found {x0!r}")
-    a, b, e, c = continuous_model(K, T, waves)
-    ad, bd, ed, qd = van_loan(a, b, e, qm, ts)
+    a, b, e, c = _checked_model(K, T, waves)
+    if not (isinstance(ts, (int, float)) and math.isfinite(ts) and ts > 0):
+        raise AutopilotError(f"sample time: expected a positive number [s], found {ts!r}")
+    ad, bd, ed, qd = discretise.van_loan(a, b, e, qm, ts)
     return KalmanModel(ts=float(ts), ad=ad, bd=bd, ed=ed, c=c, qd=qd, r=float(r), p0=pm.copy(), x0=xm,
                        a=a, b=b, e=e, q=qm.copy())
 
@@ -325,7 +260,7 @@ def kalman_update(model: KalmanModel, x_prior: np.ndarray, p_prior: np.ndarray, 
     pc = p_prior @ c
     s = float(c @ pc) + model.r
     gain = pc / s
-    innov = float(ssa(y - c @ x_prior))
+    innov = float(wrap_pi(y - c @ x_prior))
     x_post = x_prior + gain * innov
     ikc = np.eye(5) - np.outer(gain, c)
     # Joseph form: stays symmetric positive definite in floating point (Brown & Hwang, eq. 4.2.18).

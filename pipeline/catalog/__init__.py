@@ -5,14 +5,28 @@ stores each trial in the catalogue (:class:`Catalog`); :func:`compare_trials` an
 :func:`coefficient_trend` read it back; :func:`write_catalog_pages` writes one HTML page per vessel.
 """
 
-from .batch import BatchSummary, find_trials, run_batch
-from .errors import CatalogError
-from .html import write_catalog_pages
-from .schema import SCHEMA_VERSION, migrate
-from .stats import Trend, coefficient_trend, compare_trials, holm, plot_trend
-from .store import DEFAULT_CATALOG, Catalog
-from .trial_job import TrialIdentity, TrialRecord, identify_trial, process_trial
+import importlib
 
-__all__ = ["BatchSummary", "find_trials", "run_batch", "CatalogError", "write_catalog_pages", "SCHEMA_VERSION",
-           "migrate", "Trend", "coefficient_trend", "compare_trials", "holm", "plot_trend", "DEFAULT_CATALOG",
-           "Catalog", "TrialIdentity", "TrialRecord", "identify_trial", "process_trial"]
+#: Public name -> submodule defining it. Submodules load on first use (PEP 562), so that
+#: ``vesselid --help`` and the ``catalog`` parser do not import Dask, DuckDB and scipy.stats.
+_EXPORTS = {
+    "BatchSummary": "batch", "find_trials": "batch", "run_batch": "batch",
+    "CatalogError": "errors", "write_catalog_pages": "html", "SCHEMA_VERSION": "schema", "migrate": "schema",
+    "Trend": "stats", "coefficient_trend": "stats", "compare_trials": "stats", "holm": "stats",
+    "plot_trend": "stats", "DEFAULT_CATALOG": "schema", "Catalog": "store", "TrialIdentity": "trial_job",
+    "TrialRecord": "trial_job", "identify_trial": "trial_job", "process_trial": "trial_job",
+}
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str):
+    """Load the submodule that defines ``name`` on first use (PEP 562)."""
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'pipeline.catalog' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(list(globals()) + __all__)

@@ -10,10 +10,27 @@ import math
 import shlex
 from pathlib import Path
 
-import pandas as pd
-
 from .errors import CatalogError
-from .store import DEFAULT_CATALOG, Catalog
+from .schema import DEFAULT_CATALOG
+
+
+def _open(path: str):
+    """The catalogue at ``path`` (DuckDB and pandas load here, when a command runs)."""
+    from .store import Catalog
+
+    return Catalog(path)
+
+
+def _is_missing(x) -> bool:
+    import pandas as pd
+
+    return bool(pd.isna(x))
+
+
+def _timestamp(x):
+    import pandas as pd
+
+    return pd.Timestamp(x)
 
 
 def _add_catalog_option(p: argparse.ArgumentParser) -> None:
@@ -85,7 +102,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     summary = run_batch(args.trials_dir, args.catalog, args.reports, args.workers, args.scheduler, args.force,
                         args.quick, command, on_result=said, progress=show_progress())
     reports = Path(args.reports) if args.reports else Path(args.catalog).resolve().parent / "reports"
-    with Catalog(args.catalog) as cat:
+    with _open(args.catalog) as cat:
         pages = write_catalog_pages(cat, reports / "catalog")
     print(f"{summary.found} trial(s) found: {len(summary.ok)} processed, {len(summary.failed)} failed, "
           f"{len(summary.skipped)} skipped (already catalogued; --force to redo) in {summary.wall_s:.1f} s on "
@@ -159,7 +176,7 @@ def cmd_catalog_list(args: argparse.Namespace) -> int:
     args : argparse.Namespace
         ``catalog`` and ``vessel``.
     """
-    with Catalog(args.catalog) as cat:
+    with _open(args.catalog) as cat:
         df = cat.trials(args.vessel)
     if df.empty:
         print(f"no trials in {args.catalog}" + (f" for vessel {args.vessel}" if args.vessel else ""))
@@ -167,7 +184,7 @@ def cmd_catalog_list(args: argparse.Namespace) -> int:
     for vessel, g in df.groupby(df["vessel_name"].fillna("(unknown vessel)"), sort=True):
         print(f"{vessel}: {len(g)} trial(s)")
         for t in g.itertuples():
-            date = "-" if pd.isna(t.started_utc) else pd.Timestamp(t.started_utc).strftime("%Y-%m-%d %H:%M")
+            date = "-" if _is_missing(t.started_utc) else _timestamp(t.started_utc).strftime("%Y-%m-%d %H:%M")
             state = "ok" if t.status == "ok" else f"FAILED: {t.error}"
             print(f"  {t.trial_id}  {t.name:<20} {date:<16}  vesselid {t.package_version:<8} {t.mode or '-':<5}  {state}")
     return 0
@@ -181,13 +198,13 @@ def cmd_catalog_show(args: argparse.Namespace) -> int:
     args : argparse.Namespace
         ``catalog`` and ``trial``.
     """
-    with Catalog(args.catalog) as cat:
+    with _open(args.catalog) as cat:
         t = cat.resolve(args.trial)
         tid = t["trial_id"]
         files, runs = cat.table("files", tid), cat.table("runs", tid)
         segs, coefs = cat.table("segments", tid), cat.table("coefficients", tid)
         diag, gaps = cat.table("diagnoses", tid), cat.table("diagnosis_gaps", tid)
-    date = "-" if pd.isna(t["started_utc"]) else pd.Timestamp(t["started_utc"]).isoformat()
+    date = "-" if _is_missing(t["started_utc"]) else _timestamp(t["started_utc"]).isoformat()
     print(f"trial {t['name']} ({tid}), vessel {t['vessel_name']} (config sha256 {str(t['vessel_hash'])[:12]}...)")
     print(f"  status {t['status']}" + (f": {t['error']}" if t["status"] != "ok" else ""))
     print(f"  date {date} [{t['date_source']}]; place {_f(t['lat'], 8)}, {_f(t['lon'], 8)} [{t['place_source']}]")
@@ -208,7 +225,7 @@ def cmd_catalog_show(args: argparse.Namespace) -> int:
         else:
             print(f"  {c.name:<14} not identified: {c.message[:100]}")
     for d in diag.itertuples():
-        if pd.isna(d.gap_before):
+        if _is_missing(d.gap_before):
             print(f"diagnosis: {d.message}")
         else:
             print(f"diagnosis: {d.status}" + (f", effect {d.effect} in {d.dof}" if d.effect else "")
@@ -228,7 +245,7 @@ def cmd_catalog_compare(args: argparse.Namespace) -> int:
     """
     from .stats import compare_trials
 
-    with Catalog(args.catalog) as cat:
+    with _open(args.catalog) as cat:
         df, text = compare_trials(cat, args.trial_a, args.trial_b, args.alpha)
     print(text)
     print(f"  {'coefficient':<14} {'A':>11} {'B':>11} {'B - A':>11} {'se':>9} {'z':>7} {'p':>9}  beyond  unit")
@@ -251,7 +268,7 @@ def cmd_catalog_trend(args: argparse.Namespace) -> int:
     """
     from .stats import coefficient_trend, plot_trend
 
-    with Catalog(args.catalog) as cat:
+    with _open(args.catalog) as cat:
         trends = coefficient_trend(cat, args.coefficient, args.vessel, args.alpha)
     for tr in trends:
         print(f"{tr.vessel}: {tr.coefficient} over {len(tr.points)} trial(s); x = {tr.x_label}")
@@ -281,7 +298,7 @@ def cmd_catalog_export(args: argparse.Namespace) -> int:
     args : argparse.Namespace
         ``catalog`` and ``out``.
     """
-    with Catalog(args.catalog) as cat:
+    with _open(args.catalog) as cat:
         out = cat.export(args.out)
     print(f"wrote {out}")
     return 0
@@ -297,7 +314,7 @@ def cmd_catalog_html(args: argparse.Namespace) -> int:
     """
     from .html import write_catalog_pages
 
-    with Catalog(args.catalog) as cat:
+    with _open(args.catalog) as cat:
         pages = write_catalog_pages(cat, args.out)
     print(f"wrote {len(pages)} page(s): {pages[0]}")
     return 0

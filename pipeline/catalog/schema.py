@@ -25,6 +25,9 @@ from typing import Sequence
 
 from .errors import CatalogError
 
+#: Catalogue file used when none is given (in the working folder).
+DEFAULT_CATALOG = "vesselid.duckdb"
+
 #: Each entry moves the schema from version ``i`` to ``i + 1`` (index ``i``).
 MIGRATIONS: tuple[Sequence[str], ...] = (
     (

@@ -16,11 +16,10 @@ from typing import Any, Iterable, Mapping
 import pandas as pd
 
 from .errors import CatalogError
-from .schema import SCHEMA_VERSION, TRIAL_TABLES, migrate
+from .schema import DEFAULT_CATALOG, SCHEMA_VERSION, TRIAL_TABLES, migrate
 from .trial_job import TrialRecord
 
 #: Default catalogue file, in the working folder.
-DEFAULT_CATALOG = "vesselid.duckdb"
 
 _TRIAL_COLUMNS = ("trial_id", "name", "files_hash", "package_version", "vessel_hash", "vessel_name",
                   "manifest_path", "report_dir", "status", "error", "started_utc", "date_source", "lat", "lon",

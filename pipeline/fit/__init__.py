@@ -9,15 +9,13 @@ Whole-record Nomoto identification: ``nomoto_oe`` (exact-ZOH output-error and wa
 prediction-error fits, :func:`fit_nomoto`) built from ``nomoto_records`` (record and result),
 ``nomoto_zoh`` (exact sampled simulation), ``nomoto_start`` (closed-form starts),
 ``nomoto_problem`` (criterion, solver, covariance), ``nomoto_pem`` (the Kalman innovations filter
-of the wave model) and ``nomoto_segment`` (the fit-stage adapter for zig-zags and sinusoids), and the baselines and bounds the accuracy benchmark compares it with:
-``amplitude_method`` (the seeds' two-frequency method), ``arx`` and ``crlb``.
+of the wave model) and ``nomoto_segment`` (the fit-stage adapter for zig-zags and sinusoids). The
+baselines and bounds the accuracy benchmark compares them with (the seeds' amplitude method, ARX,
+Cramer-Rao bounds) live in ``benchmarks/baselines/``, outside the package.
 Every model has a closed-form ``guess_*`` that starts the least-squares fit.
 """
 
-from .amplitude_method import nomoto_amplitude_method, sinusoid_amplitude
-from .arx import ArxFit, fit_arx_nomoto
 from .combine import Contribution, combine
-from .crlb import decay_crlb, least_squares_crlb, nomoto_crlb
 from .first_order import decay, fit_coast_down, fit_step, guess_decay, guess_step, step_response
 from .least_squares import LeastSquaresResult, confidence_interval, fit_least_squares
 from .nomoto import fit_rudder_step, guess_nomoto_step, nomoto_step, nomoto_step_change
@@ -35,6 +33,4 @@ __all__ = [
     "combine", "Contribution",
     "fit_nomoto", "fit_nomoto_oe", "fit_nomoto_pem", "fit_nomoto_segment", "guess_nomoto", "NomotoRecord",
     "NomotoFit", "Nomoto2Params", "nomoto2_rhs",
-    "nomoto_amplitude_method", "sinusoid_amplitude", "fit_arx_nomoto", "ArxFit",
-    "nomoto_crlb", "decay_crlb", "least_squares_crlb",
 ]

@@ -13,7 +13,11 @@ from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import optimize
+
+from ..records import FitResult, confidence_interval, fit_result_from_arrays
+
+__all__ = ["LeastSquaresResult", "fit_least_squares", "confidence_interval", "lag1_autocorrelation"]
 
 #: Model function ``f(t, p) -> y`` and its Jacobian ``J(t, p) -> dy/dp`` of shape (n, len(p)).
 ModelFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -75,6 +79,24 @@ class LeastSquaresResult:
         """
         return float(self.values[self.names.index(name)])
 
+    def to_fit_result(self, model: str = "least_squares", units: dict[str, str] | None = None) -> FitResult:
+        """This result as a :class:`~pipeline.records.FitResult`.
+
+        Parameters
+        ----------
+        model : str
+            Name of the model fitted.
+        units : dict, optional
+            Unit per parameter name.
+        """
+        return fit_result_from_arrays(
+            model, self.names, self.values, self.stderr, self.covariance, units, dof=self.dof if self.dof > 0 else math.inf,
+            aic=float(self.aic), bic=float(self.bic), success=bool(self.converged) and not self.at_bound,
+            message=self.message + (f"; at bound: {', '.join(self.at_bound)}" if self.at_bound else ""),
+            ndata=int(self.n), provenance={"fitter": "pipeline.fit.least_squares.fit_least_squares",
+                                           "covariance": "(J^T J)^-1 s^2, s^2 = RSS / (n - p)"},
+            statistics={"rss": float(self.rss), "lag1": float(self.lag1)})
+
 
 def lag1_autocorrelation(residuals: np.ndarray) -> float:
     """Lag-1 autocorrelation of a residual sequence [-].
@@ -95,29 +117,6 @@ def lag1_autocorrelation(residuals: np.ndarray) -> float:
     e = e - e.mean()
     den = float(e @ e)
     return float(e[1:] @ e[:-1]) / den if den > 0 else 0.0
-
-
-def confidence_interval(value: float, stderr: float, dof: float, level: float = 0.95) -> tuple[float, float]:
-    """Two-sided confidence interval from Student's t distribution.
-
-    Parameters
-    ----------
-    value, stderr : float
-        Estimate and standard error [any unit].
-    dof : float
-        Degrees of freedom; ``inf`` gives the normal interval.
-    level : float
-        Coverage (0.95 for a 95% interval).
-
-    Returns
-    -------
-    tuple[float, float]
-        Lower and upper bound (NaN when ``stderr`` is not finite).
-    """
-    if not (math.isfinite(value) and math.isfinite(stderr)) or dof <= 0:
-        return (math.nan, math.nan)
-    q = stats.norm.ppf(0.5 + level / 2) if math.isinf(dof) else stats.t.ppf(0.5 + level / 2, dof)
-    return (float(value - q * stderr), float(value + q * stderr))
 
 
 def _covariance(jac: np.ndarray, s2: float) -> tuple[np.ndarray, str]:

@@ -30,9 +30,9 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import ReportError
-from ..records import DOFS, Estimate, Fits
+from ..records import DOFS, FitParameter, FitResult, Fits
 from .rows import (STANDARD_COEFFICIENTS, MISSING_NOTE, check_fits, checked_matrices,
-                      default_unit, estimate_notes, finite, is_identified, ordered_names)
+                      as_parameter, default_unit, estimate_notes, finite, is_identified, ordered_names)
 from ..atomic import atomic_write_text
 
 #: Keys of one coefficient entry, in the order written.
@@ -53,13 +53,14 @@ def _matrix(a: np.ndarray) -> list[list[float | None]]:
     return [[_num(x) for x in row] for row in a]
 
 
-def estimate_to_dict(est: Estimate | None, name: str = "") -> dict[str, Any]:
+def estimate_to_dict(est: FitParameter | None, name: str = "") -> dict[str, Any]:
     """One coefficient entry of the contract.
 
     Parameters
     ----------
-    est : Estimate or None
-        The estimate; None gives an entry that says the fit stage returned nothing.
+    est : FitParameter or None
+        The coefficient (``Fits.to_fit_result().params[name]``; an ``Estimate`` is read as its
+        FitParameter); None gives an entry that says the fit stage returned nothing.
     name : str
         Coefficient name, for the default unit of a missing estimate.
 
@@ -72,6 +73,7 @@ def estimate_to_dict(est: Estimate | None, name: str = "") -> dict[str, Any]:
         return {"value": None, "stderr": None, "ci95": [None, None], "unit": default_unit(name),
                 "n_segments": 0, "method": "", "success": False, "message": MISSING_NOTE,
                 "consistency_p": None}
+    est = as_parameter(est)
     ident = is_identified(est)
     message = (est.message or "").strip()
     if not ident:
@@ -80,7 +82,7 @@ def estimate_to_dict(est: Estimate | None, name: str = "") -> dict[str, Any]:
         message = estimate_notes(est)[0]
     ci = tuple(est.ci95) if est.ci95 is not None else (math.nan, math.nan)
     if len(ci) != 2:
-        raise ReportError(f"Estimate {est.name or name!r}: ci95 expected 2 bounds, found {len(ci)}")
+        raise ReportError(f"coefficient {est.name or name!r}: ci95 expected 2 bounds, found {len(ci)}")
     return {
         "value": _num(est.value) if ident else None,
         "stderr": _num(est.stderr) if ident else None,
@@ -114,12 +116,12 @@ def fits_to_dict(fits: Fits) -> dict[str, Any]:
     """
     check_fits(fits)
     D, D_se = checked_matrices(fits)
+    params = fits.to_fit_result().params
     return {
         "vessel": str(fits.vessel),
         "convention": str(fits.convention),
         "damping_matrix": {"dofs": list(DOFS), "values": _matrix(D), "stderr": _matrix(D_se)},
-        "coefficients": {name: estimate_to_dict(fits.estimates.get(name), name)
-                         for name in ordered_names(fits.estimates)},
+        "coefficients": {name: estimate_to_dict(params.get(name), name) for name in ordered_names(params)},
         **model_structure_to_dict(fits),
         **decay_analysis_to_dict(fits),
     }
@@ -157,25 +159,30 @@ def decay_analysis_to_dict(fits: Fits) -> dict[str, Any]:
 
 
 def _damping_fit_dict(fit) -> dict[str, Any]:
-    """One structure's joint fit: its Fossen terms with value, stderr, 95% CI, unit, and covariance."""
-    from ..fit.least_squares import confidence_interval
+    """One structure's joint fit: its Fossen terms with value, stderr, 95% CI, unit, and covariance.
 
-    names = list(fit.terms)
-    cov = np.asarray(fit.term_covariance, float)
+    Read through :meth:`DampingFit.to_fit_result` (the terms) and ``shared_fit_result`` (the shared
+    parameters ``a``, ``b``, ``c``, ``g_<input>``).
+    """
+    shared = fit.shared_fit_result()
+    result: FitResult = fit.to_fit_result() if fit.terms else None
+    names = list(result.params) if result is not None else []
+    cov = result.covariance if result is not None else np.zeros((0, 0))
     sd = np.sqrt(np.clip(np.diag(cov), 0, None)) if cov.size else np.zeros(0)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(sd, sd) if cov.size else cov
     terms = {}
     for n in names:
-        v, se, unit = fit.terms[n]
-        lo, hi = confidence_interval(v, se, fit.dof_resid)
-        terms[n] = {"value": _num(v), "stderr": _num(se), "ci95": [_num(lo), _num(hi)], "unit": unit}
+        par = result.params[n]
+        terms[n] = {"value": _num(par.value), "stderr": _num(par.stderr), "ci95": [_num(par.ci95[0]), _num(par.ci95[1])],
+                    "unit": par.unit}
+    stats = shared.statistics
     return {"terms": terms, "covariance": {"names": names, "matrix": _square(cov)},
             "correlation": {"names": names, "matrix": _square(corr)},
-            "parameters": {n: {"value": _num(v), "stderr": _num(e)}
-                           for n, v, e in zip(fit.names, fit.values, fit.stderr)},
-            "rmse_noise_units": _num(fit.rmse), "residual_lag1": _num(fit.lag1), "n_residuals": int(fit.n),
-            "inertia": _num(fit.inertia), "success": bool(fit.success), "message": fit.message}
+            "parameters": {n: {"value": _num(p.value), "stderr": _num(p.stderr)} for n, p in shared.params.items()},
+            "rmse_noise_units": _num(stats["rmse_noise_units"]), "residual_lag1": _num(stats["residual_lag1"]),
+            "n_residuals": int(shared.ndata), "inertia": _num(stats["inertia"]), "success": bool(shared.success),
+            "message": shared.message}
 
 
 def _square(a: np.ndarray) -> list[list[float | None]]:

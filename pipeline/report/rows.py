@@ -1,7 +1,9 @@
 """What every report format shares: coefficient order, number formatting, notes and warnings.
 
 The renderers (JSON, LaTeX, Markdown, HTML) only differ in syntax; what is printed, and why a
-coefficient shows no error bar, is decided here once so the formats cannot disagree.
+coefficient shows no error bar, is decided here once so the formats cannot disagree. Coefficients
+are read in one shape, :class:`~pipeline.records.FitParameter` of the
+:class:`~pipeline.records.FitResult` that :meth:`Fits.to_fit_result` gives.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from ..errors import ReportError
-from ..records import DOFS, Estimate, Fits, Segment, Segments, SegmentFit
+from ..records import DOFS, Estimate, FitParameter, Fits, Segment, Segments, SegmentFit
 
 #: Force/moment symbol of each DOF row of D (Fossen 2021, SNAME 1950 notation).
 FORCE_SYMBOLS: tuple[str, ...] = ("X", "Y", "K", "M", "N")
@@ -226,44 +228,58 @@ class Row:
     notes: tuple[str, ...]
 
 
-def ordered_names(estimates: Mapping[str, Estimate]) -> tuple[str, ...]:
+def ordered_names(estimates: Mapping[str, FitParameter]) -> tuple[str, ...]:
     """Standard coefficients in the seed's order, then any others the fit returned, in its order.
 
     Parameters
     ----------
-    estimates : Mapping[str, Estimate]
-        The fit stage's estimates.
+    estimates : Mapping[str, FitParameter]
+        The fit stage's coefficients by name (``Fits.to_fit_result().params``).
     """
     return STANDARD_COEFFICIENTS + tuple(k for k in estimates if k not in STANDARD_COEFFICIENTS)
 
 
-def is_identified(est: Estimate | None) -> bool:
-    """True when an estimate succeeded and has a finite value.
+def as_parameter(est: FitParameter | Estimate | None) -> FitParameter | None:
+    """``est`` in the one shape the report reads (an :class:`Estimate` converted, None kept).
 
     Parameters
     ----------
-    est : Estimate or None
-        The estimate.
+    est : FitParameter, Estimate or None
+        A coefficient.
     """
+    return est.to_parameter() if isinstance(est, Estimate) else est
+
+
+def is_identified(est: FitParameter | Estimate | None) -> bool:
+    """True when a coefficient succeeded and has a finite value.
+
+    Parameters
+    ----------
+    est : FitParameter, Estimate or None
+        The coefficient (an Estimate is read as its FitParameter).
+    """
+    est = as_parameter(est)
     return est is not None and bool(est.success) and finite(est.value)
 
 
 MISSING_NOTE = "the fit stage returned no estimate for this coefficient"
 
 
-def estimate_notes(est: Estimate | None) -> tuple[str, ...]:
+def estimate_notes(est: FitParameter | Estimate | None) -> tuple[str, ...]:
     """Why ``est`` is not identified or has no error bar, and any consistency doubt.
 
     Parameters
     ----------
-    est : Estimate or None
-        The estimate; None when the fit stage did not return one.
+    est : FitParameter, Estimate or None
+        The coefficient (an Estimate is read as its FitParameter); None when the fit stage did
+        not return one.
 
     Returns
     -------
     tuple[str, ...]
         Plain-text notes, empty for a clean estimate.
     """
+    est = as_parameter(est)
     if est is None:
         return (MISSING_NOTE,)
     msg = (est.message or "").strip()
@@ -318,8 +334,9 @@ def coefficient_rows(fits: Fits, added_mass: Mapping[str, float] | None = None) 
         :func:`added_mass_note`. None: not known (no note).
     """
     rows = []
-    for name in ordered_names(fits.estimates):
-        est = fits.estimates.get(name)
+    params = fits.to_fit_result().params
+    for name in ordered_names(params):
+        est = params.get(name)
         notes = estimate_notes(est)
         if est is None:
             rows.append(Row(name, False, None, default_unit(name), 0, "", notes))
@@ -440,10 +457,11 @@ def damping_consistency(fits: Fits) -> tuple[str, ...]:
         Fit results.
     """
     D, _ = checked_matrices(fits)
+    params = fits.to_fit_result().params
     out = []
     for name in DERIVATIVES:
         i, j = derivative_index(name)
-        est = fits.estimates.get(name)
+        est = params.get(name)
         d = D[i, j]
         cell = f"D[{i},{j}] ({DOFS[i]},{DOFS[j]})"
         if is_identified(est):

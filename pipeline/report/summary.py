@@ -123,7 +123,7 @@ def model_structure(fits: Fits) -> str:
         Fit results (reads optional additive estimates: quadratic damping ``X_uu``-style names,
         second-order Nomoto ``T1_nomoto``/``T2_nomoto``/``T3_nomoto`` or ``T1``/``T2``/``T3``).
     """
-    est = fits.estimates
+    est = fits.to_fit_result().params
     ident = {k for k, e in est.items() if is_identified(e)}
     parts = []
     coupled = [k for k in ("Y_r", "N_v", "Y_p", "K_v", "K_r", "N_p") if k in ident]
@@ -158,10 +158,10 @@ def summary_rows(fits: Fits, qualities: Sequence, added_mass: Mapping[str, float
     rows = []
     for name, dof in SUMMARY_DAMPING:
         v = name[-1]
-        rows.append(_row(fits.estimates.get(name), f"D_{v}{v} = -{name}", name, True, bad.get(dof),
+        rows.append(_row(fits.to_fit_result().params.get(name), f"D_{v}{v} = -{name}", name, True, bad.get(dof),
                          added_mass is not None and dof not in added_mass))
     for name, label in (("K_nomoto", "Nomoto K"), ("T_nomoto", "Nomoto T")):
-        rows.append(_row(fits.estimates.get(name), label, name, False, bad.get("nomoto"), False))
+        rows.append(_row(fits.to_fit_result().params.get(name), label, name, False, bad.get("nomoto"), False))
     rows.append(SummaryRow("model structure", "", model_structure(fits), "", "", ()))
     return rows
 
@@ -198,7 +198,7 @@ def gain_mass_consistency(fits: Fits) -> tuple[str, ...]:
     out = []
     for dof, name, inp, speed in (("surge", "X_u", "tau_x", "u/sog"), ("sway", "Y_v", "tau_y", "v"),
                                   ("yaw", "N_r", "tau_n", "r")):
-        g, d = fits.estimates.get(f"D_gain_{dof}"), fits.estimates.get(name)
+        g, d = fits.to_fit_result().params.get(f"D_gain_{dof}"), fits.to_fit_result().params.get(name)
         if not (is_identified(g) and is_identified(d)) or float(g.value) <= 0 or float(d.value) >= 0:
             continue
         ratio = float(g.value) / -float(d.value)
@@ -246,10 +246,10 @@ def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()
     """
     warn: list[str] = []
     notes: list[str] = []
-    missing = [n for n in STANDARD_COEFFICIENTS if n not in fits.estimates]
+    missing = [n for n in STANDARD_COEFFICIENTS if n not in fits.to_fit_result().params]
     if missing:
         warn.append("not estimated by the fit stage: " + ", ".join(missing))
-    for name, est in fits.estimates.items():
+    for name, est in fits.to_fit_result().params.items():
         msg = " ".join((est.message or "").split())
         if not is_identified(est):
             text = f"{name} not identified: {shorten(reason(est))}"
@@ -275,7 +275,7 @@ def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()
                     f"is not in the model (gain, delay or coupling)")
     if added_mass is not None:
         zero = [dof for name, dof in SUMMARY_DAMPING
-                if is_identified(fits.estimates.get(name)) and dof not in added_mass]
+                if is_identified(fits.to_fit_result().params.get(name)) and dof not in added_mass]
         if zero:
             warn.append(f"added mass taken as zero in {', '.join(zero)} (no [added_mass] in the vessel config): "
                         f"damping from time constants is low by the added-mass share; give [added_mass] "

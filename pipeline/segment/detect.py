@@ -70,8 +70,17 @@ def _settle_index(y: np.ndarray, fs: float, noise: float) -> tuple[int, float]:
     return n, (i63 / fs if i63 < n else np.nan)
 
 
-def _quality(snr: float, length_in_t: float) -> float:
-    """Quality in [0, 1]: saturating in SNR (good above ~50) and in length (good above ~4 T)."""
+def detection_quality(snr: float, length_in_t: float) -> float:
+    """Quality of a detected segment in [0, 1]: saturating in SNR (good above ~50) and in length
+    (good above ~4 T).
+
+    Parameters
+    ----------
+    snr : float
+        Signal-to-noise ratio of the segment's response [-].
+    length_in_t : float
+        Segment length in time constants (or half cycles) [-].
+    """
     if not np.isfinite(snr) or not np.isfinite(length_in_t):
         return 0.0
     return float(np.clip(1 - np.exp(-snr / 20), 0, 1) * np.clip(1 - np.exp(-length_in_t / 2), 0, 1))
@@ -177,7 +186,7 @@ def _input_segments(trial: Trial) -> list[Segment]:
                 snr = abs(np.nanmedian(y[:3])) / max(noise, 1e-12)
             if ch == "delta":
                 snr = max(snr, _heading_snr(trial, t0, t_end))
-            q = _quality(snr, (t_end - t0) / tau if np.isfinite(tau) else np.nan)
+            q = detection_quality(snr, (t_end - t0) / tau if np.isfinite(tau) else np.nan)
             segs.append(Segment(kind, dof, t0, float(t_end), ch, prev.value, lv.value, quality=q,
                                 label=f"T~{tau:.2f} s, SNR {snr:.0f}" if np.isfinite(tau) else f"SNR {snr:.0f}"))
     return segs
@@ -243,7 +252,7 @@ def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: 
             snr = max(snr, abs(np.nanmedian(r[-max(len(r) // 10, 2):]) - np.nanmedian(r[:3]))
                       / max(noise_std(r), 1e-12))
         segs.append(Segment("rudder_step", "yaw", t0, t1, "delta", st.before.value, st.after.value,
-                            quality=_quality(snr, (t1 - t0) / max(ramp, 1.0)),
+                            quality=detection_quality(snr, (t1 - t0) / max(ramp, 1.0)),
                             label=f"measured rudder, {ramp:.1f} s ramp, SNR {snr:.0f}"))
     return segs
 
@@ -331,7 +340,7 @@ def _decay_segments(trial: Trial, busy: list[tuple[float, float]]) -> list[Segme
             if crossings >= 2 and t1 - t0 > 10 / fs and not overlaps_input:
                 snr = dev[k0] / max(noise, 1e-12)
                 segs.append(Segment("free_decay", dof, t0, t1, None, 0.0, 0.0,
-                                    quality=_quality(snr, crossings / 2),
+                                    quality=detection_quality(snr, crossings / 2),
                                     label=f"from {np.degrees(y[k0]):.1f} deg, {crossings} zero crossings"))
             i = max(k1, k0 + 1) + 1
     return segs

@@ -10,7 +10,7 @@ speed, then a sustained deceleration. This module finds it and checks that it is
 2. **sustained deceleration**: the smoothed deceleration exceeds ``A_MIN`` for ``A_MIN_S`` seconds
    and the speed falls by at least ``DROP_MIN`` of ``V0`` without rising again;
 3. **consistent with a first-order decay**: ``y_ss + (y0 - y_ss) exp(-t/T)`` (the closed-form
-   integral regression of :func:`pipeline.fit.first_order.guess_step`) explains at least
+   integral regression of :func:`pipeline.model.first_order.guess_step`) explains at least
    ``R2_MIN`` of the variance with ``0 < T``;
 4. **not a turn**: the course rate (and the gyro yaw rate when logged) stays below
    ``TURN_RATE_MAX``, since a boat also loses speed in a turn, and a cut during a turn couples
@@ -148,7 +148,7 @@ def _turn_rate(trial: Trial, i0: int, i1: int) -> tuple[float, str]:
 
 def _first_order_r2(t: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """Time constant [s] and R^2 of the closed-form first-order fit to a decay."""
-    from ..fit.first_order import guess_step, step_response
+    from ..model.first_order import guess_step, step_response
 
     ok = np.isfinite(y)
     if ok.sum() < 10:
@@ -220,7 +220,7 @@ def find_coast_downs(trial: Trial, channel: str | None = None) -> tuple[list[Seg
     candidates : list[Candidate]
         Every deceleration examined, accepted or not, with the reason.
     """
-    from .detect import _quality, noise_std
+    from .detect import detection_quality, noise_std
 
     channel = channel or response_channel(trial)
     if channel is None or not trial.has(channel):
@@ -339,7 +339,7 @@ def find_coast_downs(trial: Trial, channel: str | None = None) -> tuple[list[Seg
                      else "turn rate not measurable (no r, no course above 0.5 m/s)")
         label = (f"input-free coast-down from {channel}: steady {v0:.2f} m/s for {STEADY_S:g} s, then "
                  f"{v0:.2f} -> {v0 - drop:.2f} m/s; first-order T~{T:.2f} s (R^2 {r2:.3f}); {turn_text}; SNR {snr:.0f}")
-        seg = Segment("coast_down", "surge", t0, t1, None, 0.0, 0.0, quality=_quality(snr, (t1 - t0) / T),
+        seg = Segment("coast_down", "surge", t0, t1, None, 0.0, 0.0, quality=detection_quality(snr, (t1 - t0) / T),
                       origin="detected", label=label)
         segs.append(seg)
         cands.append(Candidate(t0, t1, True, label))

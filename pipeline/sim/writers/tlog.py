@@ -33,6 +33,7 @@ import numpy as np
 
 from ...atomic import atomic_path
 from ...errors import SimError
+from ...geo import wrap_pi
 from ...records import INPUT_UNITS, Channel, RawLog
 from ...vessel import ActuatorMap, Vessel
 from ._sampling import hold_channel as _hold, interp_channel as _interp
@@ -195,11 +196,6 @@ class _Clock:
         return us
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """Wrap angles [rad] to (-pi, pi]."""
-    return math.pi - np.mod(math.pi - np.asarray(angle, float), 2 * math.pi)
-
-
 def _to_int(values: np.ndarray, lo: int, hi: int, what: str) -> np.ndarray:
     v = np.asarray(values, float)
     if not np.all(np.isfinite(v)):
@@ -224,9 +220,9 @@ def _attitude(ch, mav, clock, add) -> None:
     ms = clock.ms(t)
     # NaN is MAVLink's "unknown" for float fields; the reader drops it instead of inventing zeros.
     cols = {n: (_interp(ch[n], t) if n in present else np.full(len(t), np.nan)) for n in names}
-    cols["psi"] = _wrap(cols["psi"])
-    cols["phi"] = _wrap(cols["phi"])
-    cols["theta"] = _wrap(cols["theta"])
+    cols["psi"] = wrap_pi(cols["psi"])
+    cols["phi"] = wrap_pi(cols["phi"])
+    cols["theta"] = wrap_pi(cols["theta"])
     add(t, "ATTITUDE", lambda i: mav.attitude_encode(int(ms[i] % 2**32), *(float(cols[n][i]) for n in names)))
 
 

@@ -28,7 +28,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from ..errors import FitError
+from pipeline.errors import FitError
 
 
 @dataclass(frozen=True)

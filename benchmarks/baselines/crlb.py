@@ -21,11 +21,11 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..errors import FitError
-from ..model.waves import WaveParams
-from .first_order import decay_jacobian
-from .nomoto_problem import DYNAMIC_PARAMS, NomotoRecord, Problem, prepare, start_vector
-from .nomoto_pem import innovation_filter
+from pipeline.errors import FitError
+from pipeline.model.waves import WaveParams
+from pipeline.fit.first_order import decay_jacobian
+from pipeline.fit.nomoto_problem import DYNAMIC_PARAMS, NomotoRecord, Problem, prepare, start_vector
+from pipeline.fit.nomoto_pem import innovation_filter
 
 
 def least_squares_crlb(jacobian: np.ndarray, noise_var: float) -> np.ndarray:

@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from ..errors import FitError
+from pipeline.errors import FitError
 
 #: The seeds' steady part: the second half of the record.
 STEADY_FRACTION = 0.5
