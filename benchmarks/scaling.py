@@ -406,9 +406,16 @@ def main() -> int:
                   f"peak {worker['tree_peak_gb']:.2f} GB at {worker['tree_peak_at_s']} s, by command "
                   f"{worker['peak_gb_by_command']} rc={worker['rc']} {worker['stderr'][-300:]}", flush=True)
         if minutes <= args.run_max:
-            run = measure_wait4(["-m", "pipeline.cli", "run", str(manifest), "--out", str(folder / "report")], folder)
+            # vesselid's own main, with the stages timed from outside (benchmarks/stage_timer.py).
+            run = measure_wait4([str(ROOT / "benchmarks" / "stage_timer.py"), str(folder / "run_stages.json"),
+                                 "run", str(manifest), "--out", str(folder / "report")], folder)
             row["run"] = {k: run[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr", "tree_peak_gb",
                                               "tree_peak_at_s", "peak_gb_by_command")}
+            if (folder / "run_stages.json").exists():
+                row["run"]["stages"] = json.loads((folder / "run_stages.json").read_text())
+                for label, st in row["run"]["stages"].items():
+                    print(f"{minutes:5.0f} min    run: {label:50s} {st['wall_s']:7.1f} s wall {st['cpu_s']:7.1f} s cpu"
+                          + (f"  {st['peak_gb']:.3f} GB peak RSS" if "peak_gb" in st else ""), flush=True)
             print(f"{minutes:5.0f} min  vesselid run    {run['wall_s']:7.1f} s wall {run['cpu_s']:7.1f} s cpu  "
                   f"{run['peak_gb']:6.2f} GB peak RSS (wait4), sampled tree peak {run['tree_peak_gb']:.2f} GB at "
                   f"{run['tree_peak_at_s']} s, by command {run['peak_gb_by_command']}  rc={run['rc']} "
