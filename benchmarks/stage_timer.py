@@ -2,7 +2,8 @@
 
 :func:`install` wraps the flow's stage functions (and, inside them, the grey-box stage, the
 autopilot's closed-loop check, the report writer and the diagnosis figures) with timers; at exit
-the costs are written as JSON. ``benchmarks/scaling.py`` runs ``vesselid run`` through
+the costs are written as JSON (and after each stage, so a run stopped half-way still says
+where its time went). ``benchmarks/scaling.py`` runs ``vesselid run`` through
 :func:`main` so that the 2-hour run, measured as a whole by ``os.wait4``, also says where its time
 went. The peak resident memory of each top-level stage is its own (Linux: ``/proc/self/clear_refs``
 resets it at the start of the stage).
@@ -66,6 +67,8 @@ def install(out_json: str | Path) -> dict:
                 if own:
                     entry["peak_gb"] = round(_hwm() / 1e9, 3)
                 costs[_label] = entry
+                # Written after every stage too: a run stopped half-way still says where it got.
+                Path(out_json).write_text(json.dumps(costs, indent=1))
 
         setattr(mod, attr, functools.wraps(fn)(wrapped))
     atexit.register(lambda: Path(out_json).write_text(json.dumps(costs, indent=1)))
