@@ -319,6 +319,23 @@ def series(results: list[dict], name: str, key: str) -> tuple[list[float], list[
     return [r["hours"] for r in rows], [(r["run"] if name == "run" else r["stages"][name])[key] for r in rows]
 
 
+def run_stage_labels(results: list[dict]) -> list[str]:
+    """Stage labels timed inside ``vesselid run`` (top level and nested), in the order first seen."""
+    labels: dict[str, None] = {}
+    for r in results:
+        for label in r.get("run", {}).get("stages", {}):
+            labels.setdefault(label, None)
+    return list(labels)
+
+
+def run_stage_series(results: list[dict], label: str):
+    """Trial hours, CPU [s], wall [s] and peak [GB, NaN when not its own] of one stage of vesselid run."""
+    rows = [r for r in results if label in r.get("run", {}).get("stages", {})]
+    st = [r["run"]["stages"][label] for r in rows]
+    return ([r["hours"] for r in rows], [x["cpu_s"] for x in st], [x["wall_s"] for x in st],
+            [x.get("peak_gb", math.nan) for x in st])
+
+
 def plot(results: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -328,9 +345,19 @@ def plot(results: list[dict], path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     for name in STAGES + ("run",):
         label = "vesselid run" if name == "run" else name
-        axes[0].plot(*series(results, name, "cpu_s"), "o-", label=label)
-        axes[1].plot(*series(results, name, "wall_s"), "o-", label=label)
+        x, y = series(results, name, "cpu_s")
+        if not x:
+            continue
+        axes[0].plot(x, y, "ko-" if name == "run" else "o-", label=label)
+        axes[1].plot(*series(results, name, "wall_s"), "ko-" if name == "run" else "o-", label=label)
         axes[2].plot(*series(results, name, "peak_gb"), "ko-" if name == "run" else "o-", label=label)
+    # The stages of vesselid run itself (benchmarks/stage_timer.py), dashed.
+    for label in run_stage_labels(results):
+        x, cpu, wall, peak = run_stage_series(results, label)
+        axes[0].plot(x, cpu, "s--", label=f"run: {label}")
+        axes[1].plot(x, wall, "s--", label=f"run: {label}")
+        if all(v == v for v in peak):
+            axes[2].plot(x, peak, "s--", label=f"run: {label}")
     axes[1].axhline(60, color="k", ls=":", lw=1, label="run target at 2 h")
     axes[2].axhline(1.5, color="k", ls=":", lw=1, label="run target at 2 h")
     axes[0].set(xlabel="trial length [h]", ylabel="CPU time [s]", title="CPU time")
@@ -437,6 +464,14 @@ def main() -> int:
                           "gb_per_hour": slope(*series(results, name, "peak_gb"))[0]}
             f = fits[name]
             print(f"slope {name:15s} {f['cpu_s_per_hour']:7.1f} s/h cpu  {f['wall_s_per_hour']:7.1f} s/h wall  "
+                  f"{f['gb_per_hour']:6.3f} GB/h peak RSS")
+    for label in run_stage_labels(results):
+        x, cpu, wall, peak = run_stage_series(results, label)
+        if len(x) > 1:
+            fits[f"run: {label}"] = {"cpu_s_per_hour": slope(x, cpu)[0], "wall_s_per_hour": slope(x, wall)[0],
+                                     "gb_per_hour": slope(x, peak)[0] if all(v == v for v in peak) else math.nan}
+            f = fits[f"run: {label}"]
+            print(f"slope run: {label:50s} {f['cpu_s_per_hour']:7.1f} s/h cpu  {f['wall_s_per_hour']:7.1f} s/h wall  "
                   f"{f['gb_per_hour']:6.3f} GB/h peak RSS")
     (out / "scaling.json").write_text(json.dumps({"results": results, "slopes": fits}, indent=1, default=str))
     plot(results, out / "scaling.png")
