@@ -1,6 +1,6 @@
 """Long trials in bounded memory and time: wall time and peak memory of every stage against trial length.
 
-    python benchmarks/scaling.py [--minutes 10 30 60 120] [--out DIR] [--baseline-max 30]
+    python benchmarks/scaling.py [--minutes 10 30 60 120] [--out DIR] [--baseline-max 30] [--stages-max 60]
 
 For each length, one continuous AAUSHIP sea trial is simulated (the identification programme of
 ``pipeline.sim.sea_trial`` repeated with varied amplitudes, zig-zag angles and signs, as a day of
@@ -16,7 +16,8 @@ the real writer. Then, each in a fresh process so that each peak is its own:
   the C compiler of the grey-box JIT, is reported beside it);
 - ``vesselid run trial.toml`` (every stage from the raw log, report included: the issue's target):
   wall time, CPU time and peak resident memory (``os.wait4``: the largest of the process and each
-  child it waited for).
+  child it waited for), and each of its stages timed inside it by ``benchmarks/stage_timer.py``
+  (``run_stages.json``; slopes and the plot include them).
 
 Both processes are also sampled every 0.1 s from outside (``/proc``): the largest sum of the
 resident memory of the process and its children, when it happened, and the largest per command
