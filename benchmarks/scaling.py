@@ -1,6 +1,6 @@
 """Long trials in bounded memory and time: wall time and peak memory of every stage against trial length.
 
-    python benchmarks/scaling.py [--minutes 10 30 60 120] [--out DIR] [--baseline-max 30]
+    python benchmarks/scaling.py [--minutes 10 30 60 120] [--out DIR] [--baseline-max 30] [--stages-max 60]
 
 For each length, one continuous AAUSHIP sea trial is simulated (the identification programme of
 ``pipeline.sim.sea_trial`` repeated with varied amplitudes, zig-zag angles and signs, as a day of
@@ -9,11 +9,19 @@ the real writer. Then, each in a fresh process so that each peak is its own:
 
 - the stages, in one worker process through the flow's functions: ``load_trial`` (ingest + align),
   ``segment_trial``, ``fit_trial(extend=False)`` (single-DOF fits), ``extend_fits`` (the joint
-  grey-box stage), ``diagnose`` — wall time, CPU time and peak resident memory per stage (the
-  peak is reset between stages through Linux's ``/proc/self/clear_refs``, so it includes the
-  interpreter, the libraries and the records the earlier stages hand on);
+  grey-box stage), ``design_autopilot`` (with its closed-loop check), ``diagnose`` and
+  ``write_outputs`` (the report folder) — wall time, CPU time and peak resident memory per stage
+  (the peak is reset between stages through Linux's ``/proc/self/clear_refs``, so it includes the
+  interpreter, the libraries and the records the earlier stages hand on; a child process's peak,
+  the C compiler of the grey-box JIT, is reported beside it);
 - ``vesselid run trial.toml`` (every stage from the raw log, report included: the issue's target):
-  wall time, CPU time and peak resident memory (``os.wait4``).
+  wall time, CPU time and peak resident memory (``os.wait4``: the largest of the process and each
+  child it waited for), and each of its stages timed inside it by ``benchmarks/stage_timer.py``
+  (``run_stages.json``; slopes and the plot include them).
+
+Both processes are also sampled every 0.1 s from outside (``/proc``): the largest sum of the
+resident memory of the process and its children, when it happened, and the largest per command
+name — which locates a transient that ``wait4`` reports but no stage's own peak shows.
 
 A straight line through each quantity gives its cost per trial hour. The machine may be shared:
 CPU time is the figure that does not depend on what else runs. Baseline in the same run: the
@@ -51,7 +59,7 @@ from pipeline.sim.writers import write_log  # noqa: E402
 from pipeline.vessel import load_vessel  # noqa: E402
 
 VESSEL = ROOT / "vessel_configs" / "aauship.toml"
-STAGES = ("align", "segment", "fit_single_dof", "fit_greybox", "diagnose")
+STAGES = ("align", "segment", "fit_single_dof", "fit_greybox", "autopilot", "diagnose", "report")
 
 
 def programme(vessel, minutes: float, seed: int = 0):
@@ -103,14 +111,83 @@ def write_trial(vessel, minutes: float, folder: Path, seed: int) -> tuple[Path, 
     return log, manifest, float(res.truth["t"].iloc[-1])
 
 
+def rss_of(pid: int) -> tuple[float, str]:
+    """Resident memory [bytes] and command name of one process (Linux ``/proc``); (0, "") when gone."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return 0.0, ""
+    rss, name = 0.0, ""
+    for line in status.splitlines():
+        if line.startswith("VmRSS:"):
+            rss = float(line.split()[1]) * 1024
+        elif line.startswith("Name:"):
+            name = line.split(None, 1)[1].strip()
+    return rss, name
+
+
+def descendants(pid: int) -> list[int]:
+    """Child processes of ``pid``, recursively (Linux ``/proc/<pid>/task/*/children``)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                kids = [int(k) for k in (task / "children").read_text().split()]
+            except (OSError, ValueError):
+                continue
+            out += kids
+            todo += kids
+    return out
+
+
+class TreeSampler:
+    """Samples the resident memory of a process and its descendants every ``interval`` s.
+
+    ``wait4``'s ``ru_maxrss`` is the largest of the process and each child it waited for (a C
+    compiler, say), not their sum, and does not say when; this says both: the largest sum over the
+    tree, when it happened (s after start), and the largest RSS seen per command name.
+    """
+
+    def __init__(self, pid: int, interval: float = 0.1) -> None:
+        import threading
+
+        self.pid, self.interval = pid, interval
+        self.t0 = time.perf_counter()
+        self.peak_sum, self.peak_at = 0.0, math.nan
+        self.by_name: dict[str, float] = {}
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.thread.start()
+
+    def run(self) -> None:
+        while not self.stop.wait(self.interval):
+            total = 0.0
+            for p in [self.pid, *descendants(self.pid)]:
+                rss, name = rss_of(p)
+                total += rss
+                if name:
+                    self.by_name[name] = max(self.by_name.get(name, 0.0), rss)
+            if total > self.peak_sum:
+                self.peak_sum, self.peak_at = total, time.perf_counter() - self.t0
+
+    def result(self) -> dict:
+        self.stop.set()
+        self.thread.join()
+        return {"tree_peak_gb": round(self.peak_sum / 1e9, 3), "tree_peak_at_s": round(self.peak_at, 1),
+                "peak_gb_by_command": {k: round(v / 1e9, 3) for k, v in sorted(self.by_name.items())}}
+
+
 def measure_wait4(argv: list[str], cwd: Path) -> dict:
-    """Wall time [s], CPU time [s] and peak RSS [GB] of one process (``os.wait4``)."""
+    """Wall time [s], CPU time [s] and peak RSS [GB] of one process (``os.wait4``), and its tree's sampled peak."""
     env = dict(os.environ, CI="1", PYTHONPATH=str(ROOT))
     with tempfile.TemporaryFile() as errf, tempfile.TemporaryFile() as outf:
         t0 = time.perf_counter()
         proc = subprocess.Popen([sys.executable, *argv], cwd=cwd, env=env, stdout=outf, stderr=errf)
+        sampler = TreeSampler(proc.pid)
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
+        tree = sampler.result()
         proc.returncode = os.waitstatus_to_exitcode(status)
         errf.seek(0)
         outf.seek(0)
@@ -118,7 +195,7 @@ def measure_wait4(argv: list[str], cwd: Path) -> dict:
         out = outf.read().decode(errors="replace")
     return {"wall_s": round(wall, 2), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
             "peak_gb": round(usage.ru_maxrss / 1e6, 3), "rc": proc.returncode,
-            "stderr": err[-600:] if proc.returncode else "", "stdout": out}
+            "stderr": err[-600:] if proc.returncode else "", "stdout": out, **tree}
 
 
 def reset_peak_rss() -> bool:
@@ -143,9 +220,10 @@ def stage_worker(log: Path, out_json: Path) -> None:
     import resource
 
     from pipeline.diagnose import diagnose
+    from pipeline.errors import AutopilotError
     from pipeline.fit import fit_trial
     from pipeline.fit.extend import extend_fits
-    from pipeline.flow import load_trial, segment_trial
+    from pipeline.flow import design_autopilot, load_trial, segment_trial, write_outputs
 
     vessel = load_vessel(VESSEL)
     stages = {}
@@ -153,13 +231,18 @@ def stage_worker(log: Path, out_json: Path) -> None:
 
     def timed(name, fn):
         # Linux: writing 5 to clear_refs resets the peak RSS (VmHWM), so each stage gets its own peak
-        # without tracemalloc's overhead; elsewhere the process's running peak is reported.
+        # without tracemalloc's overhead; elsewhere the process's running peak is reported. The
+        # children's peak (a C compiler the grey-box JIT runs) is the largest child waited for so
+        # far: reported when a stage raised it.
         own = reset_peak_rss()
+        kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
         t0, c0 = time.perf_counter(), time.process_time()
         value = fn()
+        kids_after = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
         stages[name] = {"wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(time.process_time() - c0, 2),
                         "peak_gb": round((peak_rss() if own else
                                           resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1e3) / 1e9, 3),
+                        "children_peak_gb": round(kids_after / 1e6, 3) if kids_after > kids else 0.0,
                         "own_peak": own}
         return value
 
@@ -167,7 +250,20 @@ def stage_worker(log: Path, out_json: Path) -> None:
     state["segments"] = timed("segment", lambda: segment_trial(state["trial"]))
     state["single"] = timed("fit_single_dof", lambda: fit_trial(state["trial"], state["segments"], vessel, extend=False))
     state["fits"] = timed("fit_greybox", lambda: extend_fits(state["single"], state["trial"], state["segments"], vessel))
-    timed("diagnose", lambda: diagnose(state["trial"], vessel, fits=state["fits"]))
+    skipped = {}
+
+    def autopilot():
+        try:
+            return design_autopilot(state["fits"], vessel)
+        except AutopilotError as exc:  # as the flow: no Nomoto K, T in a short trial
+            skipped["autopilot"] = str(exc)
+            return None
+
+    state["autopilot"] = timed("autopilot", autopilot)
+    state["diagnosis"] = timed("diagnose", lambda: diagnose(state["trial"], vessel, fits=state["fits"]))
+    with tempfile.TemporaryDirectory() as tmp:
+        timed("report", lambda: write_outputs(Path(tmp) / "report", state["trial"], state["segments"], state["fits"],
+                                              state["autopilot"], state["diagnosis"], skipped, None, vessel))
     est = {n: [e.value, e.stderr, e.success] for n, e in state["fits"].estimates.items()}
     out_json.write_text(json.dumps({"stages": stages, "rows": len(state["trial"].data),
                                     "segments": len(state["segments"].items), "estimates": est}))
@@ -224,6 +320,23 @@ def series(results: list[dict], name: str, key: str) -> tuple[list[float], list[
     return [r["hours"] for r in rows], [(r["run"] if name == "run" else r["stages"][name])[key] for r in rows]
 
 
+def run_stage_labels(results: list[dict]) -> list[str]:
+    """Stage labels timed inside ``vesselid run`` (top level and nested), in the order first seen."""
+    labels: dict[str, None] = {}
+    for r in results:
+        for label in r.get("run", {}).get("stages", {}):
+            labels.setdefault(label, None)
+    return list(labels)
+
+
+def run_stage_series(results: list[dict], label: str):
+    """Trial hours, CPU [s], wall [s] and peak [GB, NaN when not its own] of one stage of vesselid run."""
+    rows = [r for r in results if label in r.get("run", {}).get("stages", {})]
+    st = [r["run"]["stages"][label] for r in rows]
+    return ([r["hours"] for r in rows], [x["cpu_s"] for x in st], [x["wall_s"] for x in st],
+            [x.get("peak_gb", math.nan) for x in st])
+
+
 def plot(results: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -233,9 +346,19 @@ def plot(results: list[dict], path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     for name in STAGES + ("run",):
         label = "vesselid run" if name == "run" else name
-        axes[0].plot(*series(results, name, "cpu_s"), "o-", label=label)
-        axes[1].plot(*series(results, name, "wall_s"), "o-", label=label)
+        x, y = series(results, name, "cpu_s")
+        if not x:
+            continue
+        axes[0].plot(x, y, "ko-" if name == "run" else "o-", label=label)
+        axes[1].plot(*series(results, name, "wall_s"), "ko-" if name == "run" else "o-", label=label)
         axes[2].plot(*series(results, name, "peak_gb"), "ko-" if name == "run" else "o-", label=label)
+    # The stages of vesselid run itself (benchmarks/stage_timer.py), dashed.
+    for label in run_stage_labels(results):
+        x, cpu, wall, peak = run_stage_series(results, label)
+        axes[0].plot(x, cpu, "s--", label=f"run: {label}")
+        axes[1].plot(x, wall, "s--", label=f"run: {label}")
+        if all(v == v for v in peak):
+            axes[2].plot(x, peak, "s--", label=f"run: {label}")
     axes[1].axhline(60, color="k", ls=":", lw=1, label="run target at 2 h")
     axes[2].axhline(1.5, color="k", ls=":", lw=1, label="run target at 2 h")
     axes[0].set(xlabel="trial length [h]", ylabel="CPU time [s]", title="CPU time")
@@ -258,6 +381,10 @@ def main() -> int:
     ap.add_argument("--baseline-max", type=float, default=30, help="longest trial the baseline is run on [min]")
     ap.add_argument("--run-max", type=float, default=math.inf,
                     help="longest trial vesselid run is measured on [min] (it repeats every stage)")
+    ap.add_argument("--stages-max", type=float, default=math.inf,
+                    help="longest trial the per-stage worker is run on [min] (it repeats what vesselid run does)")
+    ap.add_argument("--reuse", action="store_true",
+                    help="use a trial log already simulated into --out (same lengths and seed) instead of simulating again")
     ap.add_argument("--keep", action="store_true", help="keep other lengths from an earlier run in --out")
     ap.add_argument("--stage-worker", nargs=2, metavar=("LOG", "OUT_JSON"), help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -281,23 +408,46 @@ def main() -> int:
         folder = out / f"{int(minutes)}min"
         folder.mkdir(exist_ok=True)
         t0 = time.perf_counter()
-        log, manifest, duration = write_trial(vessel, minutes, folder, args.seed)
+        if args.reuse and (folder / "log.csv").exists() and (folder / "duration.txt").exists():
+            log, manifest = folder / "log.csv", folder / "trial.toml"
+            manifest.write_text(f'name = "scaling{int(minutes)}"\nvessel = "{VESSEL}"\nlogs = ["log.csv"]\n')
+            duration = float((folder / "duration.txt").read_text())
+        else:
+            log, manifest, duration = write_trial(vessel, minutes, folder, args.seed)
+            (folder / "duration.txt").write_text(repr(duration))
         sim_s = time.perf_counter() - t0
         row = {"minutes": minutes, "hours": duration / 3600.0, "simulated_s": round(sim_s, 1)}
-        worker = measure_wait4([__file__, "--stage-worker", str(log), str(folder / "stages.json")], folder)
-        if worker["rc"] == 0:
-            row.update(json.loads((folder / "stages.json").read_text()))
-        row["stage_process"] = {k: worker[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr")}
+        worker = {"rc": 0}
+        if minutes <= args.stages_max:
+            worker = measure_wait4([__file__, "--stage-worker", str(log), str(folder / "stages.json")], folder)
+            if worker["rc"] == 0:
+                row.update(json.loads((folder / "stages.json").read_text()))
+            row["stage_process"] = {k: worker[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr",
+                                                            "tree_peak_gb", "tree_peak_at_s", "peak_gb_by_command")}
         for name, st in row.get("stages", {}).items():
             print(f"{minutes:5.0f} min  {name:15s} {st['wall_s']:7.1f} s wall {st['cpu_s']:7.1f} s cpu  "
-                  f"{st['peak_gb']:6.3f} GB peak RSS", flush=True)
-        print(f"{minutes:5.0f} min  stages process peak RSS {worker['peak_gb']:.2f} GB rc={worker['rc']} "
-              f"{worker['stderr'][-300:]}", flush=True)
+                  f"{st['peak_gb']:6.3f} GB peak RSS"
+                  + (f" (a child process: {st['children_peak_gb']:.3f} GB)" if st.get("children_peak_gb") else ""),
+                  flush=True)
+        if "stage_process" in row:
+            print(f"{minutes:5.0f} min  stages process peak RSS {worker['peak_gb']:.2f} GB (wait4), sampled tree "
+                  f"peak {worker['tree_peak_gb']:.2f} GB at {worker['tree_peak_at_s']} s, by command "
+                  f"{worker['peak_gb_by_command']} rc={worker['rc']} {worker['stderr'][-300:]}", flush=True)
         if minutes <= args.run_max:
-            run = measure_wait4(["-m", "pipeline.cli", "run", str(manifest), "--out", str(folder / "report")], folder)
-            row["run"] = {k: run[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr")}
+            # vesselid's own main, with the stages timed from outside (benchmarks/stage_timer.py).
+            run = measure_wait4([str(ROOT / "benchmarks" / "stage_timer.py"), str(folder / "run_stages.json"),
+                                 "run", str(manifest), "--out", str(folder / "report")], folder)
+            row["run"] = {k: run[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr", "tree_peak_gb",
+                                              "tree_peak_at_s", "peak_gb_by_command")}
+            if (folder / "run_stages.json").exists():
+                row["run"]["stages"] = json.loads((folder / "run_stages.json").read_text())
+                for label, st in row["run"]["stages"].items():
+                    print(f"{minutes:5.0f} min    run: {label:50s} {st['wall_s']:7.1f} s wall {st['cpu_s']:7.1f} s cpu"
+                          + (f"  {st['peak_gb']:.3f} GB peak RSS" if "peak_gb" in st else ""), flush=True)
             print(f"{minutes:5.0f} min  vesselid run    {run['wall_s']:7.1f} s wall {run['cpu_s']:7.1f} s cpu  "
-                  f"{run['peak_gb']:6.2f} GB peak RSS  rc={run['rc']} {run['stderr'][-300:]}", flush=True)
+                  f"{run['peak_gb']:6.2f} GB peak RSS (wait4), sampled tree peak {run['tree_peak_gb']:.2f} GB at "
+                  f"{run['tree_peak_at_s']} s, by command {run['peak_gb_by_command']}  rc={run['rc']} "
+                  f"{run['stderr'][-300:]}", flush=True)
         if baseline is not None and minutes <= args.baseline_max:
             row["baseline"] = compare_with_baseline(baseline, log, vessel)
             b = row["baseline"]
@@ -316,10 +466,18 @@ def main() -> int:
             f = fits[name]
             print(f"slope {name:15s} {f['cpu_s_per_hour']:7.1f} s/h cpu  {f['wall_s_per_hour']:7.1f} s/h wall  "
                   f"{f['gb_per_hour']:6.3f} GB/h peak RSS")
+    for label in run_stage_labels(results):
+        x, cpu, wall, peak = run_stage_series(results, label)
+        if len(x) > 1:
+            fits[f"run: {label}"] = {"cpu_s_per_hour": slope(x, cpu)[0], "wall_s_per_hour": slope(x, wall)[0],
+                                     "gb_per_hour": slope(x, peak)[0] if all(v == v for v in peak) else math.nan}
+            f = fits[f"run: {label}"]
+            print(f"slope run: {label:50s} {f['cpu_s_per_hour']:7.1f} s/h cpu  {f['wall_s_per_hour']:7.1f} s/h wall  "
+                  f"{f['gb_per_hour']:6.3f} GB/h peak RSS")
     (out / "scaling.json").write_text(json.dumps({"results": results, "slopes": fits}, indent=1, default=str))
     plot(results, out / "scaling.png")
     longest = max(results, key=lambda r: r["hours"])
-    ok = all(r.get("run", {}).get("rc", 0) == 0 and r["stage_process"]["rc"] == 0 for r in results)
+    ok = all(r.get("run", {}).get("rc", 0) == 0 and r.get("stage_process", {}).get("rc", 0) == 0 for r in results)
     if longest["hours"] >= 1.9 and "run" in longest:
         run = longest["run"]
         met = run["wall_s"] < 60 and run["peak_gb"] < 1.5

@@ -263,3 +263,20 @@ def test_a_grid_coarser_than_the_command_log_is_warned():
     assert not any(n.startswith("warning") for n in align([log]).notes)
     notes = align([log], fs=10.0).notes
     assert any("10 Hz is coarser than the logged rate of the commands delta (up to 50 Hz)" in n for n in notes)
+
+
+def test_trial_columns_are_contiguous_float64_views(yaw_sim):
+    ch = yaw_sim.log.channels
+    imu = _log("imu", {n: (ch[n].t, ch[n].values) for n in ("r", "p", "phi", "delta")}, start=1.7e9)
+    later = _log("later", {n: (ch[n].t, ch[n].values) for n in ("r", "p", "phi", "delta")}, start=1.7e9 + 3600)
+    trial = align([imu, later], name="two runs")
+    assert set(trial.data.dtypes) == {np.dtype("float64")}
+    for c in trial.data.columns:
+        col = trial.data[c].to_numpy()
+        assert col.flags["C_CONTIGUOUS"] and col.dtype == np.float64
+    # One array for all columns: reading a column copies nothing.
+    assert len({id(b) for b in trial.data._mgr.blocks}) == 1
+    # Values as resampled: the run gap is NaN, the samples are the simulator's.
+    assert np.isnan(trial.data["r"].to_numpy()).any()
+    first = trial.run_data(0)
+    np.testing.assert_allclose(np.interp(ch["r"].t[5:50], first["t"], first["r"]), ch["r"].values[5:50], atol=1e-9)

@@ -582,3 +582,76 @@ def test_diagnosis_headline_says_what_is_unexplained():
     assert "No candidate effect explains the gap" in text and "4.2 x the sensor noise, unexplained" in text
     assert "yaw" in text
     assert summary.diagnosis_headline(None) == ""
+
+
+# --------------------------------------------------------------------------- long trials
+def test_envelope_keeps_every_peak_and_gap_of_a_long_series():
+    t = np.arange(360_000) / 50.0  # two hours at 50 Hz
+    y = np.sin(0.05 * t)
+    y[123_457] = 9.0  # one spike
+    y[200_000:201_000] = np.nan  # a 20 s dropout
+    tt, yy = figures.envelope(t, y, max_points=4000)
+    assert tt.size <= 4000 and np.all(np.diff(tt) >= 0)
+    assert np.nanmax(yy) == 9.0 and tt[np.nanargmax(yy)] == t[123_457]
+    assert np.nanmin(yy) == pytest.approx(-1.0, abs=1e-6)
+    inside = (tt > t[200_100]) & (tt < t[200_900])
+    assert inside.any() and np.isnan(yy[inside]).all()
+    short_t, short_y = figures.envelope(t[:100], y[:100])
+    assert np.array_equal(short_t, t[:100]) and np.array_equal(short_y, y[:100])
+
+
+def test_figure_selection_spreads_a_bounded_number_over_kinds():
+    rng = np.random.default_rng(3)
+    many = [_coast_down_fit(rng) for _ in range(10)] + [_roll_decay_fit(rng) for _ in range(6)] + [_failed_fit()]
+    pct = [50.0 + k for k in range(10)] + [80.0 - k for k in range(6)] + [math.nan]
+    assert figures.figure_selection(many[:5], pct[:5], limit=5) == (0, 1, 2, 3, 4)
+    chosen = figures.figure_selection(many, pct, limit=5)
+    # The failed fit, then the worst and the best of each kind.
+    assert chosen == (0, 9, 10, 15, 16)
+    assert len(figures.figure_selection(many, pct, limit=12)) == 12
+
+
+def test_a_report_of_many_fits_draws_at_most_the_limit(fits, trial, tmp_path, monkeypatch):
+    rng = np.random.default_rng(5)
+    many = copy.copy(fits)
+    object.__setattr__(many, "segment_fits", tuple(_coast_down_fit(rng) for _ in range(6)) + (_failed_fit(),))
+    monkeypatch.setattr(figures, "MAX_FIT_FIGURES", 3)
+    paths = write_report(many, tmp_path, trial=trial)
+    fit_pngs = sorted(p.name for p in paths.fit_figures if p.name.startswith("fit_"))
+    assert len(fit_pngs) == 3 and "fit_06_rudder_step_yaw.png" in fit_pngs
+    assert sorted(p.name for p in tmp_path.glob("fit_*.png")) == fit_pngs
+    page = paths.html.read_text()
+    assert "Figures for 3 of the 7 segment fits" in page
+    assert page.count('<details id="fit-') == 7  # every fit still listed
+
+
+def test_long_segment_figure_thins_its_markers(fits):
+    sf = fits.segment_fits[0]
+    t = np.arange(0.0, 200.0, 0.02)
+    long = copy.copy(sf)
+    for name, value in (("t", t), ("y", 1.5 * np.exp(-t / 4.5)), ("y_fit", 1.5 * np.exp(-t / 4.5))):
+        object.__setattr__(long, name, value)
+    fig = figures.plot_segment_fit(long, index=0)
+    data_line = fig.axes[0].get_lines()[0]
+    assert len(data_line.get_xdata()) <= figures.MAX_MARKERS
+    assert "1 in 7 of 10000 samples shown" in data_line.get_label()
+
+
+def test_report_lists_the_runs_with_files_offsets_and_spans(trial):
+    from pipeline.records import Run
+
+    runs = (Run("noon", ("b_noon.bin", "gnss.ubx"), offsets={"b_noon.bin": 0.0, "gnss.ubx": -2.06},
+                offset_stderr={"b_noon.bin": 0.0, "gnss.ubx": 0.01}, start_time=1714910400.0, t_start=0.0,
+                t_end=50.0, reason="absolute times overlap"),
+            Run("pool <roll>", ("pool.csv",), t_start=55.0, t_end=109.9,
+                reason="no absolute time; the same channels as run 0: a separate recording"))
+    two = Trial(name=trial.name, data=trial.data, fs=trial.fs, runs=runs)
+    part = html_mod.trial_section_html(two)
+    table = part[part.index('id="runs-table"'):part.index("</table>")]
+    assert "2 run(s)" in table and table.count("<tr><td") == 2
+    assert "gnss.ubx (-2.060 ± 0.01)" in table and "2024-05-05T12:00:00.000+00:00" in table
+    assert "pool &lt;roll&gt;" in table and "unknown (no absolute clock)" in table
+    assert "absolute times overlap" in table and "a separate recording" in table
+    assert ">55.00<" in table and ">109.90<" in table
+    one = html_mod.trial_section_html(trial)
+    assert "1 run(s)" in one and "one run (no grouping recorded)" in one

@@ -158,9 +158,35 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
             gaps.append(Gap(RUN_BOUNDARY, float(t_end), float((index + gap_rows) / fs)))
             index += gap_rows
     data = pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
-    data = data[_ordered(data.columns)]
+    data = as_float64_block(data[_ordered(data.columns)])
     return Trial(name=name, data=data, fs=fs, gaps=tuple(gaps), sources=tuple(l.source for l in logs),
                  notes=tuple(notes), summaries=tuple(l.summary for l in logs), runs=tuple(run_records))
+
+
+def as_float64_block(frame: pd.DataFrame) -> pd.DataFrame:
+    """The frame's columns as one float64 array, each column contiguous in memory.
+
+    float64 throughout: float32 keeps 7 significant digits, which puts a latitude of 57 deg on a
+    1 m grid and a Unix time on a 2-minute one. One block of ``columns x rows`` (a 2-hour trial at
+    50 Hz with 26 channels is 75 MB) instead of one per channel kind, so a column is a view, no copy.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Numeric columns (booleans and integers are converted); a frame holding anything else is
+        returned unchanged.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Same columns, index and values.
+    """
+    if not all(pd.api.types.is_numeric_dtype(dt) or pd.api.types.is_bool_dtype(dt) for dt in frame.dtypes):
+        return frame
+    values = np.empty((frame.shape[1], frame.shape[0]), dtype=np.float64)
+    for k, col in enumerate(frame.columns):
+        values[k] = frame[col].to_numpy(dtype=np.float64, na_value=np.nan)
+    return pd.DataFrame(values.T, columns=frame.columns, index=frame.index, copy=False)
 
 
 #: NaN stretch between two runs in ``Trial.data`` [s] (at least two samples).

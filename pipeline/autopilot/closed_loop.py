@@ -217,6 +217,42 @@ def _rk4(x: np.ndarray, u: np.ndarray, h: float, params: NomotoParams) -> np.nda
     return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
+def kalman_gains(model, n: int) -> np.ndarray:
+    """Kalman gains of the first ``n`` compass samples, from the model's ``p0``.
+
+    The covariance recursion of :func:`kalman_update` and :func:`kalman_predict` does not depend on
+    the measurements or the rudder, so the gains are the same in every case and scenario with this
+    filter; computed once (cached on the model), the closed loop only updates the state.
+
+    Parameters
+    ----------
+    model : pipeline.autopilot.kalman.KalmanModel
+        The filter.
+    n : int
+        Number of samples.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 5)
+        Gain of sample ``k`` in row ``k``.
+    """
+    key = (id(model), n)
+    cached = _GAINS.get(key)
+    if cached is not None and cached[0] is model:
+        return cached[1]
+    gains = np.empty((n, model.x0.size))
+    xk, pk = model.x0.copy(), model.p0.copy()
+    for k in range(n):
+        _, p_post, gains[k] = kalman_update(model, xk, pk, 0.0)
+        _, pk = kalman_predict(model, xk, p_post, 0.0)
+    _GAINS.clear()  # one filter at a time: the cache never grows
+    _GAINS[key] = (model, gains)
+    return gains
+
+
+_GAINS: dict = {}
+
+
 def simulate_heading_loop(config: AutopilotConfig, scenario: Scenario, case: str) -> ClosedLoopRun:
     """Simulate one case of the heading autopilot in one scenario.
 
@@ -263,21 +299,26 @@ def simulate_heading_loop(config: AutopilotConfig, scenario: Scenario, case: str
     use_filter = case != "pd"
     feed_forward = case == "pd_kalman_ff"
 
+    gains = kalman_gains(km, n)
+    c_row = km.c[0]
+    ad, bd = km.ad, km.bd[:, 0]
     x = np.zeros(2)
-    xk, pk = km.x0.copy(), km.p0.copy()
+    xk = km.x0.copy()
     z = 0.0
     delta_prev = 0.0
     out = np.empty((n, 8))  # psi, r, y, psi_hat, psi_w_hat, b_hat, delta, delta_cmd
     for k in range(n):
         y = x[0] + psi_w[k] + noise[k]
-        x_post, p_post, _ = kalman_update(km, xk, pk, y)
+        # kalman_update / kalman_predict with the gain of this step precomputed: the covariance
+        # recursion does not depend on the measurements, only the state update does.
+        x_post = xk + gains[k] * float(ssa(y - c_row @ xk))
         fb = x_post[2] if use_filter else y
         e = float(wrap_pi(scenario.psi_ref - fb))
         cmd = pdd.output(z, e) + (x_post[4] if feed_forward else 0.0)
         z = pdd.next_state(z, e)
-        delta = float(np.clip(delta_prev + np.clip(cmd - delta_prev, -max_step, max_step), -max_angle, max_angle))
+        delta = min(max(delta_prev + min(max(cmd - delta_prev, -max_step), max_step), -max_angle), max_angle)
         out[k] = (x[0], x[1], y, x_post[2], x_post[1], x_post[4], delta, cmd)
-        xk, pk = kalman_predict(km, x_post, p_post, delta)
+        xk = ad @ x_post + bd * delta
         x = _rk4(x, np.array([delta]), ts, plant)
         delta_prev = delta
 

@@ -11,6 +11,9 @@
     The same tables as GitHub pipe tables.
 ``fit_<index>_<kind>_<dof>.png``, ``resid_<index>_<kind>_<dof>.png``
     Per segment fit: data, fit and residual; residual autocorrelation and input cross-correlation.
+    At most ``MAX_FIT_FIGURES`` fits are drawn (failed fits, then the worst and best of each
+    segment kind in turn: :func:`pipeline.report.figures.figure_selection`); every fit is in the
+    quality table.
 ``segments.png``
     Trial overview with the segments shaded (only when a trial is given).
 ``report.html``
@@ -28,9 +31,10 @@ from typing import Mapping, Sequence
 from ..atomic import atomic_write_text
 from ..errors import ReportError
 from ..records import Fits, Provenance, Segment, Segments, Trial
+from . import figures as report_figures
 from .coefficients_json import damping_from_dict, fits_to_dict, load_coefficients, write_coefficients_json
-from .figures import (OVERVIEW_NAME, figure_problem, fit_figure_name, plot_residual_analysis, plot_segment_fit,
-                      plot_trial_overview, resid_figure_name, save_figure)
+from .figures import (OVERVIEW_NAME, figure_problem, figure_selection, fit_figure_name,
+                      plot_residual_analysis, plot_segment_fit, plot_trial_overview, resid_figure_name, save_figure)
 from .html import check_extra_sections, embed_images, render_html
 from .quality import segment_quality
 from .rows import check_fits, segment_list
@@ -57,7 +61,8 @@ class ReportPaths:
     coefficients_json, coefficients_tex, coefficients_md, html : pathlib.Path
         Contract, LaTeX tables, Markdown tables, report page.
     fit_figures : tuple[pathlib.Path, ...]
-        Per segment fit, in ``Fits.segment_fits`` order: its fit PNG and its residual-analysis PNG.
+        Per drawn segment fit, in ``Fits.segment_fits`` order: its fit PNG and its residual-analysis
+        PNG (see ``MAX_FIT_FIGURES``).
     overview_figure : pathlib.Path or None
         Trial overview PNG; None when no trial was given.
     warnings, notes : tuple[str, ...]
@@ -155,11 +160,16 @@ def write_report(fits: Fits, out_dir: str | os.PathLike, trial: Trial | None = N
     qualities = [segment_quality(sf, trial) for sf in fits.segment_fits]
     problems = []
     fit_paths, fig_names = [], []
+    drawn = set(figure_selection(fits.segment_fits, [q.fit_percent for q in qualities],
+                                 report_figures.MAX_FIT_FIGURES))
     for i, (sf, q) in enumerate(zip(fits.segment_fits, qualities)):
         name = fit_figure_name(i, sf)
         problem = figure_problem(sf)
         if problem:
             problems.append(f"figure {name}: {problem}")
+        if i not in drawn:
+            fig_names.append((None, None))
+            continue
         fit_paths.append(save_figure(plot_segment_fit(sf, index=i), out / name))
         rname = None
         if q.resid is not None:

@@ -34,6 +34,15 @@ OVERVIEW_STATES: tuple[str, ...] = ("u", "v", "r", "phi", "theta")
 OVERVIEW_INPUTS: tuple[str, ...] = tuple(INPUT_UNITS)
 #: Name of the trial overview figure.
 OVERVIEW_NAME = "segments.png"
+#: Most samples drawn per line of a time series: a figure 1300 px wide shows no more. Longer series
+#: are reduced to the minimum and maximum of each of ``MAX_PLOT_POINTS / 2`` equal buckets
+#: (:func:`envelope`), so every peak and dropout stays visible.
+MAX_PLOT_POINTS = 4000
+#: Most markers drawn per series of a segment-fit figure; longer series show every k-th sample.
+MAX_MARKERS = 1500
+#: Most segment fits drawn as figures in one report (a 2-hour trial has hundreds of segments;
+#: every fit stays in the quality table). :func:`figure_selection` picks which.
+MAX_FIT_FIGURES = 40
 
 _SAFE = re.compile(r"[^A-Za-z0-9_-]+")
 
@@ -93,6 +102,122 @@ def safe_name(text: str) -> str:
         Runs of other characters replaced by ``_``; ``x`` when nothing is left.
     """
     return _SAFE.sub("_", str(text)).strip("_") or "x"
+
+
+def envelope(t: np.ndarray, y: np.ndarray, max_points: int = MAX_PLOT_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """A series reduced for plotting: the minimum and maximum of each bucket, in time order.
+
+    Drawing 360 000 samples into 1 000 pixels costs time and shows nothing more than the envelope:
+    each of ``max_points // 2`` equal buckets of samples keeps its smallest and its largest value
+    (NaN where the whole bucket is NaN, so gaps stay gaps).
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Time [s], increasing.
+    y : numpy.ndarray
+        Values, same length as ``t``.
+    max_points : int
+        Most points returned (at least 4).
+
+    Returns
+    -------
+    t, y : numpy.ndarray
+        The reduced series; ``t`` and ``y`` themselves (as float arrays) when already short enough.
+    """
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = y.size
+    buckets = max(int(max_points) // 2, 2)
+    if n <= 2 * buckets:
+        return t, y
+    width = -(-n // buckets)
+    pad = buckets * width - n
+    tp = np.concatenate([t, np.full(pad, np.nan)]).reshape(buckets, width)
+    yp = np.concatenate([y, np.full(pad, np.nan)]).reshape(buckets, width)
+    finite_y = np.isfinite(yp)
+    lo = np.argmin(np.where(finite_y, yp, np.inf), axis=1)
+    hi = np.argmax(np.where(finite_y, yp, -np.inf), axis=1)
+    first, second = np.minimum(lo, hi), np.maximum(lo, hi)
+    rows = np.arange(buckets)
+    idx = np.stack([first, second], axis=1)
+    tt = tp[rows[:, None], idx].ravel()
+    yy = yp[rows[:, None], idx].ravel()
+    # A bucket of padding only (or all NaN) keeps its NaN values; its time is the bucket's first.
+    t_fill = tp[rows, 0].repeat(2)
+    tt = np.where(np.isfinite(tt), tt, t_fill)
+    keep = np.isfinite(tt)
+    return tt[keep], yy[keep]
+
+
+def thin(n: int, max_markers: int = MAX_MARKERS) -> int:
+    """Stride that keeps at most ``max_markers`` of ``n`` samples as markers (1: every sample).
+
+    Parameters
+    ----------
+    n : int
+        Number of samples.
+    max_markers : int
+        Most markers drawn.
+    """
+    return max(1, -(-int(n) // max(int(max_markers), 1)))
+
+
+def figure_selection(fits: Sequence[SegmentFit], fit_percents: Sequence[float],
+                     limit: int = MAX_FIT_FIGURES) -> tuple[int, ...]:
+    """Which segment fits get figures: all of them up to ``limit``, else a spread over every kind.
+
+    The figures of a long trial would cost more than its fit and show the same thing hundreds of
+    times. Above ``limit`` fits, the figures go first to the failed fits, then, taking each group
+    of the same segment kind, DOF and channel in turn, to the worst fit of each group (lowest fit
+    %), then the best, then the next worst, ... until ``limit`` are chosen.
+
+    Parameters
+    ----------
+    fits : Sequence[SegmentFit]
+        The segment fits, in report order.
+    fit_percents : Sequence[float]
+        MATLAB ``compare`` fit % of each (NaN when not known: ranked as the worst).
+    limit : int
+        Most figures.
+
+    Returns
+    -------
+    tuple[int, ...]
+        Indices into ``fits``, increasing.
+    """
+    n = len(fits)
+    if n <= limit:
+        return tuple(range(n))
+    chosen: list[int] = [i for i in range(n) if not fits[i].success][:limit]
+    groups: dict[tuple[str, str, str], list[int]] = {}
+    for i, sf in enumerate(fits):
+        if sf.success:
+            groups.setdefault((sf.segment.kind, sf.segment.dof, sf.channel), []).append(i)
+
+    def score(i: int) -> float:
+        v = fit_percents[i] if i < len(fit_percents) else math.nan
+        return float(v) if finite(v) else -math.inf
+
+    # Each group as a queue alternating worst, best, second worst, second best, ...
+    queues = []
+    for members in groups.values():
+        ranked = sorted(members, key=lambda i: (score(i), i))
+        order = []
+        lo, hi = 0, len(ranked) - 1
+        while lo <= hi:
+            order.append(ranked[lo])
+            if hi != lo:
+                order.append(ranked[hi])
+            lo, hi = lo + 1, hi - 1
+        queues.append(order)
+    depth = 0
+    while len(chosen) < limit and any(depth < len(q) for q in queues):
+        for q in queues:
+            if depth < len(q) and len(chosen) < limit:
+                chosen.append(q[depth])
+        depth += 1
+    return tuple(sorted(chosen))
 
 
 def fit_figure_name(index: int, sf: SegmentFit) -> str:
@@ -182,9 +307,11 @@ def plot_segment_fit(sf: SegmentFit, index: int | None = None) -> Figure:
     seg = sf.segment
     factor, unit, _ = display_scale(sf.channel)
     t, y, yf, problem = _arrays(sf)
-    fig = Figure(figsize=(8.0, 5.6), layout="constrained")
+    # Fixed margins (room for a three-line title): constrained layout took most of the drawing time.
+    fig = Figure(figsize=(8.0, 5.6))
     FigureCanvasAgg(fig)
     ax, axr = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    fig.subplots_adjust(left=0.1, right=0.98, bottom=0.09, top=0.8, hspace=0.08)
     head = f"fit {index}: " if index is not None else ""
     title = (f"{head}{seg.kind} / {seg.dof}, t = {seg.t_start:.1f}-{seg.t_end:.1f} s "
              f"({seg.duration:.1f} s); {sf.model} on {sf.channel}")
@@ -201,13 +328,16 @@ def plot_segment_fit(sf: SegmentFit, index: int | None = None) -> Figure:
     if not problem:
         order = np.argsort(t, kind="stable")
         ts, ys, yfs = t[order], y[order] * factor, yf[order] * factor
-        # Thousands of samples as big markers hide the fit line; shrink them with density.
+        # Thousands of samples as big markers hide the fit line; shrink them with density, and
+        # draw every k-th sample of a long record (the legend says so).
         ms = 4.0 if ts.size < 300 else 2.5 if ts.size < 2000 else 1.5
-        ax.plot(ts, ys, "o", ms=ms, color="tab:blue", alpha=0.6, label="data", zorder=2)
-        ax.plot(ts, yfs, "-", lw=2.0, color="tab:orange", label=f"fit ({sf.model})", zorder=3)
+        k = thin(ts.size)
+        label = "data" if k == 1 else f"data (1 in {k} of {ts.size} samples shown)"
+        ax.plot(ts[::k], ys[::k], "o", ms=ms, color="tab:blue", alpha=0.6, label=label, zorder=2)
+        ax.plot(*envelope(ts, yfs), "-", lw=2.0, color="tab:orange", label=f"fit ({sf.model})", zorder=3)
         ax.legend(loc="best", fontsize=8)
         axr.axhline(0.0, color="0.4", lw=0.8)
-        axr.plot(ts, ys - yfs, "o", ms=ms, color="tab:blue", alpha=0.6)
+        axr.plot(ts[::k], (ys - yfs)[::k], "o", ms=ms, color="tab:blue", alpha=0.6)
         if not np.isfinite(yfs).any():
             axr.text(0.5, 0.5, "no residual: the fit gave no model curve", transform=axr.transAxes,
                      ha="center", va="center", fontsize=8, color="tab:red")
@@ -264,7 +394,7 @@ def plot_trial_overview(trial: Trial, segments: Sequence[Segment]) -> Figure:
                      va="center", transform=axes[0].transAxes)
     for ax, ch in zip(axes, channels):
         factor, _, _ = display_scale(ch)
-        ax.plot(t, trial.data[ch].to_numpy(dtype=float) * factor, lw=0.9, color="k")
+        ax.plot(*envelope(t, trial.data[ch].to_numpy(dtype=float) * factor), lw=0.9, color="k")
         ax.set_ylabel(f"{ch} [{display_scale(ch)[1] or '-'}]", fontsize=8)
         ax.tick_params(labelsize=8)
         ax.grid(True, alpha=0.3)

@@ -14,6 +14,7 @@ as HTML, since producing HTML is their job.
 from __future__ import annotations
 
 import base64
+import datetime
 import html
 import re
 from pathlib import Path
@@ -238,8 +239,59 @@ def segment_table_html(segments: Sequence[Segment]) -> str:
     return "\n".join(out)
 
 
+def _utc_text(unix_s: float) -> str:
+    """ISO 8601 UTC of a Unix time [s], to the millisecond."""
+    return datetime.datetime.fromtimestamp(unix_s, datetime.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def _time_of_day_text(seconds: float) -> str:
+    """``hh:mm:ss.sss`` UTC of a time of day [s after midnight]."""
+    h, rem = divmod(float(seconds), 3600.0)
+    m, sec = divmod(rem, 60.0)
+    return f"{int(h):02d}:{int(m):02d}:{sec:06.3f} UTC (date unknown)"
+
+
+def runs_table_html(trial: Trial) -> str:
+    """The runs of a trial: files and their clock offsets, span on the trial clock, start, why grouped so.
+
+    Parameters
+    ----------
+    trial : Trial
+        The aligned trial; a Trial built without runs is one run over all its data
+        (:meth:`pipeline.records.Trial.run_list`).
+
+    Returns
+    -------
+    str
+        HTML fragment: one row per run, in trial-clock order (its number is ``Segment.run``).
+    """
+    runs = trial.run_list()
+    out = ['<table class="runs" id="runs-table">',
+           f"<caption>{len(runs)} run(s): the recordings of the trial, each on its own clock; the runs lie one "
+           "after another on the trial clock with a gap between them, and no segment or replay crosses from one "
+           "to the next. Clock offset: added to the file's times to put it on the run's clock (± its standard "
+           "error).</caption>",
+           "<thead><tr><th>#</th><th>Run</th><th>Files (clock offset [s])</th><th>Start [s]</th><th>End [s]</th>"
+           "<th>Duration [s]</th><th>Absolute start</th><th>Why grouped so</th></tr></thead>", "<tbody>"]
+    for k, run in enumerate(runs):
+        files = "<br>".join(
+            f"{_esc(src)} ({run.offsets.get(src, 0.0):+.3f} ± {run.offset_stderr.get(src, 0.0):.2g})"
+            for src in run.sources) or "--"
+        if finite(run.start_time):
+            when = _utc_text(run.start_time)
+        elif finite(run.time_of_day):
+            when = _time_of_day_text(run.time_of_day)
+        else:
+            when = "unknown (no absolute clock)"
+        out.append(f'<tr><td class="num">{k}</td><td>{_esc(run.name)}</td><td>{files}</td>'
+                   f'<td class="num">{run.t_start:.2f}</td><td class="num">{run.t_end:.2f}</td>'
+                   f'<td class="num">{run.duration:.2f}</td><td>{_esc(when)}</td><td>{_esc(run.reason)}</td></tr>')
+    out.append("</tbody></table>")
+    return "\n".join(out)
+
+
 def trial_section_html(trial: Trial) -> str:
-    """Where the data came from: sources, sample rate, gaps, aligner notes, reader summaries.
+    """Where the data came from: runs, sources, sample rate, gaps, aligner notes, reader summaries.
 
     Parameters
     ----------
@@ -251,7 +303,8 @@ def trial_section_html(trial: Trial) -> str:
     str
         HTML fragment.
     """
-    out = [f"<p>Trial <b>{_esc(trial.name)}</b>, {len(trial.data)} samples at {trial.fs:g} Hz.</p>"]
+    out = [f"<p>Trial <b>{_esc(trial.name)}</b>, {len(trial.data)} samples at {trial.fs:g} Hz.</p>",
+           runs_table_html(trial)]
     if trial.sources:
         out.append("<p>Sources:</p><ul>" + "".join(f"<li>{_esc(s)}</li>" for s in trial.sources) + "</ul>")
     if trial.gaps:
@@ -489,6 +542,11 @@ def render_html(fits: Fits, figures: Sequence[tuple[str, str]] = (), segments: S
     sections.append(("Coefficients", coefficient_table_html(fits, added_mass)
                      + "<h3>Damping matrix</h3>" + damping_table_html(fits)))
     q_parts = [quality_table_html(fits, qualities)] if qualities else []
+    n_drawn = sum(1 for fig, _ in fit_figures if fig)
+    if fit_figures and n_drawn < len(fits.segment_fits):
+        q_parts.append(f"<p>Figures for {n_drawn} of the {len(fits.segment_fits)} segment fits: the failed fits, "
+                       "then the worst and the best fit % of each segment kind, DOF and channel in turn; every "
+                       "fit is in the table above.</p>")
     for i, sf in enumerate(fits.segment_fits):
         fig, res = fit_figures[i] if i < len(fit_figures) else (None, None)
         q = qualities[i] if i < len(qualities) else None

@@ -1,0 +1,87 @@
+"""Per-stage wall time, CPU time and peak memory of one ``vesselid run``, without changing what it runs.
+
+:func:`install` wraps the flow's stage functions (and, inside them, the grey-box stage, the
+autopilot's closed-loop check, the report writer and the diagnosis figures) with timers; at exit
+the costs are written as JSON (and after each stage, so a run stopped half-way still says
+where its time went). ``benchmarks/scaling.py`` runs ``vesselid run`` through
+:func:`main` so that the 2-hour run, measured as a whole by ``os.wait4``, also says where its time
+went. The peak resident memory of each top-level stage is its own (Linux: ``/proc/self/clear_refs``
+resets it at the start of the stage).
+"""
+
+from __future__ import annotations
+
+import atexit
+import functools
+import json
+import sys
+import time
+from pathlib import Path
+
+#: (module, attribute, label, top level): the functions timed.
+TARGETS = (
+    ("pipeline.flow", "load_trial", "ingest + align", True),
+    ("pipeline.flow", "segment_trial", "segment", True),
+    ("pipeline.flow", "fit_segments", "fit", True),
+    ("pipeline.fit.extend", "extend_fits", "fit: grey-box (extend_fits)", False),
+    ("pipeline.flow", "design_autopilot", "autopilot", True),
+    ("pipeline.autopilot.design", "closed_loop_check", "autopilot: closed-loop check", False),
+    ("pipeline.flow", "diagnose_trial", "diagnose", True),
+    ("pipeline.flow", "write_outputs", "report (write_outputs)", True),
+    ("pipeline.report", "write_report", "report: write_report (fit figures, tables, HTML)", False),
+    ("pipeline.diagnose.figures", "write_figures", "report: diagnosis figures", False),
+)
+
+
+def _hwm() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return float(line.split()[1]) * 1024
+    return float("nan")
+
+
+def _reset() -> bool:
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def install(out_json: str | Path) -> dict:
+    """Wrap the stage functions; write ``{label: {wall_s, cpu_s, peak_gb}}`` to ``out_json`` at exit."""
+    import importlib
+
+    costs: dict = {}
+    for module, attr, label, top in TARGETS:
+        mod = importlib.import_module(module)
+        fn = getattr(mod, attr)
+
+        def wrapped(*args, _fn=fn, _label=label, _top=top, **kwargs):
+            own = _reset() if _top else False
+            t0, c0 = time.perf_counter(), time.process_time()
+            try:
+                return _fn(*args, **kwargs)
+            finally:
+                entry = {"wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(time.process_time() - c0, 2)}
+                if own:
+                    entry["peak_gb"] = round(_hwm() / 1e9, 3)
+                costs[_label] = entry
+                # Written after every stage too: a run stopped half-way still says where it got.
+                Path(out_json).write_text(json.dumps(costs, indent=1))
+
+        setattr(mod, attr, functools.wraps(fn)(wrapped))
+    atexit.register(lambda: Path(out_json).write_text(json.dumps(costs, indent=1)))
+    return costs
+
+
+def main(argv: list[str]) -> int:
+    """``stage_timer.py OUT_JSON vesselid-arguments...``: ``vesselid`` with :func:`install` first."""
+    install(argv[0])
+    from pipeline.cli import main as cli_main
+
+    return cli_main(argv[1:])
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
