@@ -15,9 +15,10 @@ Steady-state points (thrust against steady speed from bollard tables or speed ru
 same least squares as rows ``(tau_k/M_ii - a u_k - b |u_k| u_k) / sd_k``, so the drag curve and
 the transients are one model (:class:`SteadyPoint`).
 
-The covariance is the Gauss-Newton ``(J^T J)^-1 s^2`` of the weighted residuals (Seber & Wild
-2003): it assumes white residuals, so it is too small when the residuals are coloured (lag-1
-autocorrelation reported).
+The covariance is the Newey-West (HAC) sandwich of the weighted residuals
+(:mod:`pipeline.fit.robust_covariance`): the Gauss-Newton ``(J^T J)^-1 s^2`` (Seber & Wild 2003)
+assumes white residuals and comes out too small when a logged channel's errors are coloured
+(filtered or interpolated speed); the sandwich sums the scores' autocovariance within each record.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from ..model.vessel5dof import simulate_dof
 from ..records import DOF_ANGLE, DOF_CHANNELS, DampingFit, Segment, Trial
 from .data import noise_sigma, segment_label
 from .first_order import guess_decay, guess_step
+from .robust_covariance import hac_covariance
 from .second_order import guess_damped_oscillation
 
 #: DOF -> (linear derivative, quadratic derivative) names after Fossen.
@@ -604,25 +606,25 @@ def _result(p: JointProblem, theta: np.ndarray, structure: str) -> DampingFit:
     jac = jac[:, keep]
     n, k = r.size, int(keep.sum())
     dof_resid = max(n - k, 1)
-    s2 = float(r @ r) / dof_resid
     msg = []
+    # Residual rows in order: each record's samples in time order, then one group per steady point.
+    groups = np.concatenate([np.broadcast_to(np.arange(len(p.records))[:, None], mask.shape)[mask],
+                             len(p.records) + np.arange(r.size - int(mask.sum()))])
     try:
-        cov_all = np.linalg.pinv(jac.T @ jac) * s2
-        cov = cov_all[:ng, :ng]
-    except np.linalg.LinAlgError:
+        robust = hac_covariance(jac, r, groups)
+        cov = robust.covariance[:ng, :ng]
+        lag = robust.rho
+    except (np.linalg.LinAlgError, ValueError):
         cov = np.full((ng, ng), np.nan)
+        lag = math.nan
         msg.append("covariance not computed: singular Jacobian")
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     vals = theta[:ng]
     terms, tcov = _derived_terms(p, vals, cov)
-    rm = p.residual_matrix(theta, mask)
-    a_, b_ = rm[:, :-1], rm[:, 1:]
-    both = mask[:, :-1] & mask[:, 1:]
-    lag = float(np.sum(np.where(both, a_ * b_, 0)) / max(float(np.sum(rm**2)), 1e-300))
     yhat = p.simulate(theta)
     ok = bool(np.all(np.isfinite(se)) and np.all(np.isfinite(yhat[mask])))
     if abs(lag) > 0.5:
-        msg.append(f"residuals coloured (lag-1 autocorrelation {lag:.2f}): standard errors are too small")
+        msg.append(f"residuals coloured (lag-1 autocorrelation {lag:.2f}): standard errors from the HAC sandwich")
     return DampingFit(dof=p.dof, structure=structure, names=p.names, values=vals.copy(), stderr=se, covariance=cov,
                     terms=terms, term_covariance=tcov, rmse=float(math.sqrt(float(r @ r) / max(n, 1))), lag1=lag,
                     n=n, dof_resid=dof_resid,
