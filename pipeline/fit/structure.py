@@ -65,20 +65,18 @@ def _folds(mask: np.ndarray) -> tuple[list[np.ndarray], str]:
 
 
 def _heldout(records, dof, dt, mass, steady, lin_full: DampingFit, folds, quad_full: DampingFit | None = None):
-    """Held-out simulation residuals (records x samples, NaN off the test set) per structure, and
-    the shared parameters fitted on each fold's training data (the jackknife replicates)."""
-    res, reps = {}, {}
+    """Held-out simulation residuals (records x samples, NaN off the test set) per structure; each
+    structure's folds start from its own fit to all data."""
+    res = {}
     for structure in ("linear", "quadratic"):
         p = problem(records, dof, dt, mass, structure, steady)
         full = quad_full if (structure == "quadratic" and quad_full is not None) else lin_full
         theta_full = expand_linear(np.concatenate([full.values, full.initial_states]), p) if full is lin_full else \
             np.concatenate([full.values, full.initial_states])
         out = np.full(p.Y.shape, np.nan)
-        reps[structure] = []
         for test in folds:
             train = p.mask & ~test
             th = solve(p, theta_full, train, max_nfev=40)
-            reps[structure].append(th[: len(p.names)].copy())
             # Segments left out entirely get their initial state from their own samples, shared held.
             lone = ~train.any(axis=1) & test.any(axis=1)
             if lone.any():
@@ -86,51 +84,7 @@ def _heldout(records, dof, dt, mass, steady, lin_full: DampingFit, folds, quad_f
             yhat = p.simulate(th)
             out[test] = (p.Y - yhat)[test]
         res[structure] = out
-    return res, p, reps
-
-
-def with_jackknife(fit: DampingFit, replicates: Sequence[np.ndarray]) -> DampingFit:
-    """``fit`` with each shared parameter's variance raised to the grouped leave-segments-out
-    jackknife variance where that is larger (Efron & Tibshirani 1993, sec. 11.2).
-
-    The HAC sandwich covers coloured noise within a segment; an error that differs from segment to
-    segment (a step's timing, a segment the model fits less well) is absorbed by the parameters and
-    leaves no trace in the residuals, but it moves the estimate when the segment is left out. The
-    correlation matrix of the sandwich is kept; only the standard errors grow.
-
-    Parameters
-    ----------
-    fit : DampingFit
-        A joint fit (covariance from the sandwich).
-    replicates : Sequence[numpy.ndarray]
-        Shared parameters fitted with each fold's segments left out (at least 3 folds).
-
-    Returns
-    -------
-    DampingFit
-        The same fit, or one with larger standard errors and the reason in its message.
-    """
-    reps = np.asarray(replicates, float)
-    if reps.ndim != 2 or reps.shape[0] < 3 or reps.shape[1] != fit.values.size or not np.all(np.isfinite(reps)):
-        return fit
-    g = reps.shape[0]
-    var_jk = (g - 1) / g * np.sum((reps - reps.mean(axis=0)) ** 2, axis=0)
-    var = np.diag(fit.covariance)
-    scale = np.sqrt(np.where((var_jk > var) & (var > 0), var_jk / np.where(var > 0, var, 1.0), 1.0))
-    if not np.any(scale > 1.0):
-        return fit
-    cov = fit.covariance * np.outer(scale, scale)
-    se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    terms, tcov = dict(fit.terms), fit.term_covariance
-    if terms and math.isfinite(fit.inertia):
-        idx = [fit.names.index("a")] + ([fit.names.index("b")] if "b" in fit.names else [])
-        tcov = fit.inertia**2 * cov[np.ix_(idx, idx)]
-        for j, (name, (val, _, unit)) in enumerate(terms.items()):
-            terms[name] = (val, float(math.sqrt(max(tcov[j, j], 0.0))), unit)
-    grown = ", ".join(f"{n} x{s:.2g}" for n, s in zip(fit.names, scale) if s > 1.0)
-    note = f"standard errors raised to the leave-segments-out jackknife ({g} folds): {grown}"
-    return replace(fit, covariance=cov, stderr=se, terms=terms, term_covariance=tcov,
-                   message="; ".join(m for m in (fit.message, note) if m))
+    return res, p
 
 
 def select_structure(records, dof: str, dt: float, mass: float, model: str = "auto",
@@ -175,10 +129,7 @@ def select_structure(records, dof: str, dt: float, mass: float, model: str = "au
     fits = {"linear": lin, "quadratic": quad}
     p0 = problem(records, dof, dt, mass, "linear", steady)
     folds, how = _folds(p0.mask)
-    resid, p, reps = _heldout(records, dof, dt, mass, steady, lin, folds, quad)
-    if p0.mask.shape[0] >= 3:
-        fits = {s: with_jackknife(f, reps[s]) for s, f in fits.items()}
-        lin, quad = fits["linear"], fits["quadratic"]
+    resid, p = _heldout(records, dof, dt, mass, steady, lin, folds, quad)
     e0, e1 = resid["linear"], resid["quadratic"]
     rms = {s: float(np.sqrt(np.nanmean(r**2))) for s, r in resid.items()}
     vals = p.Y[p.mask]
