@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.autopilot.design import gain_schedule
+from pipeline.autopilot.design import build_autopilot, coefficients_at_speed, gain_schedule
 from pipeline.autopilot.pd import pd_gains
 from pipeline.errors import AutopilotError, FitError
 from pipeline.fit.nomoto_records import NomotoRecord
@@ -97,3 +97,13 @@ def test_speed_law_errors_and_birge_ratio():
         fit_nomoto_speeds({-1.0: [_record(0.4, 5.0, 0)]})
     with pytest.raises(AutopilotError, match="positive scheduling speeds"):
         gain_schedule(fit_nomoto_speeds(_runs(scaled=False)), [])
+
+
+def test_autopilot_built_on_the_model_linearised_at_the_operating_speed():
+    m = fit_nomoto_speeds(_runs(scaled=True), length=L)
+    c = coefficients_at_speed(m, 2.5, vessel="test")
+    assert c.K == pytest.approx(m.at(2.5)["K"]) and c.T == pytest.approx(m.at(2.5)["T"]) and c.K_stderr > 0
+    res = build_autopilot(c, check=False)
+    assert res.config.K == pytest.approx(c.K) and res.config.pd.td == pytest.approx(c.T)
+    with pytest.raises(AutopilotError, match="positive speed"):
+        coefficients_at_speed(m, 0.0)

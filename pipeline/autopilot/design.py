@@ -340,3 +340,35 @@ def gain_schedule(speed_map, speeds, crossover: float | None = None,
         entries.append(ScheduledGains(u, kt["K"], kt["K_stderr"], kt["T"], kt["T_stderr"], g, worst))
     dep = bool(getattr(speed_map, "speed_dependent", True))
     return GainSchedule(tuple(entries), dep, str(getattr(speed_map, "message", "")))
+
+
+def coefficients_at_speed(speed_map, speed: float, vessel: str = "") -> NomotoCoefficients:
+    """The Nomoto model linearised at the operating speed, for :func:`build_autopilot`.
+
+    Parameters
+    ----------
+    speed_map : object
+        Anything with ``at(speed) -> {"K", "K_stderr", "T", "T_stderr"}``, e.g.
+        :class:`pipeline.fit.nomoto_speed.NomotoSpeedMap`.
+    speed : float
+        Operating speed [m/s], positive.
+    vessel : str
+        Vessel name for the provenance.
+
+    Returns
+    -------
+    NomotoCoefficients
+        ``K(U)`` [1/s] and ``T(U)`` [s] with their standard errors from the speed law.
+
+    Raises
+    ------
+    AutopilotError
+        Non-positive speed, or K, T not positive there.
+    """
+    if not (math.isfinite(float(speed)) and float(speed) > 0):
+        raise AutopilotError(f"operating speed: expected a positive speed [m/s], found {speed!r}")
+    kt = speed_map.at(float(speed))
+    if not (kt["K"] > 0 and kt["T"] > 0):
+        raise AutopilotError(f"operating speed {speed:g} m/s: expected K > 0 and T > 0, found K = {kt['K']:.4g} 1/s, "
+                             f"T = {kt['T']:.4g} s")
+    return NomotoCoefficients(K=kt["K"], K_stderr=kt["K_stderr"], T=kt["T"], T_stderr=kt["T_stderr"], vessel=vessel)
