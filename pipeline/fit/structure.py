@@ -64,12 +64,13 @@ def _folds(mask: np.ndarray) -> tuple[list[np.ndarray], str]:
                  f"over {k} segment(s)")
 
 
-def _heldout(records, dof, dt, mass, steady, lin_full: DampingFit, folds, quad_full: DampingFit | None = None):
+def _heldout(records, dof, dt, mass, steady, lin_full: DampingFit, folds, quad_full: DampingFit | None = None,
+             drift: bool = False):
     """Held-out simulation residuals (records x samples, NaN off the test set) per structure; each
     structure's folds start from its own fit to all data."""
     res = {}
     for structure in ("linear", "quadratic"):
-        p = problem(records, dof, dt, mass, structure, steady)
+        p = problem(records, dof, dt, mass, structure, steady, drift)
         full = quad_full if (structure == "quadratic" and quad_full is not None) else lin_full
         theta_full = expand_linear(np.concatenate([full.values, full.initial_states]), p) if full is lin_full else \
             np.concatenate([full.values, full.initial_states])
@@ -88,7 +89,7 @@ def _heldout(records, dof, dt, mass, steady, lin_full: DampingFit, folds, quad_f
 
 
 def select_structure(records, dof: str, dt: float, mass: float, model: str = "auto",
-                     steady: Sequence[SteadyPoint] = ()) -> StructureChoice:
+                     steady: Sequence[SteadyPoint] = (), drift: bool = False) -> StructureChoice:
     """Fit both damping structures to the records of one DOF and choose one by held-out error.
 
     Parameters
@@ -106,6 +107,9 @@ def select_structure(records, dof: str, dt: float, mass: float, model: str = "au
         ``quadratic`` (forced; both are fitted and scored so the report shows the other).
     steady : Sequence[SteadyPoint]
         Steady force-speed points fitted with the transients.
+    drift : bool
+        Both structures get a constant velocity offset per segment (speed over ground against speed
+        through the water: a current along the track).
 
     Returns
     -------
@@ -119,17 +123,17 @@ def select_structure(records, dof: str, dt: float, mass: float, model: str = "au
     if model not in MODELS:
         raise FitError(f"--model: expected one of {list(MODELS)}, found {model!r}")
     records, dt, _ = decimate_records(records, dt, dof)
-    lin = fit_dof(records, dof, dt, mass, "linear", steady)
+    lin = fit_dof(records, dof, dt, mass, "linear", steady, drift=drift)
     if model == "linear":
         return StructureChoice(dof, "linear", {"linear": lin}, {"linear": math.nan}, math.nan, math.nan, math.nan,
                                math.nan, False, "not scored", requested="linear",
                                message="linear structure forced (--model linear)")
     quad = fit_dof(records, dof, dt, mass, "quadratic", steady,
-                   start=np.concatenate([lin.values, lin.initial_states]))
+                   start=np.concatenate([lin.values, lin.initial_states]), drift=drift)
     fits = {"linear": lin, "quadratic": quad}
-    p0 = problem(records, dof, dt, mass, "linear", steady)
+    p0 = problem(records, dof, dt, mass, "linear", steady, drift)
     folds, how = _folds(p0.mask)
-    resid, p = _heldout(records, dof, dt, mass, steady, lin, folds, quad)
+    resid, p = _heldout(records, dof, dt, mass, steady, lin, folds, quad, drift)
     e0, e1 = resid["linear"], resid["quadratic"]
     rms = {s: float(np.sqrt(np.nanmean(r**2))) for s, r in resid.items()}
     vals = p.Y[p.mask]
