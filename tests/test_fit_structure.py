@@ -107,6 +107,9 @@ def test_fits_and_coefficients_json_carry_every_term():
     assert corr.shape == (2, 2) and np.allclose(np.diag(corr), 1.0)
     assert data["quadratic_damping"]["values"][0] == pytest.approx(-out.estimates["X_|u|u"].value)
     assert data["covariance"]["names"] == ["X_u", "X_|u|u"]
+    pc = q["parameter_covariance"]
+    assert pc["names"][:2] == ["a", "b"] and np.array(pc["matrix"], float).shape == (len(pc["names"]),) * 2
+    assert np.sqrt(pc["matrix"][1][1]) == pytest.approx(q["parameters"]["b"]["stderr"])
 
 
 def test_cli_model_flag_is_parsed_and_checked(capsys):

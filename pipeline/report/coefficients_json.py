@@ -174,6 +174,8 @@ def _damping_fit_dict(fit) -> dict[str, Any]:
             "correlation": {"names": names, "matrix": _square(corr)},
             "parameters": {n: {"value": _num(v), "stderr": _num(e)}
                            for n, v, e in zip(fit.names, fit.values, fit.stderr)},
+            "parameter_covariance": {"names": list(fit.names), "matrix": _square(fit.covariance),
+                                     "method": "Newey-West (HAC) sandwich, records independent"},
             "rmse_noise_units": _num(fit.rmse), "residual_lag1": _num(fit.lag1), "n_residuals": int(fit.n),
             "inertia": _num(fit.inertia), "success": bool(fit.success), "message": fit.message}
 
