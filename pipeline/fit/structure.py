@@ -26,6 +26,7 @@ from .decay_analysis import analyse_decays
 from .heldout_test import channel_score, is_significant
 from .least_squares import confidence_interval
 from .segment_fit import MAX_RELATIVE_STDERR
+from .steady_map import steady_points
 from .quadratic import (TERM_NAMES, SteadyPoint, decimate_records, dof_records, expand_linear, fit_dof, problem, solve,
                         start_vector)
 
@@ -277,7 +278,9 @@ def structure_estimates(estimates: Mapping[str, Estimate], choices: Mapping[str,
 
 def apply_structures(fits: Fits, trial: Trial, segments: Sequence[Segment], vessel: Vessel,
                      model: str = "auto") -> Fits:
-    """``fits`` with the damping structure chosen per DOF (:func:`select_structures`), the damping
+    """``fits`` with the damping structure chosen per DOF (:func:`select_structures`; the vessel
+    config's ``[steady_state]`` points, :func:`pipeline.fit.steady_map.steady_points`, enter the same
+    joint fit as the transients), the damping
     matrix diagonal taken from the chosen structure's linear terms, and the roll/pitch extinction
     analyses (:func:`pipeline.fit.decay_analysis.analyse_decays`) with the effective inertia
     ``I_eff_<dof> = C / wn^2`` beside the config's.
@@ -302,7 +305,8 @@ def apply_structures(fits: Fits, trial: Trial, segments: Sequence[Segment], vess
     """
     if model not in MODELS:
         raise FitError(f"--model: expected one of {list(MODELS)}, found {model!r}")
-    choices = select_structures(trial, segments, vessel, model)
+    steady = steady_points(vessel.extra["steady_state"]) if "steady_state" in dict(vessel.extra or {}) else None
+    choices = select_structures(trial, segments, vessel, model, steady)
     decays = {dof: a for dof in ("roll", "pitch") if (a := analyse_decays(trial, segments, vessel, dof)) is not None}
     if decays:
         fits = replace(fits, estimates={**fits.estimates, **inertia_estimates(decays)}, decay_analyses=decays)
