@@ -168,7 +168,11 @@ class _Problem:
         self.Y = {ch: np.full((k_rec, self.n_len), np.nan) for ch in self.channels}
         self.W = {}
         for i, rec in enumerate(records):
-            d = np.asarray(rec.delta, float)[::k]
+            # The rudder over each kept interval is the mean of the k held samples it spans (plain
+            # subsampling would shift a ramped rudder by up to k samples and bias T).
+            raw = np.asarray(rec.delta, float)
+            m = -(-raw.size // k)
+            d = np.concatenate([raw, np.full(m * k - raw.size, raw[-1])]).reshape(m, k).mean(axis=1)
             self.delta[i, : d.size] = d
             self.delta[i, d.size:] = d[-1]
             for ch in self.channels:
