@@ -16,7 +16,7 @@ with fewer, interleaved time blocks of every record. The covariance is the HAC s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -145,7 +145,6 @@ class NorrbinChoice:
     significant: bool
     folds: str
     message: str = ""
-    extra: Mapping[str, float] = field(default_factory=dict)
 
 
 class _Problem:
