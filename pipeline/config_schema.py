@@ -46,6 +46,12 @@ SENSOR = ("any of",
 THRUSTER = ("table", {"input": ("one of", tuple(INPUT_UNITS)), "gain": _NUM, "offset": _NUM,
                       "table": ("list", None, ("list", 2, _NUM)), "relative_stderr": _NUM}, ())
 
+#: ``[steady_state.<dof>]``: thrust against steady speed (pipeline.fit.steady_map).
+STEADY = ("table", {"speed": ("list", None, _NUM), "force": ("list", None, _NUM),
+                    "speed_se": ("any of", _NUM, ("list", None, _NUM)),
+                    "force_se": ("any of", _POS, ("list", None, _POS)), "source": "string"},
+          ("speed", "force", "force_se"))
+
 VESSEL_SCHEMA = ("table", {
     "name": "string",
     "rigid_body": ("table", {"mass": _POS, "inertia": ("list", 3, _NUM), "cg": ("list", 3, _NUM)}, ()),
@@ -62,6 +68,7 @@ VESSEL_SCHEMA = ("table", {
     "thrusters": ("table", {d: THRUSTER for d in ("surge", "sway", "yaw")}, ()),
     "topics": ("map", "string"),
     "sensors": ("map", SENSOR),
+    "steady_state": ("table", {d: STEADY for d in ("surge", "sway", "yaw")}, ()),
 }, ("name",))
 
 #: A manifest's hand-named segment (``[[segments]]``).

@@ -31,7 +31,7 @@ from .errors import ConfigError
 from .records import DOF_NAMES, DOFS, INPUT_UNITS
 
 _TOP_KEYS = {"name", "rigid_body", "added_mass", "restoring", "damping", "nomoto", "rudder", "actuators",
-             "thrusters", "topics", "sensors"}
+             "thrusters", "topics", "sensors", "steady_state"}
 _SECTION_KEYS: Mapping[str, set[str]] = {
     "rigid_body": {"mass", "inertia", "cg"},
     "added_mass": set(DOF_NAMES.values()),
@@ -355,7 +355,7 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
                                 full_scale=fs,
                                 reverse_scale=_number(f"{where}.reverse_scale", a.get("reverse_scale", fs))))
     kw["actuators"] = tuple(acts)
-    kw["extra"] = {k: doc[k] for k in ("thrusters", "topics", "sensors") if k in doc}
+    kw["extra"] = {k: doc[k] for k in ("thrusters", "topics", "sensors", "steady_state") if k in doc}
     validate(doc, VESSEL_SCHEMA, path)  # every table, incl. [thrusters] [topics] [sensors] (pipeline.config_schema)
     return Vessel(**kw)
 

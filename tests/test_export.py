@@ -101,6 +101,13 @@ def test_ardupilot_within_documented_ranges_and_clamped(tmp_path):
     for name, value in params.items():
         lo, hi = RANGES[name]
         assert lo <= float(value) <= hi
+    # ArduPilot's own Python tooling (pymavlink, as MAVProxy's "param load") reads the file back.
+    from pymavlink.mavparm import MAVParmDict
+
+    parsed = MAVParmDict()
+    assert parsed.load(str(out), mav=None)
+    assert set(parsed) == set(params)
+    assert all(parsed[k] == pytest.approx(float(v)) for k, v in params.items())
     vessel = load_vessel(VESSEL)
     assert float(params["ATC_STR_RAT_MAX"]) == pytest.approx(math.degrees(1.712 * vessel.rudder["max_angle"]), rel=1e-5)
     # A sluggish ship: 1/(K max_rudder) above 3 is clamped and said so.

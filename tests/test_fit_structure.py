@@ -107,6 +107,9 @@ def test_fits_and_coefficients_json_carry_every_term():
     assert corr.shape == (2, 2) and np.allclose(np.diag(corr), 1.0)
     assert data["quadratic_damping"]["values"][0] == pytest.approx(-out.estimates["X_|u|u"].value)
     assert data["covariance"]["names"] == ["X_u", "X_|u|u"]
+    pc = q["parameter_covariance"]
+    assert pc["names"][:2] == ["a", "b"] and np.array(pc["matrix"], float).shape == (len(pc["names"]),) * 2
+    assert np.sqrt(pc["matrix"][1][1]) == pytest.approx(q["parameters"]["b"]["stderr"])
 
 
 def test_cli_model_flag_is_parsed_and_checked(capsys):
@@ -117,3 +120,21 @@ def test_cli_model_flag_is_parsed_and_checked(capsys):
     with pytest.raises(SystemExit) as exc:
         build_parser().parse_args(["fit", "--vessel", "v.toml", "log.csv", "--json", "o.json", "--model", "cubic"])
     assert exc.value.code == 2 and "invalid choice" in capsys.readouterr().err
+
+
+def test_drift_offset_recovers_damping_from_speed_over_ground_with_a_current():
+    # Speed over ground = speed through the water + a current along the track, different per segment.
+    trial, segs = surge_trial(2.86, 12.7, seed=4)
+    data = trial.data.copy()
+    for i, seg in enumerate(segs.items):
+        inside = (data["t"] >= seg.t_start) & (data["t"] <= seg.t_end)
+        data.loc[inside, "u"] += 0.15 * (-1) ** i
+    recs = dof_records(Trial("surge", data, FS), segs.items, "surge")
+    plain = select_structure(recs, "surge", 1 / FS, M)
+    drift = select_structure(recs, "surge", 1 / FS, M, drift=True)
+    value, se, _ = drift.fits["quadratic"].terms["X_|u|u"]
+    assert drift.selected == "quadratic" and abs(value + 12.7) < 3 * se
+    assert abs(drift.fits["quadratic"].terms["X_u"][0] + 2.86) < 3 * drift.fits["quadratic"].terms["X_u"][1]
+    assert drift.heldout_rmse["quadratic"] < 0.5 * min(plain.heldout_rmse.values())
+    offsets = drift.fits["quadratic"].initial_states.reshape(len(recs), 2)[:, 1]
+    assert np.allclose(offsets, [0.15 * (-1) ** i for i in range(len(recs))], atol=0.02)

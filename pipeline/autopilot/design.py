@@ -13,6 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
+import numpy as np
+
 from ..errors import AutopilotError
 from ..model.waves import WaveParams
 from .closed_loop import ClosedLoopCheck, closed_loop_check, default_scenarios
@@ -20,7 +22,7 @@ from .config import (ArduPilotExport, AutopilotConfig, NomotoCoefficients, Sourc
                      ardupilot_params, build_autopilot_config, write_ardupilot_params, write_autopilot_toml)
 from .kalman import DEFAULT_P0, DEFAULT_Q, observability
 from ..atomic import atomic_write_bytes
-from .pd import DEFAULT_PHASE_MARGIN, margin_table
+from .pd import DEFAULT_PHASE_MARGIN, PDGains, margin_table, pd_gains
 from .waves_fit import WaveFit
 
 
@@ -235,3 +237,138 @@ def _clean(obj):
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     return _clean(float(obj))
+
+
+@dataclass(frozen=True)
+class ScheduledGains:
+    """PD gains designed on the Nomoto model linearised at one speed.
+
+    Attributes
+    ----------
+    speed : float
+        Operating speed [m/s].
+    K, K_stderr : float
+        Nomoto gain at that speed and its standard error [1/s].
+    T, T_stderr : float
+        Time constant and standard error [s].
+    gains : PDGains
+        :func:`pipeline.autopilot.pd.pd_gains` of ``K(U)``, ``T(U)``.
+    worst_phase_margin : float
+        Smallest phase margin over the corners of the 95 % box of K and T at this speed [rad].
+    """
+
+    speed: float
+    K: float
+    K_stderr: float
+    T: float
+    T_stderr: float
+    gains: PDGains
+    worst_phase_margin: float
+
+
+@dataclass(frozen=True)
+class GainSchedule:
+    """PD gains over speed (gain scheduling on the identified K(U), T(U)).
+
+    Attributes
+    ----------
+    entries : tuple[ScheduledGains, ...]
+        One design per scheduling speed, ascending.
+    speed_dependent : bool
+        K or T of the model varies with speed (otherwise every entry has the same gains).
+    message : str
+        Where K(U) and T(U) came from.
+    """
+
+    entries: tuple[ScheduledGains, ...]
+    speed_dependent: bool
+    message: str = ""
+
+    def gains_at(self, speed: float) -> PDGains:
+        """Gains at ``speed``, linearly interpolated between scheduling speeds and held beyond them.
+
+        Parameters
+        ----------
+        speed : float
+            Operating speed [m/s].
+        """
+        u = np.array([e.speed for e in self.entries])
+        pick = {name: float(np.interp(speed, u, [getattr(e.gains, name) for e in self.entries]))
+                for name in ("kpd", "td", "tf", "crossover")}
+        return PDGains(kpd=pick["kpd"], td=pick["td"], tf=pick["tf"], crossover=pick["crossover"],
+                       phase_margin=self.entries[0].gains.phase_margin)
+
+
+def gain_schedule(speed_map, speeds, crossover: float | None = None,
+                  phase_margin: float = DEFAULT_PHASE_MARGIN) -> GainSchedule:
+    """Design the PD autopilot at each speed on the Nomoto model linearised there.
+
+    Parameters
+    ----------
+    speed_map : object
+        Anything with ``at(speed) -> {"K", "K_stderr", "T", "T_stderr"}`` and ``speed_dependent``,
+        e.g. :class:`pipeline.fit.nomoto_speed.NomotoSpeedMap`.
+    speeds : sequence of float
+        Scheduling speeds [m/s], positive.
+    crossover : float, optional
+        Fixed crossover [rad/s]; default :func:`pipeline.autopilot.pd.default_crossover` of ``T(U)``
+        at each speed (the loop shape is kept as T changes).
+    phase_margin : float
+        Design phase margin [rad].
+
+    Returns
+    -------
+    GainSchedule
+
+    Raises
+    ------
+    AutopilotError
+        No speed, a non-positive speed, or K(U), T(U) not positive at a scheduling speed.
+    """
+    us = sorted(float(u) for u in speeds)
+    if not us or any(not (math.isfinite(u) and u > 0) for u in us):
+        raise AutopilotError(f"gain schedule: expected positive scheduling speeds [m/s], found {list(speeds)!r}")
+    entries = []
+    for u in us:
+        kt = speed_map.at(u)
+        if not (kt["K"] > 0 and kt["T"] > 0):
+            raise AutopilotError(f"gain schedule: expected K > 0 and T > 0 at {u:g} m/s, found K = {kt['K']:.4g} 1/s, "
+                                 f"T = {kt['T']:.4g} s (outside the identified speeds?)")
+        g = pd_gains(kt["K"], kt["T"], crossover, phase_margin)
+        corners = margin_table(kt["K"], kt["T"], kt["K_stderr"], kt["T_stderr"], g)
+        worst = min((m["phase_margin"] for m in corners if math.isfinite(m["phase_margin"])), default=math.nan)
+        entries.append(ScheduledGains(u, kt["K"], kt["K_stderr"], kt["T"], kt["T_stderr"], g, worst))
+    dep = bool(getattr(speed_map, "speed_dependent", True))
+    return GainSchedule(tuple(entries), dep, str(getattr(speed_map, "message", "")))
+
+
+def coefficients_at_speed(speed_map, speed: float, vessel: str = "") -> NomotoCoefficients:
+    """The Nomoto model linearised at the operating speed, for :func:`build_autopilot`.
+
+    Parameters
+    ----------
+    speed_map : object
+        Anything with ``at(speed) -> {"K", "K_stderr", "T", "T_stderr"}``, e.g.
+        :class:`pipeline.fit.nomoto_speed.NomotoSpeedMap`.
+    speed : float
+        Operating speed [m/s], positive.
+    vessel : str
+        Vessel name for the provenance.
+
+    Returns
+    -------
+    NomotoCoefficients
+        ``K(U)`` [1/s] and ``T(U)`` [s] with their standard errors from the speed law.
+
+    Raises
+    ------
+    AutopilotError
+        Non-positive speed, or K, T not positive there.
+    """
+    if not (math.isfinite(float(speed)) and float(speed) > 0):
+        raise AutopilotError(f"operating speed: expected a positive speed [m/s], found {speed!r}")
+    kt = speed_map.at(float(speed))
+    if not (kt["K"] > 0 and kt["T"] > 0):
+        raise AutopilotError(f"operating speed {speed:g} m/s: expected K > 0 and T > 0, found K = {kt['K']:.4g} 1/s, "
+                             f"T = {kt['T']:.4g} s")
+    return NomotoCoefficients(K=kt["K"], K_stderr=kt["K_stderr"], T=kt["T"], T_stderr=kt["T_stderr"], vessel=vessel)

@@ -15,9 +15,10 @@ Steady-state points (thrust against steady speed from bollard tables or speed ru
 same least squares as rows ``(tau_k/M_ii - a u_k - b |u_k| u_k) / sd_k``, so the drag curve and
 the transients are one model (:class:`SteadyPoint`).
 
-The covariance is the Gauss-Newton ``(J^T J)^-1 s^2`` of the weighted residuals (Seber & Wild
-2003): it assumes white residuals, so it is too small when the residuals are coloured (lag-1
-autocorrelation reported).
+The covariance is the Newey-West (HAC) sandwich of the weighted residuals
+(:mod:`pipeline.fit.robust_covariance`): the Gauss-Newton ``(J^T J)^-1 s^2`` (Seber & Wild 2003)
+assumes white residuals and comes out too small when a logged channel's errors are coloured
+(filtered or interpolated speed); the sandwich sums the scores' autocovariance within each record.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from ..model.vessel5dof import simulate_dof
 from ..records import DOF_ANGLE, DOF_CHANNELS, DampingFit, Segment, Trial
 from .data import noise_sigma, segment_label
 from .first_order import guess_decay, guess_step
+from .robust_covariance import hac_covariance
 from .second_order import guess_damped_oscillation
 
 #: DOF -> (linear derivative, quadratic derivative) names after Fossen.
@@ -262,10 +264,13 @@ class JointProblem:
         Include ``b``.
     steady : Sequence[SteadyPoint]
         Steady force-speed points.
+    drift : bool
+        First-order DOFs: a constant offset per record between the measured and the modelled
+        velocity (speed over ground = speed through the water + current along the track) [SI].
     """
 
     def __init__(self, records: Sequence[DofRecord], dof: str, dt: float, mass: float, quadratic: bool,
-                 steady: Sequence[SteadyPoint] = ()) -> None:
+                 steady: Sequence[SteadyPoint] = (), drift: bool = False) -> None:
         self.records = list(records)
         self.dof = dof
         self.dt = dt
@@ -287,7 +292,8 @@ class JointProblem:
         self.angle = np.array([r.output == "angle" for r in self.records])
         self.U = {c: _pad([r.inputs.get(c, np.zeros(r.y.size)) for r in self.records], self.n_len, 0.0) for c in chans}
         # Local parameters per record: nu0 (all); eta0 (second order); offset (measured angle).
-        self.n_loc = 1 + (2 if self.second else 0)
+        self.drift = bool(drift) and not self.second
+        self.n_loc = 1 + (2 if self.second else 0) + (1 if self.drift else 0)
         self.mask = np.isfinite(self.Y)
 
     def split(self, theta: np.ndarray) -> tuple[dict, np.ndarray]:
@@ -327,7 +333,8 @@ class JointProblem:
         a, b, c = g["a"], g.get("b", 0.0), g.get("c", 0.0)
         f = self.force(g)
         if not self.second:
-            return simulate_dof(loc[:, 0], f, self.dt, a, b, substeps=self.substeps(a, c))
+            x = simulate_dof(loc[:, 0], f, self.dt, a, b, substeps=self.substeps(a, c))
+            return x + loc[:, 1][:, None] if self.drift else x
         # Offset of a measured angle's equilibrium: a constant external moment c * offset.
         f = f + c * np.where(self.angle, loc[:, 2], 0.0)[:, None]
         x = simulate_dof(np.column_stack([loc[:, 0], loc[:, 1]]), f, self.dt, a, b, c, self.substeps(a, c))
@@ -447,7 +454,7 @@ def _start(p: JointProblem) -> np.ndarray:
             except (ValueError, np.linalg.LinAlgError):
                 gs, T = {"y_ss": 0.0}, max(float(tt[-1]), p.dt)
             a_s.append(1.0 / T)
-            locs.append([float(np.mean(yy[:3]))])
+            locs.append([float(np.mean(yy[:3]))] + ([0.0] if p.drift else []))
             for c in p.free_gains:
                 u = r.inputs.get(c)
                 if u is not None and r.kind == "step" and abs(u[-1]) > 0:
@@ -544,7 +551,7 @@ def _derived_terms(p: JointProblem, values: np.ndarray, cov: np.ndarray) -> tupl
 
 
 def fit_dof(records: Sequence[DofRecord], dof: str, dt: float, mass: float, structure: str,
-            steady: Sequence[SteadyPoint] = (), start: np.ndarray | None = None) -> DampingFit:
+            steady: Sequence[SteadyPoint] = (), start: np.ndarray | None = None, drift: bool = False) -> DampingFit:
     """Fit one damping structure jointly to every record of a DOF.
 
     Parameters
@@ -564,6 +571,8 @@ def fit_dof(records: Sequence[DofRecord], dof: str, dt: float, mass: float, stru
         Steady-state force-speed points fitted together with the transients (surge, sway, yaw).
     start : numpy.ndarray, optional
         Start vector (shared then local parameters of the linear structure), e.g. the linear fit's.
+    drift : bool
+        Fit a constant velocity offset per record (current along the track; first-order DOFs).
 
     Returns
     -------
@@ -579,7 +588,7 @@ def fit_dof(records: Sequence[DofRecord], dof: str, dt: float, mass: float, stru
     if not records:
         raise FitError(f"{dof}: no usable segment for a joint damping fit (expected coast-downs, steps "
                        f"or free decays with at least {MIN_RECORD_SAMPLES} samples)")
-    p = JointProblem(records, dof, dt, mass, structure == "quadratic", steady)
+    p = JointProblem(records, dof, dt, mass, structure == "quadratic", steady, drift)
     theta0 = _start(p) if start is None else _expand(start, p)
     theta = _solve(p, theta0, p.mask)
     return _result(p, theta, structure)
@@ -604,25 +613,25 @@ def _result(p: JointProblem, theta: np.ndarray, structure: str) -> DampingFit:
     jac = jac[:, keep]
     n, k = r.size, int(keep.sum())
     dof_resid = max(n - k, 1)
-    s2 = float(r @ r) / dof_resid
     msg = []
+    # Residual rows in order: each record's samples in time order, then one group per steady point.
+    groups = np.concatenate([np.broadcast_to(np.arange(len(p.records))[:, None], mask.shape)[mask],
+                             len(p.records) + np.arange(r.size - int(mask.sum()))])
     try:
-        cov_all = np.linalg.pinv(jac.T @ jac) * s2
-        cov = cov_all[:ng, :ng]
-    except np.linalg.LinAlgError:
+        robust = hac_covariance(jac, r, groups)
+        cov = robust.covariance[:ng, :ng]
+        lag = robust.rho
+    except (np.linalg.LinAlgError, ValueError):
         cov = np.full((ng, ng), np.nan)
+        lag = math.nan
         msg.append("covariance not computed: singular Jacobian")
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     vals = theta[:ng]
     terms, tcov = _derived_terms(p, vals, cov)
-    rm = p.residual_matrix(theta, mask)
-    a_, b_ = rm[:, :-1], rm[:, 1:]
-    both = mask[:, :-1] & mask[:, 1:]
-    lag = float(np.sum(np.where(both, a_ * b_, 0)) / max(float(np.sum(rm**2)), 1e-300))
     yhat = p.simulate(theta)
     ok = bool(np.all(np.isfinite(se)) and np.all(np.isfinite(yhat[mask])))
     if abs(lag) > 0.5:
-        msg.append(f"residuals coloured (lag-1 autocorrelation {lag:.2f}): standard errors are too small")
+        msg.append(f"residuals coloured (lag-1 autocorrelation {lag:.2f}): standard errors from the HAC sandwich")
     return DampingFit(dof=p.dof, structure=structure, names=p.names, values=vals.copy(), stderr=se, covariance=cov,
                     terms=terms, term_covariance=tcov, rmse=float(math.sqrt(float(r @ r) / max(n, 1))), lag1=lag,
                     n=n, dof_resid=dof_resid,
@@ -631,15 +640,15 @@ def _result(p: JointProblem, theta: np.ndarray, structure: str) -> DampingFit:
 
 
 def problem(records: Sequence[DofRecord], dof: str, dt: float, mass: float, structure: str,
-            steady: Sequence[SteadyPoint] = ()) -> JointProblem:
+            steady: Sequence[SteadyPoint] = (), drift: bool = False) -> JointProblem:
     """The stacked problem of :func:`fit_dof` (for held-out scoring in :mod:`pipeline.fit.structure`).
 
     Parameters
     ----------
-    records, dof, dt, mass, structure, steady
+    records, dof, dt, mass, structure, steady, drift
         As for :func:`fit_dof`.
     """
-    return JointProblem(records, dof, dt, mass, structure == "quadratic", steady)
+    return JointProblem(records, dof, dt, mass, structure == "quadratic", steady, drift)
 
 
 def solve(p: JointProblem, theta0: np.ndarray, mask: np.ndarray, fixed_shared: bool = False,

@@ -26,6 +26,7 @@ from .decay_analysis import analyse_decays
 from .heldout_test import channel_score, is_significant
 from .least_squares import confidence_interval
 from .segment_fit import MAX_RELATIVE_STDERR
+from .steady_map import steady_points
 from .quadratic import (TERM_NAMES, SteadyPoint, decimate_records, dof_records, expand_linear, fit_dof, problem, solve,
                         start_vector)
 
@@ -64,13 +65,16 @@ def _folds(mask: np.ndarray) -> tuple[list[np.ndarray], str]:
                  f"over {k} segment(s)")
 
 
-def _heldout(records, dof, dt, mass, steady, lin_full: DampingFit, folds):
-    """Held-out simulation residuals (records x samples, NaN off the test set) per structure."""
+def _heldout(records, dof, dt, mass, steady, lin_full: DampingFit, folds, quad_full: DampingFit | None = None,
+             drift: bool = False):
+    """Held-out simulation residuals (records x samples, NaN off the test set) per structure; each
+    structure's folds start from its own fit to all data."""
     res = {}
     for structure in ("linear", "quadratic"):
-        p = problem(records, dof, dt, mass, structure, steady)
-        lin0 = np.concatenate([lin_full.values, lin_full.initial_states])
-        theta_full = expand_linear(lin0, p)
+        p = problem(records, dof, dt, mass, structure, steady, drift)
+        full = quad_full if (structure == "quadratic" and quad_full is not None) else lin_full
+        theta_full = expand_linear(np.concatenate([full.values, full.initial_states]), p) if full is lin_full else \
+            np.concatenate([full.values, full.initial_states])
         out = np.full(p.Y.shape, np.nan)
         for test in folds:
             train = p.mask & ~test
@@ -86,7 +90,7 @@ def _heldout(records, dof, dt, mass, steady, lin_full: DampingFit, folds):
 
 
 def select_structure(records, dof: str, dt: float, mass: float, model: str = "auto",
-                     steady: Sequence[SteadyPoint] = ()) -> StructureChoice:
+                     steady: Sequence[SteadyPoint] = (), drift: bool = False) -> StructureChoice:
     """Fit both damping structures to the records of one DOF and choose one by held-out error.
 
     Parameters
@@ -104,6 +108,9 @@ def select_structure(records, dof: str, dt: float, mass: float, model: str = "au
         ``quadratic`` (forced; both are fitted and scored so the report shows the other).
     steady : Sequence[SteadyPoint]
         Steady force-speed points fitted with the transients.
+    drift : bool
+        Both structures get a constant velocity offset per segment (speed over ground against speed
+        through the water: a current along the track).
 
     Returns
     -------
@@ -117,17 +124,17 @@ def select_structure(records, dof: str, dt: float, mass: float, model: str = "au
     if model not in MODELS:
         raise FitError(f"--model: expected one of {list(MODELS)}, found {model!r}")
     records, dt, _ = decimate_records(records, dt, dof)
-    lin = fit_dof(records, dof, dt, mass, "linear", steady)
+    lin = fit_dof(records, dof, dt, mass, "linear", steady, drift=drift)
     if model == "linear":
         return StructureChoice(dof, "linear", {"linear": lin}, {"linear": math.nan}, math.nan, math.nan, math.nan,
                                math.nan, False, "not scored", requested="linear",
                                message="linear structure forced (--model linear)")
     quad = fit_dof(records, dof, dt, mass, "quadratic", steady,
-                   start=np.concatenate([lin.values, lin.initial_states]))
+                   start=np.concatenate([lin.values, lin.initial_states]), drift=drift)
     fits = {"linear": lin, "quadratic": quad}
-    p0 = problem(records, dof, dt, mass, "linear", steady)
+    p0 = problem(records, dof, dt, mass, "linear", steady, drift)
     folds, how = _folds(p0.mask)
-    resid, p = _heldout(records, dof, dt, mass, steady, lin, folds)
+    resid, p = _heldout(records, dof, dt, mass, steady, lin, folds, quad, drift)
     e0, e1 = resid["linear"], resid["quadratic"]
     rms = {s: float(np.sqrt(np.nanmean(r**2))) for s, r in resid.items()}
     vals = p.Y[p.mask]
@@ -271,7 +278,9 @@ def structure_estimates(estimates: Mapping[str, Estimate], choices: Mapping[str,
 
 def apply_structures(fits: Fits, trial: Trial, segments: Sequence[Segment], vessel: Vessel,
                      model: str = "auto") -> Fits:
-    """``fits`` with the damping structure chosen per DOF (:func:`select_structures`), the damping
+    """``fits`` with the damping structure chosen per DOF (:func:`select_structures`; the vessel
+    config's ``[steady_state]`` points, :func:`pipeline.fit.steady_map.steady_points`, enter the same
+    joint fit as the transients), the damping
     matrix diagonal taken from the chosen structure's linear terms, and the roll/pitch extinction
     analyses (:func:`pipeline.fit.decay_analysis.analyse_decays`) with the effective inertia
     ``I_eff_<dof> = C / wn^2`` beside the config's.
@@ -296,7 +305,8 @@ def apply_structures(fits: Fits, trial: Trial, segments: Sequence[Segment], vess
     """
     if model not in MODELS:
         raise FitError(f"--model: expected one of {list(MODELS)}, found {model!r}")
-    choices = select_structures(trial, segments, vessel, model)
+    steady = steady_points(vessel.extra["steady_state"]) if "steady_state" in dict(vessel.extra or {}) else None
+    choices = select_structures(trial, segments, vessel, model, steady)
     decays = {dof: a for dof in ("roll", "pitch") if (a := analyse_decays(trial, segments, vessel, dof)) is not None}
     if decays:
         fits = replace(fits, estimates={**fits.estimates, **inertia_estimates(decays)}, decay_analyses=decays)

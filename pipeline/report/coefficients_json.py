@@ -180,6 +180,8 @@ def _damping_fit_dict(fit) -> dict[str, Any]:
     return {"terms": terms, "covariance": {"names": names, "matrix": _square(cov)},
             "correlation": {"names": names, "matrix": _square(corr)},
             "parameters": {n: {"value": _num(p.value), "stderr": _num(p.stderr)} for n, p in shared.params.items()},
+            "parameter_covariance": {"names": list(fit.names), "matrix": _square(fit.covariance),
+                                     "method": "Newey-West (HAC) sandwich, records independent"},
             "rmse_noise_units": _num(stats["rmse_noise_units"]), "residual_lag1": _num(stats["residual_lag1"]),
             "n_residuals": int(shared.ndata), "inertia": _num(stats["inertia"]), "success": bool(shared.success),
             "message": shared.message}
