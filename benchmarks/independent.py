@@ -67,6 +67,7 @@ FS_LOG = 5.0          # log rate [Hz]
 SECTION = "## Independent simulator (PythonVehicleSimulator, Nomoto)"
 NOISE = {"psi": 0.2 * D2R, "r": 0.05 * D2R, "delta": 0.1 * D2R}
 WAVE_STD, WAVE_OMEGA = 0.5 * D2R, 0.6
+SEG_PARAMS = ("K", "T", "T1", "T2", "T3", "T12", "T1T2", "t_servo", "b")
 
 
 def load_pvs():
@@ -252,14 +253,19 @@ def vesselid_fit(log: dict, workdir: Path, tag: str) -> dict:
         return {"error": str(exc)}
     except Exception as exc:  # noqa: BLE001 - a crash is a result of the benchmark, recorded per run
         return {"error": f"crash: {type(exc).__name__}: {exc}"}
-    out = {"kinds": [s.kind for s in segs.items if s.dof == "yaw"]}
+    out = {"kinds": [s.kind for s in segs.items if s.dof == "yaw"],
+           "segments": [{"kind": sf.segment.kind, "model": sf.model, "success": sf.success,
+                         "params": {n: sf.params[n] for n in SEG_PARAMS if n in sf.params},
+                         "stderr": {n: sf.stderr[n] for n in SEG_PARAMS if n in sf.stderr},
+                         "message": sf.message[:3000]}
+                        for sf in fits.segment_fits if sf.segment.dof == "yaw"]}
     for key, name in (("K", "K_nomoto"), ("T", "T_nomoto")):
         est = fits.estimates.get(name)
         if est is None:
             out[key] = None
             continue
         out[key] = {"value": est.value, "stderr": est.stderr, "ci": est.ci95, "success": est.success,
-                    "message": est.message[:300]}
+                    "message": est.message[:800]}
     return out
 
 
@@ -315,6 +321,7 @@ def main(argv=None) -> int:
     ap.add_argument("--waves", default="no,yes")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--no-write", action="store_true", help="print only; do not touch RESULTS.md")
+    ap.add_argument("--json", default="", help="also write every run's raw result to this JSON file")
     args = ap.parse_args(argv)
     v = load_pvs()
     if v is None:
@@ -355,6 +362,16 @@ def main(argv=None) -> int:
                                "runs": runs}))
         print(format_row(rows[-1]), flush=True)
     elapsed = time.time() - t0
+    if args.json:
+        import json
+
+        raw = [{"ship": spec[0], "man": spec[1], "rudder": spec[2], "waves": spec[3], "truth": spec[4]}
+               for spec in rows_spec]
+        k = 0
+        for entry, spec in zip(raw, rows_spec):
+            entry["runs"] = [run for res in results[k:k + len(spec[5])] for run in res]
+            k += len(spec[5])
+        Path(args.json).write_text(json.dumps(raw, indent=1, default=float))
     text = render(rows, args, elapsed, {spec[0]: spec[4] for spec in rows_spec})
     print(text)
     if not args.no_write:
