@@ -168,10 +168,25 @@ def classify_changes(holds: list[Hold], fs: float, min_step: float = 0.0
     """
     steps: list[RudderChange] = []
     varying: list[tuple[int, int]] = []
-    for a, b in zip(holds[:-1], holds[1:]):
+
+    def short_change(a: Hold, b: Hold) -> bool:
         dur = (b.i_start - a.i_end) / fs
         shorter = min(a.i_end - a.i_start, b.i_end - b.i_start) / fs
-        short = dur <= min(STEP_MAX_S, max(STEP_FRACTION * shorter, 2.0 / fs))
+        return dur <= min(STEP_MAX_S, max(STEP_FRACTION * shorter, 2.0 / fs))
+
+    # One hold broken by a noise spike (a short change smaller than a step) is one hold again, so
+    # a step's window runs on to the next real change.
+    joined: list[Hold] = []
+    for h in holds:
+        if joined and min_step > 0 and short_change(joined[-1], h) and abs(h.value - joined[-1].value) < min_step:
+            a = joined[-1]
+            na, nb = a.i_end - a.i_start, h.i_end - h.i_start
+            joined[-1] = Hold(a.i_start, h.i_end, (a.value * na + h.value * nb) / (na + nb))
+        else:
+            joined.append(h)
+    holds = joined
+    for a, b in zip(holds[:-1], holds[1:]):
+        short = short_change(a, b)
         if short and abs(b.value - a.value) >= min_step:
             steps.append(RudderChange(a, b))
         elif not short:
