@@ -41,6 +41,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -321,7 +322,9 @@ def main(argv=None) -> int:
     ap.add_argument("--waves", default="no,yes")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--no-write", action="store_true", help="print only; do not touch RESULTS.md")
-    ap.add_argument("--json", default="", help="also write every run's raw result to this JSON file")
+    ap.add_argument("--json", default="", help="also write every task's raw result to this JSON-lines file")
+    ap.add_argument("--deadline-min", type=float, default=0.0,
+                    help="stop after this many minutes and summarise the tasks done (0: no deadline)")
     args = ap.parse_args(argv)
     v = load_pvs()
     if v is None:
@@ -342,36 +345,48 @@ def main(argv=None) -> int:
                 for waves in args.waves.split(","):
                     rows_spec.append((ship.name, man, rudder, waves, truth,
                                       [(ship.name, kinds, sims, rudder, waves, seed, truth) for seed in range(args.seeds)]))
-    tasks = [task for spec in rows_spec for task in spec[5]]
+    # Seed-major order: a run stopped at its deadline still has every row, with fewer seeds.
+    order = [(r, seed) for seed in range(args.seeds) for r in range(len(rows_spec))]
+    tasks = [rows_spec[r][5][seed] for r, seed in order]
+    results: dict[int, list] = {r: [] for r in range(len(rows_spec))}
+    jsonl = open(args.json, "w") if args.json else None
+    deadline = t0 + 60.0 * args.deadline_min if args.deadline_min > 0 else math.inf
+
+    def record(i: int, res) -> None:
+        r = order[i][0]
+        results[r].append(res)
+        if jsonl is not None:
+            spec = rows_spec[r]
+            jsonl.write(json.dumps({"ship": spec[0], "man": spec[1], "rudder": spec[2], "waves": spec[3],
+                                    "truth": spec[4], "seed": order[i][1], "runs": res}, default=float) + "\n")
+            jsonl.flush()
+        print(f"task {i + 1}/{len(tasks)} done ({time.time() - t0:.0f} s)", flush=True)
+
     if args.workers > 1:
         import multiprocessing as mp
 
-        with mp.get_context("fork").Pool(args.workers) as pool:
-            results = []
-            for i, res in enumerate(pool.imap(run_one, tasks, chunksize=1)):
-                results.append(res)
-                print(f"task {i + 1}/{len(tasks)} done ({time.time() - t0:.0f} s)", flush=True)
+        pool = mp.get_context("fork").Pool(args.workers)
+        for i, res in enumerate(pool.imap(run_one, tasks, chunksize=1)):
+            record(i, res)
+            if time.time() > deadline:
+                print(f"deadline of {args.deadline_min} min reached: {i + 1} of {len(tasks)} tasks done", flush=True)
+                break
+        pool.terminate()
+        pool.join()
     else:
-        results = [run_one(task) for task in tasks]
+        for i, task in enumerate(tasks):
+            record(i, run_one(task))
+            if time.time() > deadline:
+                break
+    if jsonl is not None:
+        jsonl.close()
     rows = []
-    k = 0
-    for ship_name, man, rudder, waves, truth, seed_tasks in rows_spec:
-        runs = [run for res in results[k:k + len(seed_tasks)] for run in res]
-        k += len(seed_tasks)
+    for r, (ship_name, man, rudder, waves, truth, _) in enumerate(rows_spec):
+        runs = [run for res in results[r] for run in res]
         rows.append(summarise({"ship": ship_name, "man": man, "rudder": rudder, "waves": waves, "truth": truth,
                                "runs": runs}))
         print(format_row(rows[-1]), flush=True)
     elapsed = time.time() - t0
-    if args.json:
-        import json
-
-        raw = [{"ship": spec[0], "man": spec[1], "rudder": spec[2], "waves": spec[3], "truth": spec[4]}
-               for spec in rows_spec]
-        k = 0
-        for entry, spec in zip(raw, rows_spec):
-            entry["runs"] = [run for res in results[k:k + len(spec[5])] for run in res]
-            k += len(spec[5])
-        Path(args.json).write_text(json.dumps(raw, indent=1, default=float))
     text = render(rows, args, elapsed, {spec[0]: spec[4] for spec in rows_spec})
     print(text)
     if not args.no_write:
@@ -385,6 +400,7 @@ def summarise(res: dict) -> dict:
     errs = {"K": [], "T": []}
     cover = {"K": [], "T": []}
     wrong_success = 0
+    unsure = {"K": [], "T": []}
     fails = []
     oe_err = {"K": [], "T": []}
     amp_err = {"K": [], "T": []}
@@ -395,8 +411,8 @@ def summarise(res: dict) -> dict:
             est = vid.get(key) if "error" not in vid else None
             if est is None or not est["success"]:
                 errs[key].append(math.nan)
-                if est is not None and math.isfinite(est["value"]) and abs(rel(est["value"], tv)) > 0.2:
-                    pass
+                if est is not None and est["value"] is not None and math.isfinite(est["value"]):
+                    unsure[key].append(rel(est["value"], tv))
                 fails.append((est or {}).get("message", vid.get("error", "no estimate"))[:120])
                 continue
             e = rel(est["value"], tv)
@@ -438,7 +454,8 @@ def summarise(res: dict) -> dict:
             "cov_K": float(np.mean(cover["K"])) if cover["K"] else math.nan,
             "cov_T": float(np.mean(cover["T"])) if cover["T"] else math.nan,
             "wrong_success": wrong_success, "oe_K": med(oe_err["K"]), "oe_T": med(oe_err["T"]),
-            "amp_K": med(amp_err["K"]), "amp_T": med(amp_err["T"]), "fails": fails[:2]}
+            "amp_K": med(amp_err["K"]), "amp_T": med(amp_err["T"]), "fails": fails[:2],
+            "unsure_n": len(unsure["K"]) + len(unsure["T"]), "unsure_K": med(unsure["K"]), "unsure_T": med(unsure["T"])}
 
 
 def pct(x):
@@ -446,21 +463,24 @@ def pct(x):
 
 
 def format_row(r: dict) -> str:
-    return (f"| {r['ship']} | {r['man']} | {r['rudder']} | {r['waves']} | {r['nK']}/{r['n']} | "
+    return (f"| {r['ship']} | {r['man']} | {r['rudder']} | {r['waves']} | {r['nK']} / {r['nT']} of {r['n']} | "
             f"{pct(r['K_bias'])} / {pct(r['K_med'])} / {pct(r['K_max'])} | "
             f"{pct(r['T_bias'])} / {pct(r['T_med'])} / {pct(r['T_max'])} | {pct(r['cov_K'])} / {pct(r['cov_T'])} | "
-            f"{r['wrong_success']} | {pct(r['oe_K'])} / {pct(r['oe_T'])} | {pct(r['amp_K'])} / {pct(r['amp_T'])} |")
+            f"{r['wrong_success']} | {r['unsure_n']}: {pct(r['unsure_K'])} / {pct(r['unsure_T'])} | "
+            f"{pct(r['oe_K'])} / {pct(r['oe_T'])} | {pct(r['amp_K'])} / {pct(r['amp_T'])} |")
 
 
-HEADER = ("| ship | manoeuvre | rudder log | waves | K estimates | K err % (median signed / median abs / worst) | "
+HEADER = ("| ship | manoeuvre | rudder log | waves | K / T marked success | K err % (median signed / median abs / worst) | "
           "T err % (median signed / median abs / worst) | 95% CI coverage K / T % | >20 % off marked success | "
+          "not success but a value (unsure): count, median abs err K / T % | "
           "scipy OE peer median abs err K / T % | amplitude method K / T % |\n"
-          "|---|---|---|---|---|---|---|---|---|---|---|")
+          "|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
     cmd = (f"benchmarks/independent.py --seeds {args.seeds} --ships {args.ships} --manoeuvres {args.manoeuvres} "
-           f"--rudder {args.rudder} --waves {args.waves} --workers {args.workers}")
+           f"--rudder {args.rudder} --waves {args.waves} --workers {args.workers}"
+           + (f" --deadline-min {args.deadline_min:g}" if args.deadline_min > 0 else ""))
     truth_lines = []
     for name, tr in truths.items():
         extra = (f", T1 + T2 = {tr['T1pT2']:.4g} s, T1 T2 = {tr['T1T2']:.4g} s^2, T3 = {tr['T3']:.4g} s"

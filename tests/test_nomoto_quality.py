@@ -112,3 +112,17 @@ def test_wave_noise_integral_has_no_overflow(w0, lam, kw):
         ad2, qd2 = discretise.noise_integral(a, e @ e.T, 0.2)
         np.testing.assert_allclose(qd, qd2, rtol=1e-9, atol=1e-18 * kw**2)
         np.testing.assert_allclose(ad, ad2, rtol=1e-9, atol=1e-14)
+
+
+def test_extreme_solver_vector_simulates_without_overflow():
+    # The solver may try a pole pair at 1e13 rad/s (T1 T2 = e^-60 s^2, measured on a frigate
+    # zig-zag); its value is held 100 x beyond the plausible range, where discretising is finite.
+    from pipeline.fit.nomoto_problem import Problem, prepare
+
+    rec = _record(_sine(60.0, 2), 1, (K1, T1), 5)
+    prob = Problem([prepare(rec, 0, ("psi",))], ORDER2_SUM_PRODUCT, True, ("psi",), "white", None, None)
+    z = prob.solver_vector(np.array([0.1, 1e-26, 1e-26, 1.0, 0.0, 0.0, 0.0, 0.0]))
+    with np.errstate(over="raise", invalid="raise"):
+        out = prob.simulate(z, 0)
+    assert np.all(np.isfinite(out["psi"]))
+    assert prob.natural(z)[2] == pytest.approx((0.1 * H) ** 2 / 100.0**2)
