@@ -214,7 +214,11 @@ class Problem:
         z : numpy.ndarray
             Solver vector.
         """
-        return np.where(self.log_mask, np.exp(np.clip(z, self._z_lo, self._z_hi)), z)
+        z = np.asarray(z, float)
+        out = z.copy()
+        m = self.log_mask
+        out[m] = np.exp(np.clip(z[m], self._z_lo[m], self._z_hi[m]))   # exp only where it is the map
+        return out
 
     def solver_vector(self, theta: np.ndarray) -> np.ndarray:
         """The solver's vector from SI values.

@@ -7,11 +7,20 @@ What the log holds decides the model, by the data:
   ``t_servo`` and, kept when the BIC says so, a rate limit ``rate_servo``
   (:func:`pipeline.model.nomoto.servo_response`). A *measured* rudder angle drives the model
   directly, interpolated like any measured state (its mean over each sample interval).
+- The channels: compass and gyro, or the compass alone when a first-order fit leaves its residuals
+  coloured (wave-induced yaw, which the gyro sees too but the wave noise model covers only on the
+  compass; :func:`_choose_channels`).
 - The structure: first-order Nomoto against second order (T1, T2, T3), by held-out error: both
-  are fitted on the first ``1 - HOLDOUT_FRACTION`` of the record and simulated on through the rest;
-  the second order wins when its held-out heading RMSE is at least ``ORDER2_GAIN`` lower. Both
-  held-out errors are reported in the message. With the second order, ``T`` is its first-order
-  equivalent ``T1 + T2 - T3`` (error from the covariance).
+  are fitted on the first ``1 - HOLDOUT_FRACTION`` of the record (with the wave PEM when the
+  compass needs it) and run on through the rest; the held-out errors are whitened by the same
+  wave innovations filter and compared by the shared rule of :mod:`pipeline.fit.heldout_test`.
+  Both orders are always tried (a shortcut that skipped the second order when the first-order
+  residuals looked white was dropped: the order note says whether they were white, so its cost
+  is measured). With the second order, ``T`` is its first-order equivalent ``T1 + T2 - T3``
+  (error from the covariance).
+- Unsure: a near-tie between the structures whose K or T differ materially
+  (:func:`structure_ambiguity`), or a second order called for whose fit failed, marks the
+  segment fit failed with a message starting ``unsure:``.
 """
 
 from __future__ import annotations
@@ -40,8 +49,6 @@ WHOLE_RECORD_KINDS = ("zigzag", "sinusoid")
 KEY_PARAMS = ("K", "T")
 #: Share of a record held out (its end) for the model-structure choice.
 HOLDOUT_FRACTION = 0.35
-#: Relative drop of the held-out RMSE the second-order model must bring to be chosen.
-ORDER2_GAIN = 0.10
 #: BIC drop a rate limit must bring to be kept beside the servo lag.
 RATE_LIMIT_BIC = 10.0
 
