@@ -20,6 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 #: Shortest hold [s].
@@ -80,6 +82,31 @@ def is_command_like(u: np.ndarray) -> bool:
     """
     d = np.diff(u[np.isfinite(u)])
     return bool(d.size) and float(np.mean(d == 0.0)) >= 0.5
+
+
+#: Sample-to-sample noise below which a varying rudder record is a computed command [rad] (0.01 deg):
+#: a rudder angle sensor is noisier; a command an autopilot or a script computed is not.
+NOISE_FREE_RAD = math.radians(0.01)
+
+
+def is_noise_free(u: np.ndarray) -> bool:
+    """True when a rudder record carries no sensor noise (a computed command, e.g. a logged sine).
+
+    The noise is the robust standard deviation of the second difference over ``sqrt(6)`` (a smooth
+    signal sampled well above its bandwidth leaves only the white noise there).
+
+    Parameters
+    ----------
+    u : numpy.ndarray
+        Rudder record [rad]; non-finite samples ignored.
+    """
+    u = np.asarray(u, float)
+    u = u[np.isfinite(u)]
+    if u.size < 5:
+        return False
+    d2 = np.diff(u, 2)
+    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
+    return sigma < NOISE_FREE_RAD
 
 
 def find_holds(u: np.ndarray, fs: float, noise: float) -> list[Hold]:
