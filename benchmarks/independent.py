@@ -325,7 +325,11 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default="", help="also write every task's raw result to this JSON-lines file")
     ap.add_argument("--deadline-min", type=float, default=0.0,
                     help="stop after this many minutes and summarise the tasks done (0: no deadline)")
+    ap.add_argument("--from-jsonl", default="",
+                    help="only summarise the tasks recorded in this JSON-lines file (from --json) and write them")
     args = ap.parse_args(argv)
+    if args.from_jsonl:
+        return summarise_jsonl(args)
     v = load_pvs()
     if v is None:
         return 0
@@ -388,6 +392,26 @@ def main(argv=None) -> int:
         print(format_row(rows[-1]), flush=True)
     elapsed = time.time() - t0
     text = render(rows, args, elapsed, {spec[0]: spec[4] for spec in rows_spec})
+    print(text)
+    if not args.no_write:
+        write_results(text)
+    return 0
+
+
+def summarise_jsonl(args) -> int:
+    """Rows from the JSON lines of finished tasks (a run stopped before its end), rendered and written."""
+    groups: dict[tuple, dict] = {}
+    with open(args.from_jsonl) as fh:
+        for line in fh:
+            d = json.loads(line)
+            key = (d["ship"], d["man"], d["rudder"], d["waves"])
+            g = groups.setdefault(key, {"ship": d["ship"], "man": d["man"], "rudder": d["rudder"], "waves": d["waves"],
+                                        "truth": d["truth"], "runs": []})
+            g["runs"].extend(d["runs"])
+    rows = [summarise(g) for g in groups.values()]
+    for r in rows:
+        print(format_row(r), flush=True)
+    text = render(rows, args, math.nan, {g["ship"]: g["truth"] for g in groups.values()})
     print(text)
     if not args.no_write:
         write_results(text)
@@ -486,7 +510,9 @@ def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
         extra = (f", T1 + T2 = {tr['T1pT2']:.4g} s, T1 T2 = {tr['T1T2']:.4g} s^2, T3 = {tr['T3']:.4g} s"
                  f"{' (complex poles)' if tr.get('complex_poles') else ''}" if tr["order"] == 2 else "")
         truth_lines.append(f"- {name}: K = {tr['K']:.5g} 1/s, T = {tr['T']:.5g} s{extra}")
-    lines = [SECTION, "", f"Command: `PYTHONPATH=. .venv/bin/python {cmd}` ({elapsed / 60:.1f} min on 2 shared cores).",
+    took = (f"{elapsed / 60:.1f} min on 2 shared cores" if math.isfinite(elapsed)
+            else f"stopped before its end; summarised with --from-jsonl from the tasks finished")
+    lines = [SECTION, "", f"Command: `PYTHONPATH=. .venv/bin/python {cmd}` ({took}).",
              "", "Truth (the simulator's own linearisation at its straight-line steady state):", ""] + truth_lines + [
              "", HEADER] + [format_row(r) for r in rows]
     fails = [f"- {r['ship']} {r['man']} {r['rudder']} {r['waves']}: {r['fails'][0]}" for r in rows if r["fails"]]
