@@ -126,3 +126,17 @@ def test_extreme_solver_vector_simulates_without_overflow():
         out = prob.simulate(z, 0)
     assert np.all(np.isfinite(out["psi"]))
     assert prob.natural(z)[2] == pytest.approx((0.1 * H) ** 2 / 100.0**2)
+
+
+def test_one_sinusoid_alone_is_unsure(sine_fits):
+    # A single frequency cannot show the structure: the first-order fit of the second-order ship's
+    # fast sinusoid is far off with white residuals, so one sinusoid alone is never trusted ...
+    fast = sine_fits["second"][1]
+    est = combine("T_nomoto", "s", "test", [_contribution(fast, "T", "sine")])
+    assert est.success
+    assert unsure_reasons(est, ["sinusoid"])[0].startswith("unsure: one sinusoid only")
+    # ... while with a step or zig-zag beside it, or two agreeing sinusoids, the rule does not fire.
+    assert not any("one sinusoid" in w for w in unsure_reasons(est, ["sinusoid", "zigzag"]))
+    both = combine("K_nomoto", "1/s", "test", [_contribution(f, "K", f"sine {i}")
+                                               for i, f in enumerate(sine_fits["first"])])
+    assert unsure_reasons(both, ["sinusoid", "sinusoid"]) == []

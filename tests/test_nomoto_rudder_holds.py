@@ -38,3 +38,13 @@ def test_without_spike_the_holds_are_unchanged():
     u = _measured([0, 10, 0], 80.0)
     steps, _ = classify_changes(find_holds(u, FS, math.radians(0.1)), FS, math.radians(2.0))
     assert len(steps) == 2 and steps[0].after.i_end / FS > 155.0
+
+
+def test_noise_free_record_is_a_command():
+    from pipeline.segment.rudder import is_command_like, is_noise_free
+
+    t = np.arange(0.0, 235.0, 1 / FS)
+    sine = math.radians(10.0) * np.sin(0.08 * t)          # a logged, computed command
+    assert is_noise_free(sine) and not is_command_like(sine)
+    noisy = sine + math.radians(0.1) * np.random.default_rng(1).standard_normal(t.size)
+    assert not is_noise_free(noisy)                        # a rudder angle sensor's record

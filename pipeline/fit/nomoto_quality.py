@@ -13,6 +13,12 @@ report, coefficients.json and the CLI show what was found and why it is not trus
 - its relative standard error exceeds ``UNSURE_RELATIVE_STDERR``: the 95 % interval spans more
   than about +-20 % of the value, so "success" would not say that the number is good to 20 %.
 
+- every segment behind it is a sinusoid and there is only one: a first-order model matched at
+  one frequency reproduces the ship's gain and phase there whatever its structure, so K and T are
+  the ship's only if it is first order, which one frequency cannot show (measured: a tanker's
+  fast sinusoid gave T +42 % with white residuals). Two or more sinusoids are judged by the
+  heterogeneity rule above (different frequencies disagree on a second-order ship).
+
 The per-segment rules (a near-tie between first- and second-order Nomoto whose K or T differ
 materially; a second order called for but not fitted) are in :mod:`pipeline.fit.nomoto_segment`.
 """
@@ -24,7 +30,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..records import Estimate
+from typing import Sequence
+
+from ..records import Estimate, SegmentFit
 from .combine import CONSISTENCY_ALPHA
 
 #: Relative between-segment standard deviation that makes a significant disagreement material [-].
@@ -35,17 +43,24 @@ UNSURE_RELATIVE_STDERR = 0.10
 NOMOTO_ESTIMATES = ("K_nomoto", "T_nomoto")
 
 
-def unsure_reasons(est: Estimate) -> list[str]:
+def unsure_reasons(est: Estimate, kinds: Sequence[str] = ()) -> list[str]:
     """Why a combined Nomoto estimate is unsure (empty when it is not).
 
     Parameters
     ----------
     est : Estimate
         A combined ``K_nomoto`` or ``T_nomoto``.
+    kinds : sequence of str
+        Segment kinds of the successful Nomoto segment fits behind it (``rudder_step``, ``zigzag``,
+        ``sinusoid``).
     """
     out = []
     if not (est.success and math.isfinite(est.value) and est.value != 0):
         return out
+    if len(kinds) == 1 and kinds[0] == "sinusoid":
+        out.append("unsure: one sinusoid only: a first-order model matched at one frequency gives the ship's K "
+                   "and T only if the ship is first order, which one frequency cannot show (add a rudder step, a "
+                   "zig-zag or a sinusoid at another frequency)")
     x = np.asarray(est.per_segment, float)
     p = est.consistency_p
     if x.size >= 2 and math.isfinite(p) and p < CONSISTENCY_ALPHA:
@@ -63,13 +78,15 @@ def unsure_reasons(est: Estimate) -> list[str]:
     return out
 
 
-def judge_nomoto(estimates: dict[str, Estimate]) -> dict[str, Estimate]:
+def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()) -> dict[str, Estimate]:
     """``estimates`` with the combined Nomoto K and T marked unsure where :func:`unsure_reasons` says so.
 
     Parameters
     ----------
     estimates : dict[str, Estimate]
         Name -> estimate; not modified.
+    fits : sequence of SegmentFit
+        The successful Nomoto segment fits behind them (their segment kinds are used).
 
     Returns
     -------
@@ -82,7 +99,7 @@ def judge_nomoto(estimates: dict[str, Estimate]) -> dict[str, Estimate]:
         est = out.get(name)
         if est is None:
             continue
-        why = unsure_reasons(est)
+        why = unsure_reasons(est, [f.segment.kind for f in fits])
         if why:
             out[name] = replace(est, success=False, message="; ".join(why + ([est.message] if est.message else [])))
     return out

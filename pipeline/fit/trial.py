@@ -254,7 +254,7 @@ class _Collector:
                for name, pool in self.pools.items()}
         if "b_nomoto" in out:
             out["b_nomoto"] = _bias_estimate(out["b_nomoto"])
-        out = judge_nomoto(out)
+        out = judge_nomoto(out, self.nomoto_fits)
         first = {k: out[k] for k in _ORDER if k in out}
         return {**first, **{k: v for k, v in out.items() if k not in first}}
 
