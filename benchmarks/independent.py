@@ -41,6 +41,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -68,6 +69,7 @@ FS_LOG = 5.0          # log rate [Hz]
 SECTION = "## Independent simulator (PythonVehicleSimulator, Nomoto)"
 NOISE = {"psi": 0.2 * D2R, "r": 0.05 * D2R, "delta": 0.1 * D2R}
 WAVE_STD, WAVE_OMEGA = 0.5 * D2R, 0.6
+SEG_PARAMS = ("K", "T", "T1", "T2", "T3", "T12", "T1T2", "t_servo", "b")
 
 
 def load_pvs():
@@ -253,14 +255,19 @@ def vesselid_fit(log: dict, workdir: Path, tag: str) -> dict:
         return {"error": str(exc)}
     except Exception as exc:  # noqa: BLE001 - a crash is a result of the benchmark, recorded per run
         return {"error": f"crash: {type(exc).__name__}: {exc}"}
-    out = {"kinds": [s.kind for s in segs.items if s.dof == "yaw"]}
+    out = {"kinds": [s.kind for s in segs.items if s.dof == "yaw"],
+           "segments": [{"kind": sf.segment.kind, "model": sf.model, "success": sf.success,
+                         "params": {n: sf.params[n] for n in SEG_PARAMS if n in sf.params},
+                         "stderr": {n: sf.stderr[n] for n in SEG_PARAMS if n in sf.stderr},
+                         "message": sf.message[:3000]}
+                        for sf in fits.segment_fits if sf.segment.dof == "yaw"]}
     for key, name in (("K", "K_nomoto"), ("T", "T_nomoto")):
         est = fits.estimates.get(name)
         if est is None:
             out[key] = None
             continue
         out[key] = {"value": est.value, "stderr": est.stderr, "ci": est.ci95, "success": est.success,
-                    "message": est.message[:300]}
+                    "message": est.message[:800]}
     return out
 
 
@@ -316,7 +323,14 @@ def main(argv=None) -> int:
     ap.add_argument("--waves", default="no,yes")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--no-write", action="store_true", help="print only; do not touch RESULTS.md")
+    ap.add_argument("--json", default="", help="also write every task's raw result to this JSON-lines file")
+    ap.add_argument("--deadline-min", type=float, default=0.0,
+                    help="stop after this many minutes and summarise the tasks done (0: no deadline)")
+    ap.add_argument("--from-jsonl", default="",
+                    help="only summarise the tasks recorded in this JSON-lines file (from --json) and write them")
     args = ap.parse_args(argv)
+    if args.from_jsonl:
+        return summarise_jsonl(args)
     v = load_pvs()
     if v is None:
         return 0
@@ -336,27 +350,69 @@ def main(argv=None) -> int:
                 for waves in args.waves.split(","):
                     rows_spec.append((ship.name, man, rudder, waves, truth,
                                       [(ship.name, kinds, sims, rudder, waves, seed, truth) for seed in range(args.seeds)]))
-    tasks = [task for spec in rows_spec for task in spec[5]]
+    # Seed-major order: a run stopped at its deadline still has every row, with fewer seeds.
+    order = [(r, seed) for seed in range(args.seeds) for r in range(len(rows_spec))]
+    tasks = [rows_spec[r][5][seed] for r, seed in order]
+    results: dict[int, list] = {r: [] for r in range(len(rows_spec))}
+    jsonl = open(args.json, "w") if args.json else None
+    deadline = t0 + 60.0 * args.deadline_min if args.deadline_min > 0 else math.inf
+
+    def record(i: int, res) -> None:
+        r = order[i][0]
+        results[r].append(res)
+        if jsonl is not None:
+            spec = rows_spec[r]
+            jsonl.write(json.dumps({"ship": spec[0], "man": spec[1], "rudder": spec[2], "waves": spec[3],
+                                    "truth": spec[4], "seed": order[i][1], "runs": res}, default=float) + "\n")
+            jsonl.flush()
+        print(f"task {i + 1}/{len(tasks)} done ({time.time() - t0:.0f} s)", flush=True)
+
     if args.workers > 1:
         import multiprocessing as mp
 
-        with mp.get_context("fork").Pool(args.workers) as pool:
-            results = []
-            for i, res in enumerate(pool.imap(run_one, tasks, chunksize=1)):
-                results.append(res)
-                print(f"task {i + 1}/{len(tasks)} done ({time.time() - t0:.0f} s)", flush=True)
+        pool = mp.get_context("fork").Pool(args.workers)
+        for i, res in enumerate(pool.imap(run_one, tasks, chunksize=1)):
+            record(i, res)
+            if time.time() > deadline:
+                print(f"deadline of {args.deadline_min} min reached: {i + 1} of {len(tasks)} tasks done", flush=True)
+                break
+        pool.terminate()
+        pool.join()
     else:
-        results = [run_one(task) for task in tasks]
+        for i, task in enumerate(tasks):
+            record(i, run_one(task))
+            if time.time() > deadline:
+                break
+    if jsonl is not None:
+        jsonl.close()
     rows = []
-    k = 0
-    for ship_name, man, rudder, waves, truth, seed_tasks in rows_spec:
-        runs = [run for res in results[k:k + len(seed_tasks)] for run in res]
-        k += len(seed_tasks)
+    for r, (ship_name, man, rudder, waves, truth, _) in enumerate(rows_spec):
+        runs = [run for res in results[r] for run in res]
         rows.append(summarise({"ship": ship_name, "man": man, "rudder": rudder, "waves": waves, "truth": truth,
                                "runs": runs}))
         print(format_row(rows[-1]), flush=True)
     elapsed = time.time() - t0
     text = render(rows, args, elapsed, {spec[0]: spec[4] for spec in rows_spec})
+    print(text)
+    if not args.no_write:
+        write_results(text)
+    return 0
+
+
+def summarise_jsonl(args) -> int:
+    """Rows from the JSON lines of finished tasks (a run stopped before its end), rendered and written."""
+    groups: dict[tuple, dict] = {}
+    with open(args.from_jsonl) as fh:
+        for line in fh:
+            d = json.loads(line)
+            key = (d["ship"], d["man"], d["rudder"], d["waves"])
+            g = groups.setdefault(key, {"ship": d["ship"], "man": d["man"], "rudder": d["rudder"], "waves": d["waves"],
+                                        "truth": d["truth"], "runs": []})
+            g["runs"].extend(d["runs"])
+    rows = [summarise(g) for g in groups.values()]
+    for r in rows:
+        print(format_row(r), flush=True)
+    text = render(rows, args, math.nan, {g["ship"]: g["truth"] for g in groups.values()})
     print(text)
     if not args.no_write:
         write_results(text)
@@ -369,6 +425,7 @@ def summarise(res: dict) -> dict:
     errs = {"K": [], "T": []}
     cover = {"K": [], "T": []}
     wrong_success = 0
+    unsure = {"K": [], "T": []}
     fails = []
     oe_err = {"K": [], "T": []}
     amp_err = {"K": [], "T": []}
@@ -379,8 +436,8 @@ def summarise(res: dict) -> dict:
             est = vid.get(key) if "error" not in vid else None
             if est is None or not est["success"]:
                 errs[key].append(math.nan)
-                if est is not None and math.isfinite(est["value"]) and abs(rel(est["value"], tv)) > 0.2:
-                    pass
+                if est is not None and est["value"] is not None and math.isfinite(est["value"]):
+                    unsure[key].append(rel(est["value"], tv))
                 fails.append((est or {}).get("message", vid.get("error", "no estimate"))[:120])
                 continue
             e = rel(est["value"], tv)
@@ -422,7 +479,8 @@ def summarise(res: dict) -> dict:
             "cov_K": float(np.mean(cover["K"])) if cover["K"] else math.nan,
             "cov_T": float(np.mean(cover["T"])) if cover["T"] else math.nan,
             "wrong_success": wrong_success, "oe_K": med(oe_err["K"]), "oe_T": med(oe_err["T"]),
-            "amp_K": med(amp_err["K"]), "amp_T": med(amp_err["T"]), "fails": fails[:2]}
+            "amp_K": med(amp_err["K"]), "amp_T": med(amp_err["T"]), "fails": fails[:2],
+            "unsure_n": len(unsure["K"]) + len(unsure["T"]), "unsure_K": med(unsure["K"]), "unsure_T": med(unsure["T"])}
 
 
 def pct(x):
@@ -430,27 +488,32 @@ def pct(x):
 
 
 def format_row(r: dict) -> str:
-    return (f"| {r['ship']} | {r['man']} | {r['rudder']} | {r['waves']} | {r['nK']}/{r['n']} | "
+    return (f"| {r['ship']} | {r['man']} | {r['rudder']} | {r['waves']} | {r['nK']} / {r['nT']} of {r['n']} | "
             f"{pct(r['K_bias'])} / {pct(r['K_med'])} / {pct(r['K_max'])} | "
             f"{pct(r['T_bias'])} / {pct(r['T_med'])} / {pct(r['T_max'])} | {pct(r['cov_K'])} / {pct(r['cov_T'])} | "
-            f"{r['wrong_success']} | {pct(r['oe_K'])} / {pct(r['oe_T'])} | {pct(r['amp_K'])} / {pct(r['amp_T'])} |")
+            f"{r['wrong_success']} | {r['unsure_n']}: {pct(r['unsure_K'])} / {pct(r['unsure_T'])} | "
+            f"{pct(r['oe_K'])} / {pct(r['oe_T'])} | {pct(r['amp_K'])} / {pct(r['amp_T'])} |")
 
 
-HEADER = ("| ship | manoeuvre | rudder log | waves | K estimates | K err % (median signed / median abs / worst) | "
+HEADER = ("| ship | manoeuvre | rudder log | waves | K / T marked success | K err % (median signed / median abs / worst) | "
           "T err % (median signed / median abs / worst) | 95% CI coverage K / T % | >20 % off marked success | "
+          "not success but a value (unsure): count, median abs err K / T % | "
           "scipy OE peer median abs err K / T % | amplitude method K / T % |\n"
-          "|---|---|---|---|---|---|---|---|---|---|---|")
+          "|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
     cmd = (f"benchmarks/independent.py --seeds {args.seeds} --ships {args.ships} --manoeuvres {args.manoeuvres} "
-           f"--rudder {args.rudder} --waves {args.waves} --workers {args.workers}")
+           f"--rudder {args.rudder} --waves {args.waves} --workers {args.workers}"
+           + (f" --deadline-min {args.deadline_min:g}" if args.deadline_min > 0 else ""))
     truth_lines = []
     for name, tr in truths.items():
         extra = (f", T1 + T2 = {tr['T1pT2']:.4g} s, T1 T2 = {tr['T1T2']:.4g} s^2, T3 = {tr['T3']:.4g} s"
                  f"{' (complex poles)' if tr.get('complex_poles') else ''}" if tr["order"] == 2 else "")
         truth_lines.append(f"- {name}: K = {tr['K']:.5g} 1/s, T = {tr['T']:.5g} s{extra}")
-    lines = [SECTION, "", f"Command: `PYTHONPATH=. .venv/bin/python {cmd}` ({elapsed / 60:.1f} min on 2 shared cores).",
+    took = (f"{elapsed / 60:.1f} min on 2 shared cores" if math.isfinite(elapsed)
+            else f"stopped before its end; summarised with --from-jsonl from the tasks finished")
+    lines = [SECTION, "", f"Command: `PYTHONPATH=. .venv/bin/python {cmd}` ({took}).",
              "", "Truth (the simulator's own linearisation at its straight-line steady state):", ""] + truth_lines + [
              "", HEADER] + [format_row(r) for r in rows]
     fails = [f"- {r['ship']} {r['man']} {r['rudder']} {r['waves']}: {r['fails'][0]}" for r in rows if r["fails"]]

@@ -141,6 +141,11 @@ class InnovationFilter:
     den: np.ndarray
 
 
+#: Above this ``lambda omega_0 h`` the wave noise integral is taken from the stationary covariance
+#: (below it, Van Loan's block, whose growing exponential is at most e^0.5 there, keeps the digits).
+VAN_LOAN_MAX_DECAY = 0.5
+
+
 def wave_discrete(waves: WaveParams, h: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact discretisation of the wave model: ``(A_d, Q_d)`` for sample time ``h`` (Van Loan 1978).
 
@@ -159,7 +164,18 @@ def wave_discrete(waves: WaveParams, h: float) -> tuple[np.ndarray, np.ndarray]:
         ``int_0^h exp(A_w s) E E^T exp(A_w^T s) ds`` [rad^2].
     """
     a, e, _ = wave_matrices(waves)
-    return noise_integral_fast(a, e @ e.T, h)
+    decay = waves.lam * waves.omega0 * h
+    if not decay > VAN_LOAN_MAX_DECAY:
+        return noise_integral_fast(a, e @ e.T, h)
+    # Van Loan's block holds exp(+lambda omega_0 h), which overflows for a fast-decaying wave
+    # model (the solver may try one); for a stable A_w the same integral is
+    # Q_d = P - A_d P A_d^T with P the stationary covariance (A P + P A^T + E E^T = 0):
+    # P = diag(K_w^2 / (4 lambda omega_0^3), K_w^2 / (4 lambda omega_0)), no growing exponential.
+    ad = expm_small(a * h)
+    w0, kw2 = waves.omega0, waves.kw**2
+    p = np.diag([kw2 / (4.0 * waves.lam * w0**3), kw2 / (4.0 * waves.lam * w0)])
+    qd = p - ad @ p @ ad.T
+    return ad, 0.5 * (qd + qd.T)
 
 
 def innovation_filter(waves: WaveParams, noise_var: float, h: float) -> InnovationFilter:

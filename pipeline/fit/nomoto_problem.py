@@ -28,6 +28,8 @@ SERVO_PARAMS = ("t_servo", "rate_servo")
 NOISE_MODELS = ("auto", "white", "waves")
 #: Fewest samples a record must have.
 MIN_SAMPLES = 50
+#: Factor beyond the plausible range at which a log-parameter is held (see :class:`Problem`).
+NUMERIC_MARGIN = 100.0
 #: Relative jitter of the sample spacing accepted as uniform.
 UNIFORM_TOLERANCE = 1e-3
 # The residual is linear in these (initial states, and the bias through the input delta - b).
@@ -162,6 +164,17 @@ class Problem:
         # Time constants and noise parameters are positive: the solver works on their logarithms.
         self.log_mask = np.array([k in ("T", "T1", "T2", "T3", "T12", "T1T2", "log") for k in self.kinds])
         self.weights = {ch: 1.0 for ch in channels}
+        # The solver is unbounded, but a log-parameter far outside its plausible range means a pole
+        # pair at 1e13 rad/s or a wave model decaying in a picosecond: discretising those overflows
+        # (the scaled-and-squared exponential of a stiff, lightly damped pair). Such values are held
+        # at NUMERIC_MARGIN times beyond the plausible range (still reported as out of range).
+        lo, hi = plausible_ranges(self)
+        pos_lo = np.where(np.isfinite(lo) & (lo > 0), lo, math.exp(-60.0))
+        pos_hi = np.where(np.isfinite(hi) & (hi > 0), hi, math.exp(60.0))
+        squared = np.array([k == "T1T2" for k in self.kinds])
+        margin = np.where(squared, NUMERIC_MARGIN**2, NUMERIC_MARGIN)
+        self._z_lo = np.where(self.log_mask, np.log(pos_lo / margin), -np.inf)
+        self._z_hi = np.where(self.log_mask, np.log(pos_hi * margin), np.inf)
         self._sim_cache: dict = {}
         self._filt_cache: dict = {}
         self._phi_cache: dict = {}
@@ -201,7 +214,11 @@ class Problem:
         z : numpy.ndarray
             Solver vector.
         """
-        return np.where(self.log_mask, np.exp(np.clip(z, -60.0, 60.0)), z)
+        z = np.asarray(z, float)
+        out = z.copy()
+        m = self.log_mask
+        out[m] = np.exp(np.clip(z[m], self._z_lo[m], self._z_hi[m]))   # exp only where it is the map
+        return out
 
     def solver_vector(self, theta: np.ndarray) -> np.ndarray:
         """The solver's vector from SI values.

@@ -7,24 +7,35 @@ What the log holds decides the model, by the data:
   ``t_servo`` and, kept when the BIC says so, a rate limit ``rate_servo``
   (:func:`pipeline.model.nomoto.servo_response`). A *measured* rudder angle drives the model
   directly, interpolated like any measured state (its mean over each sample interval).
+- The channels: compass and gyro, or the compass alone when a first-order fit leaves its residuals
+  coloured (wave-induced yaw, which the gyro sees too but the wave noise model covers only on the
+  compass; :func:`_choose_channels`).
 - The structure: first-order Nomoto against second order (T1, T2, T3), by held-out error: both
-  are fitted on the first ``1 - HOLDOUT_FRACTION`` of the record and simulated on through the rest;
-  the second order wins when its held-out heading RMSE is at least ``ORDER2_GAIN`` lower. Both
-  held-out errors are reported in the message. With the second order, ``T`` is its first-order
-  equivalent ``T1 + T2 - T3`` (error from the covariance).
+  are fitted on the first ``1 - HOLDOUT_FRACTION`` of the record (with the wave PEM when the
+  compass needs it) and run on through the rest; the held-out errors are whitened by the same
+  wave innovations filter and compared by the shared rule of :mod:`pipeline.fit.heldout_test`.
+  Both orders are always tried (a shortcut that skipped the second order when the first-order
+  residuals looked white was dropped: the order note says whether they were white, so its cost
+  is measured). With the second order, ``T`` is its first-order equivalent ``T1 + T2 - T3``
+  (error from the covariance).
+- Unsure: a near-tie between the structures whose K or T differ materially
+  (:func:`structure_ambiguity`), or a second order called for whose fit failed, marks the
+  segment fit failed with a message starting ``unsure:``.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from ..errors import FitError
 from ..records import Segment, SegmentFit, Trial
-from ..segment.rudder import is_command_like
+from ..segment.rudder import is_command_like, is_noise_free
 from .data import noise_sigma, pick_channel, segment_label
+from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
 from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
 from .nomoto_oe import fit_nomoto
 from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
@@ -38,8 +49,6 @@ WHOLE_RECORD_KINDS = ("zigzag", "sinusoid")
 KEY_PARAMS = ("K", "T")
 #: Share of a record held out (its end) for the model-structure choice.
 HOLDOUT_FRACTION = 0.35
-#: Relative drop of the held-out RMSE the second-order model must bring to be chosen.
-ORDER2_GAIN = 0.10
 #: BIC drop a rate limit must bring to be kept beside the servo lag.
 RATE_LIMIT_BIC = 10.0
 
@@ -110,32 +119,64 @@ def fit_nomoto_window(trial: Trial, segment: Segment, t0: float, t1: float) -> S
         raise FitError(f"{where}: expected at least {MIN_SAMPLES} samples, found {t.size}")
     if not np.all(np.isfinite(delta)):
         raise FitError(f"{where}: expected a logged rudder on every sample, found {int((~np.isfinite(delta)).sum())} gaps")
-    command = is_command_like(delta)
+    command = is_command_like(delta) or is_noise_free(delta)
     notes = []
     if command:
-        notes.append("rudder logged as a command (piecewise constant): servo estimated with K and T")
+        notes.append("rudder logged as a command (piecewise constant or free of sensor noise): servo estimated "
+                     "with K and T")
         drive = delta
     else:
         notes.append("rudder logged as a measured angle: used directly (mean over each sample interval)")
         drive = np.concatenate([0.5 * (delta[:-1] + delta[1:]), delta[-1:]])
     rec = NomotoRecord(t=t, delta=drive, psi=rows["psi"].to_numpy(dtype=float) if "psi" in channels else None,
                        r=rows["r"].to_numpy(dtype=float) if "r" in channels else None, name=where)
+    if len(channels) > 1:
+        channels, channel_note = _choose_channels(rec, channels, ("t_servo",) if command else ())
+        if channel_note:
+            notes.append(channel_note)
     servo: tuple[str, ...] = ()
     if command:
         servo, servo_note = _choose_servo(rec, channels)
         notes.append(servo_note)
-    order, order_note = _choose_order(rec, channels, servo)
-    notes.append(order_note)
+    choice = _choose_order(rec, channels, servo)
+    order = choice.order
+    notes.append(choice.note)
     fit = fit_nomoto(rec, order=order, noise="auto", channels=channels, servo=servo)
     if servo and any(n in SERVO_PARAMS for n in fit.at_bound):
         notes.append("the servo parameters left their range with the chosen structure: rudder taken as the command")
         fit = fit_nomoto(rec, order=order, noise="auto", channels=channels)
+    unsure = choice.unsure
     if order != 1 and not fit.success:
         first = fit_nomoto(rec, order=1, noise="auto", channels=channels, servo=servo)
         if first.success:
             notes.append("the second-order fit of the whole record failed: first order kept")
+            unsure = ("unsure: the held-out data call for the second-order structure, whose fit of the whole "
+                      "record failed; the first-order K and T kept are biased by the missing pole-zero pair")
             fit = first
-    return _segment_fit(segment, fit, rec, channels, t - segment.t_start, notes)
+    return _segment_fit(segment, fit, rec, channels, t - segment.t_start, notes, unsure)
+
+
+def _choose_channels(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...]) -> tuple[tuple[str, ...], str]:
+    """The compass alone when its first-order residuals are coloured; compass and gyro otherwise.
+
+    Coloured compass residuals come from wave-induced yaw (or from dynamics a first-order model
+    lacks). Wave-induced yaw is motion of the ship, so a gyro sees it as the compass does, but the
+    wave noise model of the PEM acts on the compass only: a gyro channel fitted beside it carries
+    the unmodelled wave yaw rate, which colours its residuals and pulls the noise model onto the
+    ship's dynamics (measured on a Clarke83 zig-zag with waves: compass and gyro gave T +93 %, the
+    compass alone T -0.4 % with the second order). So the yaw rate is left out then; with white
+    compass residuals both channels are fitted.
+    """
+    if "psi" not in channels:
+        return channels, ""
+    try:
+        probe = fit_nomoto(rec, order=1, noise="white", channels=("psi",), servo=servo)
+    except FitError:
+        return channels, ""
+    if not all(t.white for t in probe.residual_tests):
+        return ("psi",), ("first-order compass residuals coloured (wave-induced yaw, which a gyro sees too, or "
+                          "unmodelled dynamics): the compass alone is fitted, the wave noise model covering it")
+    return channels, ""
 
 
 def _choose_servo(rec: NomotoRecord, channels: tuple[str, ...]) -> tuple[tuple[str, ...], str]:
@@ -155,33 +196,161 @@ def _choose_servo(rec: NomotoRecord, channels: tuple[str, ...]) -> tuple[tuple[s
                           f"{both.bic:.1f} vs {lag.bic:.1f} for the lag alone)")
 
 
-def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...]) -> tuple[int, str]:
-    """First or second order by the held-out heading (or yaw-rate) RMSE of the record's end."""
+@dataclass(frozen=True)
+class OrderChoice:
+    """Result of the held-out model-structure comparison of one record.
+
+    Attributes
+    ----------
+    order : int
+        1 or ``ORDER2_SUM_PRODUCT``.
+    note : str
+        What was compared and why this order (for the fit's message).
+    unsure : str
+        Why the structure, and so K or T, is not decided by the data ('' when it is).
+    first_white : bool
+        The first-order training fit's residuals passed the whiteness test.
+    """
+
+    order: int
+    note: str
+    unsure: str = ""
+    first_white: bool = False
+
+
+def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...]) -> OrderChoice:
+    """First or second order by the held-out one-step prediction errors of the record's end.
+
+    Both orders are fitted on the first ``1 - HOLDOUT_FRACTION`` of the record with the noise model
+    the first order's fit chose (white OE, or the wave PEM when the compass residuals are coloured)
+    and run on through the rest; the held-out output errors of both are passed through the same
+    noise filter (the first order's wave innovations filter, or none), so the wave motion on the
+    compass is whitened away before the comparison. The second order is chosen when it passes the
+    shared held-out significance rule (:func:`pipeline.fit.heldout_test.is_significant`, ``p`` = 3
+    added parameters: T12, T1T2, T3 for T, and the initial yaw acceleration). When it does not pass
+    but is not clearly worse either (a near-tie: held-out gap shrink above ``-MIN_SHRINK``) while
+    the two structures' K or T differ materially (:func:`structure_ambiguity`), the choice is
+    marked unsure.
+    """
     n = rec.t.size
     n_fit = int(round((1.0 - HOLDOUT_FRACTION) * n))
     if n_fit < MIN_SAMPLES or n - n_fit < 10:
-        return 1, "first-order Nomoto (record too short to hold out a part for the second-order check)"
+        return OrderChoice(1, "first-order Nomoto (record too short to hold out a part for the second-order check)")
     part = NomotoRecord(t=rec.t[:n_fit], delta=rec.delta[:n_fit],
                         psi=None if rec.psi is None else rec.psi[:n_fit],
                         r=None if rec.r is None else rec.r[:n_fit], name=rec.name)
-    errs = {}
-    for order in (1, ORDER2_SUM_PRODUCT):
+    try:
+        first = fit_nomoto(part, order=1, noise="auto", channels=channels, servo=servo)
+    except FitError as exc:
+        return OrderChoice(1, f"first-order Nomoto (the held-out check could not fit the first order: {exc})")
+    if not _usable(first):
+        return OrderChoice(1, "first-order Nomoto (its fit on the training part left the plausible range: "
+                              "no held-out check)")
+    white = all(t.white for t in first.residual_tests)
+    noise = first.noise_model
+    try:
+        second = fit_nomoto(part, order=ORDER2_SUM_PRODUCT, noise=noise, channels=channels, servo=servo)
+    except FitError:
+        second = None
+    if noise == "waves" and (second is None or not _usable(second)):
         try:
-            fit = fit_nomoto(part, order=order, noise="white", channels=channels, servo=servo)
+            second = fit_nomoto(part, order=ORDER2_SUM_PRODUCT, noise="white", channels=channels, servo=servo)
         except FitError:
-            errs[order] = math.inf
-            continue
+            second = None
+    white_note = "first-order training residuals white" if white else "first-order training residuals coloured"
+    if second is None or not _usable(second):
         # A fit that ends out of range (the second order collapsing onto the first: T2 -> 0) is no candidate.
-        errs[order] = _heldout_rmse(fit, rec, channels, servo, n_fit) if _usable(fit) else math.inf
-        if order == 1 and _usable(fit) and all(t.white for t in fit.residual_tests):
-            # White first-order residuals leave a second order nothing to explain: not tried.
-            return 1, (f"first-order Nomoto: its residuals are white, so no second-order structure was tried "
-                       f"(held-out RMSE {errs[1]:.4g})")
-    second = errs[ORDER2_SUM_PRODUCT]
-    text = f"held-out RMSE ({HOLDOUT_FRACTION:.0%} of the record) first order {errs[1]:.4g}, second order {second:.4g}"
-    if second < (1.0 - ORDER2_GAIN) * errs[1]:
-        return ORDER2_SUM_PRODUCT, f"second-order Nomoto (T1, T2, T3) selected: {text}"
-    return 1, f"first-order Nomoto selected: {text}"
+        return OrderChoice(1, f"first-order Nomoto: the second order did not converge in range on the training "
+                              f"part ({white_note})", first_white=white)
+    filt = first if noise == "waves" else None
+    e0 = _heldout_errors(first, rec, channels, servo, n_fit, filt)
+    e1 = _heldout_errors(second, rec, channels, servo, n_fit, filt)
+    scores = []
+    for ch in channels:
+        a, b = e0[ch], e1[ch]
+        ok = np.isfinite(a) & np.isfinite(b)
+        if ok.sum() < 10:
+            continue
+        scale = max(float(np.std(rec_channel(rec, ch)[np.isfinite(rec_channel(rec, ch))])), 1e-12)
+        cs = channel_score(ch, a[None, :] / scale, b[None, :] / scale, ORDER2_EXTRA_PARAMS, 1, math.nan)
+        shrink = 100.0 * (1.0 - cs.gap_after / cs.gap_before) if cs.gap_before > 0 else 0.0
+        scores.append((cs, shrink))
+    if not scores:
+        return OrderChoice(1, "first-order Nomoto (no held-out samples to compare)", first_white=white)
+    cs, shrink = min(scores, key=lambda s: s[0].p_value if math.isfinite(s[0].p_value) else 1.0)
+    pv = min(1.0, (cs.p_value if math.isfinite(cs.p_value) else 1.0) * len(scores))
+    sig = is_significant(pv, math.nan, shrink, cs.explained)
+    kind = "wave-whitened one-step prediction errors" if filt is not None else "output errors"
+    text = (f"held-out {kind} ({HOLDOUT_FRACTION:.0%} of the record, channel {cs.channel}): RMS first order "
+            f"{cs.gap_before:.4g}, second order {cs.gap_after:.4g} ({shrink:+.1f} % shrink, p = {pv:.2g}, "
+            f"shared rule p < {ALPHA:g} and shrink >= {MIN_SHRINK:g} %); {white_note}")
+    if sig:
+        return OrderChoice(ORDER2_SUM_PRODUCT, f"second-order Nomoto (T1, T2, T3) selected: {text}", first_white=white)
+    unsure = ""
+    if shrink > -MIN_SHRINK:
+        unsure = structure_ambiguity(first, second)
+    return OrderChoice(1, f"first-order Nomoto selected: {text}", unsure, first_white=white)
+
+
+#: Parameters the second-order model adds on the held-out test (T12, T1T2, T3 for T; rdot0).
+ORDER2_EXTRA_PARAMS = 3
+#: Relative difference of K or T between the structures that makes a near-tie matter [-].
+STRUCTURE_MATERIAL = 0.10
+
+
+def structure_ambiguity(first: NomotoFit, second: NomotoFit) -> str:
+    """Why a near-tie between the structures leaves K or T undecided ('' when it does not).
+
+    K or T is undecided when the first- and second-order fits (first-order equivalent
+    ``T = T1 + T2 - T3``, error from the covariance) differ by more than ``STRUCTURE_MATERIAL``
+    of the first-order value and by more than twice their combined standard error.
+
+    Parameters
+    ----------
+    first, second : NomotoFit
+        First-order and second-order fits of the same data.
+    """
+    out = []
+    for name in KEY_PARAMS:
+        v1, s1 = first.value(name), first.error(name)
+        v2, s2 = (second.K, second.error("K")) if name == "K" else (second.T, equivalent_t_stderr(second))
+        diff = abs(v2 - v1)
+        se = math.sqrt(s1**2 + s2**2) if math.isfinite(s1) and math.isfinite(s2) else 0.0
+        if diff > STRUCTURE_MATERIAL * abs(v1) and diff > 2.0 * se:
+            out.append(f"{name} {v1:.4g} (first order) vs {v2:.4g} (second order)")
+    if not out:
+        return ""
+    return ("unsure: the held-out data do not decide between first- and second-order Nomoto (near-tie), and "
+            f"their estimates differ materially: {', '.join(out)}")
+
+
+def equivalent_t_stderr(fit: NomotoFit) -> float:
+    """Standard error of the first-order equivalent ``T = T1 + T2 - T3`` [s] from the covariance.
+
+    Parameters
+    ----------
+    fit : NomotoFit
+        A first- or second-order fit.
+    """
+    if fit.order == 1:
+        return fit.error("T")
+    g = np.array([1.0 if n in ("T1", "T2", "T12") else -1.0 if n == "T3" else 0.0 for n in fit.names])
+    if not np.all(np.isfinite(fit.covariance)):
+        return math.nan
+    return float(math.sqrt(max(g @ fit.covariance @ g, 0.0)))
+
+
+def rec_channel(rec: NomotoRecord, ch: str) -> np.ndarray:
+    """One output channel of a record (heading unwrapped) [rad or rad/s].
+
+    Parameters
+    ----------
+    rec : NomotoRecord
+        The record.
+    ch : str
+        ``psi`` or ``r``.
+    """
+    return unwrap_heading(rec.psi) if ch == "psi" else np.asarray(rec.r, float)
 
 
 def _usable(fit: NomotoFit) -> bool:
@@ -190,21 +359,29 @@ def _usable(fit: NomotoFit) -> bool:
     return fit.converged and all(n in SERVO_PARAMS for n in fit.at_bound) and bool(np.all(np.isfinite(fit.values)))
 
 
-def _heldout_rmse(fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...],
-                  n_fit: int) -> float:
-    prob = Problem([prepare(rec, 0, channels)], fit.order, "b" in fit.names, channels, "white", None, None, servo)
+def _heldout_errors(fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...],
+                    n_fit: int, noise: NomotoFit | None) -> dict[str, np.ndarray]:
+    """Held-out errors per channel (NaN outside the held-out part): the fit simulated over the whole
+    record from its training start; the compass error whitened by ``noise``'s wave filter if given."""
+    waves = noise.waves if noise is not None else None
+    var = noise.noise_var.get("psi") if noise is not None else None
+    kind = "waves" if waves is not None and var is not None and var > 0 else "white"
+    prob = Problem([prepare(rec, 0, channels)], fit.order, "b" in fit.names, channels, kind,
+                   waves if kind == "waves" else None, var if kind == "waves" else None, servo)
     z = prob.solver_vector(np.array([fit.value(nm) for nm in prob.names]))
-    sim = prob.simulate(z, 0)
-    ch = channels[0]
-    y = prob.recs[0].y[ch]
-    m = prob.recs[0].mask[ch].copy()
-    m[:n_fit] = False
-    e = (y - sim[ch])[m]
-    return float(np.sqrt(np.mean(e**2))) if e.size else math.inf
+    per = prob.channel_residuals(z)[0]
+    out = {}
+    for ch in channels:
+        m = prob.recs[0].mask[ch]
+        e = np.full(m.size, np.nan)
+        e[m] = per[ch]
+        e[:n_fit] = np.nan
+        out[ch] = e
+    return out
 
 
 def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], t_rel: np.ndarray,
-                 notes: list[str]) -> SegmentFit:
+                 notes: list[str], unsure: str = "") -> SegmentFit:
     main = channels[0]
     model = "nomoto_oe" if fit.noise_model == "white" else "nomoto_pem"
     params = {n: float(v) for n, v in zip(fit.names, fit.values)}
@@ -229,7 +406,7 @@ def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: 
                 for name, sign in (("T1", 1.0), ("T2", -1.0)):
                     g = np.array([0.5 * (1.0 + sign * params["T12"] / d), -sign / d]) if d > 0 else np.full(2, np.nan)
                     stderr[name] = float(math.sqrt(max(g @ cov @ g, 0.0))) if np.all(np.isfinite(g)) else math.nan
-    fail = []
+    fail = [unsure] if unsure else []
     if not fit.converged:
         fail.append("solver did not converge")
     if fit.at_bound:

@@ -18,6 +18,7 @@ from .damping import (damping_from_decay, damping_from_gain, damping_from_time_c
 from .data import gain_formulation, input_levels, segment_label
 from .first_order import fit_coast_down, fit_step, step_steadiness
 from .nomoto import fit_rudder_step
+from .nomoto_quality import judge_nomoto
 from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment, structure_note
 from .second_order import fit_free_decay
 from .segment_fit import failed_segment_fit
@@ -253,6 +254,7 @@ class _Collector:
                for name, pool in self.pools.items()}
         if "b_nomoto" in out:
             out["b_nomoto"] = _bias_estimate(out["b_nomoto"])
+        out = judge_nomoto(out, self.nomoto_fits)
         first = {k: out[k] for k in _ORDER if k in out}
         return {**first, **{k: v for k, v in out.items() if k not in first}}
 

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 #: Shortest hold [s].
@@ -80,6 +82,31 @@ def is_command_like(u: np.ndarray) -> bool:
     """
     d = np.diff(u[np.isfinite(u)])
     return bool(d.size) and float(np.mean(d == 0.0)) >= 0.5
+
+
+#: Sample-to-sample noise below which a varying rudder record is a computed command [rad] (0.01 deg):
+#: a rudder angle sensor is noisier; a command an autopilot or a script computed is not.
+NOISE_FREE_RAD = math.radians(0.01)
+
+
+def is_noise_free(u: np.ndarray) -> bool:
+    """True when a rudder record carries no sensor noise (a computed command, e.g. a logged sine).
+
+    The noise is the robust standard deviation of the second difference over ``sqrt(6)`` (a smooth
+    signal sampled well above its bandwidth leaves only the white noise there).
+
+    Parameters
+    ----------
+    u : numpy.ndarray
+        Rudder record [rad]; non-finite samples ignored.
+    """
+    u = np.asarray(u, float)
+    u = u[np.isfinite(u)]
+    if u.size < 5:
+        return False
+    d2 = np.diff(u, 2)
+    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
+    return sigma < NOISE_FREE_RAD
 
 
 def find_holds(u: np.ndarray, fs: float, noise: float) -> list[Hold]:
@@ -168,10 +195,25 @@ def classify_changes(holds: list[Hold], fs: float, min_step: float = 0.0
     """
     steps: list[RudderChange] = []
     varying: list[tuple[int, int]] = []
-    for a, b in zip(holds[:-1], holds[1:]):
+
+    def short_change(a: Hold, b: Hold) -> bool:
         dur = (b.i_start - a.i_end) / fs
         shorter = min(a.i_end - a.i_start, b.i_end - b.i_start) / fs
-        short = dur <= min(STEP_MAX_S, max(STEP_FRACTION * shorter, 2.0 / fs))
+        return dur <= min(STEP_MAX_S, max(STEP_FRACTION * shorter, 2.0 / fs))
+
+    # One hold broken by a noise spike (a short change smaller than a step) is one hold again, so
+    # a step's window runs on to the next real change.
+    joined: list[Hold] = []
+    for h in holds:
+        if joined and min_step > 0 and short_change(joined[-1], h) and abs(h.value - joined[-1].value) < min_step:
+            a = joined[-1]
+            na, nb = a.i_end - a.i_start, h.i_end - h.i_start
+            joined[-1] = Hold(a.i_start, h.i_end, (a.value * na + h.value * nb) / (na + nb))
+        else:
+            joined.append(h)
+    holds = joined
+    for a, b in zip(holds[:-1], holds[1:]):
+        short = short_change(a, b)
         if short and abs(b.value - a.value) >= min_step:
             steps.append(RudderChange(a, b))
         elif not short:

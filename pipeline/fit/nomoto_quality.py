@@ -1,0 +1,105 @@
+"""When a combined Nomoto K or T is unsure: the rules applied after the segments are combined.
+
+A Nomoto estimate is marked ``success = False`` with a message that starts with ``unsure:`` and
+gives the reason (the value, its error and the per-segment values stay in the record, so the
+report, coefficients.json and the CLI show what was found and why it is not trusted) when:
+
+- the segments disagree beyond their errors (chi-square heterogeneity test of
+  :func:`pipeline.fit.combine.combine`, ``p < CONSISTENCY_ALPHA``) *and* the disagreement is
+  material: the per-segment values' standard deviation exceeds ``HETEROGENEITY_MATERIAL`` of the
+  combined value. A model that fits each manoeuvre but gives different K or T per manoeuvre is a
+  wrong structure (an unmodelled pole-zero pair, servo, speed loss, nonlinearity): no single
+  value is right then, and the random-effects interval only says how wide the spread is.
+- its relative standard error exceeds ``UNSURE_RELATIVE_STDERR``: the 95 % interval spans more
+  than about +-20 % of the value, so "success" would not say that the number is good to 20 %.
+
+- every segment behind it is a sinusoid and there is only one: a first-order model matched at
+  one frequency reproduces the ship's gain and phase there whatever its structure, so K and T are
+  the ship's only if it is first order, which one frequency cannot show (measured: a tanker's
+  fast sinusoid gave T +42 % with white residuals). Two or more sinusoids are judged by the
+  heterogeneity rule above (different frequencies disagree on a second-order ship).
+
+The per-segment rules (a near-tie between first- and second-order Nomoto whose K or T differ
+materially; a second order called for but not fitted) are in :mod:`pipeline.fit.nomoto_segment`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from typing import Sequence
+
+from ..records import Estimate, SegmentFit
+from .combine import CONSISTENCY_ALPHA
+
+#: Relative between-segment standard deviation that makes a significant disagreement material [-].
+HETEROGENEITY_MATERIAL = 0.10
+#: Relative standard error above which a Nomoto K or T is not marked success [-] (95 % CI ~ +-20 %).
+UNSURE_RELATIVE_STDERR = 0.10
+#: The estimates these rules judge.
+NOMOTO_ESTIMATES = ("K_nomoto", "T_nomoto")
+
+
+def unsure_reasons(est: Estimate, kinds: Sequence[str] = ()) -> list[str]:
+    """Why a combined Nomoto estimate is unsure (empty when it is not).
+
+    Parameters
+    ----------
+    est : Estimate
+        A combined ``K_nomoto`` or ``T_nomoto``.
+    kinds : sequence of str
+        Segment kinds of the successful Nomoto segment fits behind it (``rudder_step``, ``zigzag``,
+        ``sinusoid``).
+    """
+    out = []
+    if not (est.success and math.isfinite(est.value) and est.value != 0):
+        return out
+    if len(kinds) == 1 and kinds[0] == "sinusoid":
+        out.append("unsure: one sinusoid only: a first-order model matched at one frequency gives the ship's K "
+                   "and T only if the ship is first order, which one frequency cannot show (add a rudder step, a "
+                   "zig-zag or a sinusoid at another frequency)")
+    x = np.asarray(est.per_segment, float)
+    p = est.consistency_p
+    if x.size >= 2 and math.isfinite(p) and p < CONSISTENCY_ALPHA:
+        spread = float(np.std(x, ddof=1)) / abs(est.value)
+        if spread > HETEROGENEITY_MATERIAL:
+            out.append(f"unsure: the {x.size} segments disagree beyond their errors (chi-square p = {p:.2g} < "
+                       f"{CONSISTENCY_ALPHA}) and their values spread by {spread:.0%} of the combined value "
+                       f"(> {HETEROGENEITY_MATERIAL:.0%}; from {x.min():.4g} to {x.max():.4g} {est.unit}): one "
+                       f"Nomoto model does not describe every manoeuvre alike (model structure, servo, speed or "
+                       f"nonlinear effects)")
+    rel = abs(est.stderr) / abs(est.value) if math.isfinite(est.stderr) else math.inf
+    if rel > UNSURE_RELATIVE_STDERR:
+        out.append(f"unsure: relative standard error {rel:.0%} above {UNSURE_RELATIVE_STDERR:.0%} (the 95 % "
+                   f"interval spans more than about +-{2 * UNSURE_RELATIVE_STDERR:.0%} of the value)")
+    return out
+
+
+def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()) -> dict[str, Estimate]:
+    """``estimates`` with the combined Nomoto K and T marked unsure where :func:`unsure_reasons` says so.
+
+    Parameters
+    ----------
+    estimates : dict[str, Estimate]
+        Name -> estimate; not modified.
+    fits : sequence of SegmentFit
+        The successful Nomoto segment fits behind them (their segment kinds are used).
+
+    Returns
+    -------
+    dict[str, Estimate]
+        A new mapping; an unsure estimate keeps its value and error, gets ``success = False`` and
+        the reasons at the start of its message.
+    """
+    out = dict(estimates)
+    for name in NOMOTO_ESTIMATES:
+        est = out.get(name)
+        if est is None:
+            continue
+        why = unsure_reasons(est, [f.segment.kind for f in fits])
+        if why:
+            out[name] = replace(est, success=False, message="; ".join(why + ([est.message] if est.message else [])))
+    return out

@@ -1,0 +1,142 @@
+"""When a Nomoto K or T must be marked unsure, tested with real fits of simulated ships: the rules
+must fire on a second-order ship read with a first-order model, and must not on a first-order ship."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.fit.combine import Contribution, combine
+from pipeline.fit.nomoto_oe import NomotoRecord, fit_nomoto
+from pipeline.fit.nomoto_pem import wave_discrete
+from pipeline.fit.nomoto_quality import judge_nomoto, unsure_reasons
+from pipeline.fit.nomoto_segment import equivalent_t_stderr, structure_ambiguity
+from pipeline.model import discretise
+from pipeline.model.nomoto import ORDER2_SUM_PRODUCT, nomoto_matrices
+from pipeline.model.waves import WaveParams, wave_matrices
+
+H = 0.5
+K1, T1 = 0.1, 15.0                         # first-order ship
+SECOND = (0.09, 13.5, 64.0, 10.8)          # K, T1 + T2, T1 T2, T3 (Clarke83-like: T = 2.7 s)
+
+
+def _record(delta, order, dyn, seed, noise_deg=0.1):
+    a, b = nomoto_matrices(order, dyn)
+    ad, bd = discretise.zoh(a, b, H)
+    x = np.zeros(a.shape[0])
+    xs = np.empty((delta.size, a.shape[0]))
+    for k, d in enumerate(delta):
+        xs[k] = x
+        x = ad @ x + bd[:, 0] * d
+    rng = np.random.default_rng(seed)
+    psi = xs[:, 0] + math.radians(noise_deg) * rng.standard_normal(delta.size)
+    return NomotoRecord(t=np.arange(delta.size) * H, delta=delta, psi=psi)
+
+
+def _sine(period_s, periods=4, amp_deg=10.0):
+    t = np.arange(int(periods * period_s / H)) * H
+    return math.radians(amp_deg) * np.sin(2 * math.pi * t / period_s)
+
+
+def _contribution(fit, name, label):
+    se = fit.error("K") if name == "K" else equivalent_t_stderr(fit)
+    value = fit.K if name == "K" else fit.T
+    return Contribution(value, se, label, fit.n - len(fit.names))
+
+
+@pytest.fixture(scope="module")
+def sine_fits():
+    """First-order fits of a slow and a fast sinusoid, for a first- and a second-order ship."""
+    out = {}
+    for ship, order, dyn in (("first", 1, (K1, T1)), ("second", ORDER2_SUM_PRODUCT, SECOND)):
+        out[ship] = [fit_nomoto(_record(_sine(p), order, dyn, seed), order=1, noise="white", channels=("psi",))
+                     for seed, p in enumerate((120.0, 15.0))]
+    return out
+
+
+def test_disagreeing_segments_of_a_second_order_ship_are_unsure(sine_fits):
+    # A first-order model of a second-order ship gives a different T at each frequency.
+    est = combine("T_nomoto", "s", "test", [_contribution(f, "T", f"sine {i}")
+                                            for i, f in enumerate(sine_fits["second"])])
+    judged = judge_nomoto({"T_nomoto": est})["T_nomoto"]
+    assert est.success and not judged.success
+    assert judged.message.startswith("unsure: the 2 segments disagree beyond their errors")
+    assert judged.value == est.value and judged.stderr == est.stderr   # the numbers stay reported
+
+
+def test_agreeing_segments_of_a_first_order_ship_are_not_unsure(sine_fits):
+    for name in ("K", "T"):
+        est = combine(f"{name}_nomoto", "1/s", "test", [_contribution(f, name, f"sine {i}")
+                                                        for i, f in enumerate(sine_fits["first"])])
+        judged = judge_nomoto({f"{name}_nomoto": est})[f"{name}_nomoto"]
+        assert judged.success, judged.message
+        assert unsure_reasons(est) == []
+        true = K1 if name == "K" else T1
+        assert abs(judged.value - true) < 0.05 * true
+
+
+def test_structure_ambiguity_names_the_material_difference():
+    delta = np.concatenate([_sine(20.0, 3), _sine(60.0, 2)])
+    rec = _record(delta, ORDER2_SUM_PRODUCT, SECOND, 3)
+    first = fit_nomoto(rec, order=1, noise="white", channels=("psi",))
+    second = fit_nomoto(rec, order=ORDER2_SUM_PRODUCT, noise="white", channels=("psi",))
+    # The second order recovers T = T1 + T2 - T3 = 2.7 s with an honest (covariance) error ...
+    assert abs(second.T - (13.5 - 10.8)) < 3 * equivalent_t_stderr(second) + 0.05
+    # ... the first order does not, and a near-tie between them would have to say so.
+    why = structure_ambiguity(first, second)
+    assert why.startswith("unsure:") and "T " in why
+    rec1 = _record(delta, 1, (K1, T1), 4)
+    f1 = fit_nomoto(rec1, order=1, noise="white", channels=("psi",))
+    f2 = fit_nomoto(rec1, order=ORDER2_SUM_PRODUCT, noise="white", channels=("psi",))
+    assert structure_ambiguity(f1, f2) == ""
+
+
+def test_relative_error_rule():
+    from pipeline.records import Estimate
+
+    est = Estimate("T_nomoto", 6.4, 0.9, (4.6, 8.2), "s", 1, "test")
+    assert unsure_reasons(est)[0].startswith("unsure: relative standard error 14%")
+    assert unsure_reasons(Estimate("T_nomoto", 6.4, 0.3, (5.8, 7.0), "s", 1, "test")) == []
+
+
+@pytest.mark.parametrize("w0, lam, kw", [(0.6, 0.1, 0.01), (3.0, 0.4, 0.02), (5.0, 2.0, 1.0), (9000.0, 5.0, 1e19)])
+def test_wave_noise_integral_has_no_overflow(w0, lam, kw):
+    waves = WaveParams(w0, lam, kw)
+    with np.errstate(all="raise"):
+        ad, qd = wave_discrete(waves, 0.2)
+    assert np.all(np.isfinite(ad)) and np.all(np.isfinite(qd))
+    if lam * w0 * 0.2 < 50:
+        a, e, _ = wave_matrices(waves)
+        ad2, qd2 = discretise.noise_integral(a, e @ e.T, 0.2)
+        np.testing.assert_allclose(qd, qd2, rtol=1e-9, atol=1e-18 * kw**2)
+        np.testing.assert_allclose(ad, ad2, rtol=1e-9, atol=1e-14)
+
+
+def test_extreme_solver_vector_simulates_without_overflow():
+    # The solver may try a pole pair at 1e13 rad/s (T1 T2 = e^-60 s^2, measured on a frigate
+    # zig-zag); its value is held 100 x beyond the plausible range, where discretising is finite.
+    from pipeline.fit.nomoto_problem import Problem, prepare
+
+    rec = _record(_sine(60.0, 2), 1, (K1, T1), 5)
+    prob = Problem([prepare(rec, 0, ("psi",))], ORDER2_SUM_PRODUCT, True, ("psi",), "white", None, None)
+    z = prob.solver_vector(np.array([0.1, 1e-26, 1e-26, 1.0, 0.0, 0.0, 0.0, 0.0]))
+    with np.errstate(over="raise", invalid="raise"):
+        out = prob.simulate(z, 0)
+    assert np.all(np.isfinite(out["psi"]))
+    assert prob.natural(z)[2] == pytest.approx((0.1 * H) ** 2 / 100.0**2)
+
+
+def test_one_sinusoid_alone_is_unsure(sine_fits):
+    # A single frequency cannot show the structure: the first-order fit of the second-order ship's
+    # fast sinusoid is far off with white residuals, so one sinusoid alone is never trusted ...
+    fast = sine_fits["second"][1]
+    est = combine("T_nomoto", "s", "test", [_contribution(fast, "T", "sine")])
+    assert est.success
+    assert unsure_reasons(est, ["sinusoid"])[0].startswith("unsure: one sinusoid only")
+    # ... while with a step or zig-zag beside it, or two agreeing sinusoids, the rule does not fire.
+    assert not any("one sinusoid" in w for w in unsure_reasons(est, ["sinusoid", "zigzag"]))
+    both = combine("K_nomoto", "1/s", "test", [_contribution(f, "K", f"sine {i}")
+                                               for i, f in enumerate(sine_fits["first"])])
+    assert unsure_reasons(both, ["sinusoid", "sinusoid"]) == []
