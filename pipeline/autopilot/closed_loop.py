@@ -311,7 +311,7 @@ def simulate_heading_loop(config: AutopilotConfig, scenario: Scenario, case: str
         y = x[0] + psi_w[k] + noise[k]
         # kalman_update / kalman_predict with the gain of this step precomputed: the covariance
         # recursion does not depend on the measurements, only the state update does.
-        x_post = xk + gains[k] * float(ssa(y - c_row @ xk))
+        x_post = xk + gains[k] * float(wrap_pi(y - c_row @ xk))
         fb = x_post[2] if use_filter else y
         e = float(wrap_pi(scenario.psi_ref - fb))
         cmd = pdd.output(z, e) + (x_post[4] if feed_forward else 0.0)
