@@ -72,3 +72,20 @@ def test_true_delay_at_one_hertz_is_still_named(tmp_path):
     assert (rep.effect, rep.dof) == ("actuator_delay", "yaw")
     tau = {p.name: p for p in rep.verdict.params}["tau_d"]
     assert abs(tau.value - 1.5) < 0.3
+
+
+@pytest.mark.slow
+def test_parallel_dofs_give_the_same_report(tmp_path):
+    # Surge and yaw of a boat whose two DOFs are cross-validated in two processes.
+    from pipeline.sim.manoeuvres import chain, rudder_step, step_and_coast
+    from conftest import AAUSHIP
+
+    d = np.diag(AAUSHIP.damping)
+    sched = chain(step_and_coast("surge", float(d[0]), 20.0, 20.0),
+                  rudder_step(np.radians(10), 20.0, 20.0, {"tau_x": float(d[0])}), rest_s=10.0)
+    trial, _ = simulated_trial(AAUSHIP, sched, Effects(actuator_delay=0.3), tmp_path, "par", seed=2, rate=20.0)
+    one = diagnose(trial, AAUSHIP, jobs=1)
+    two = diagnose(trial, AAUSHIP, jobs=2)
+    assert len({c.dof for c in one.candidates}) >= 2
+    assert [(c.label, c.dof, c.shrink) for c in one.candidates] == [(c.label, c.dof, c.shrink) for c in two.candidates]
+    assert (one.effect, one.dof) == (two.effect, two.dof)

@@ -214,11 +214,13 @@ def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) ->
     """
     out = np.zeros((3, len(windows), n))
     lag = (m - 1 - np.arange(m)).astype(float)
+    u = np.asarray(u, float)
+    u = np.where(np.isfinite(u), u, 0.0) if not np.isfinite(u).all() else u
     for k, w in enumerate(windows):
         nb = len_blocks(w, m)
         if nb == 0:
             continue
-        seg = np.nan_to_num(u[w.i0:w.i0 + nb * m].reshape(nb, m))
+        seg = u[w.i0:w.i0 + nb * m].reshape(nb, m)
         out[0, k, :nb] = seg.sum(axis=1)
         out[1, k, :nb] = seg @ lag
         out[2, k, :nb] = seg @ lag**2

@@ -123,7 +123,8 @@ def kw_for_variance(omega0: float, lam: float, sigma: float) -> float:
     sigma : float
         Standard deviation of the wave component [unit].
     """
-    return float(np.sqrt(4.0 * lam * omega0 / np.pi) * sigma)
+    kw = np.sqrt(4.0 * lam * omega0 / np.pi) * sigma
+    return float(kw) if np.ndim(kw) == 0 else kw
 
 
 def wave_psd(omega: np.ndarray, omega0: float, lam: float, sigma: float) -> np.ndarray:
@@ -249,11 +250,20 @@ def fit_wave_spectrum(resid: np.ndarray, dt: float, band: tuple[float, float]) -
     cos_w = np.cos(w * dt)
 
     def model(x: np.ndarray) -> np.ndarray:
+        # x is (6,) or (6, B): a batch of parameter vectors evaluated at once (the Jacobian's).
+        x = x[..., None]
         n0, a, om, lam, sig, rho = np.exp(x[0]), np.exp(x[1]), np.exp(x[2]), x[3], np.exp(x[4]), x[5]
         return n0 * (1.0 + 2.0 * rho * cos_w) + a / w**2 + wave_psd(w, om, lam, sig)
 
     def resid_fn(x: np.ndarray) -> np.ndarray:
         return np.log(model(x)) - logs
+
+    def jac_fn(x: np.ndarray) -> np.ndarray:
+        # Forward differences, all six perturbed vectors in one vectorised evaluation.
+        h = 1e-7 * np.maximum(np.abs(x), 1.0)
+        batch = x[:, None] + np.diag(h)
+        f0 = np.log(model(x))
+        return ((np.log(model(batch)) - f0) / h[:, None]).T
 
     best = None
     # rho stops just short of +-1/2, where the background reaches zero at one end of the band.
@@ -272,7 +282,7 @@ def fit_wave_spectrum(resid: np.ndarray, dt: float, band: tuple[float, float]) -
         x0 = np.array([np.log(n0_0), np.log(a0), np.log(om), 0.15, np.log(max(sig0, 1e-15)), 0.0])
         x0 = np.clip(x0, np.array(lb) + 1e-6, np.array(ub) - 1e-6)
         try:
-            sol = scipy.optimize.least_squares(resid_fn, x0, bounds=(lb, ub), max_nfev=200)
+            sol = scipy.optimize.least_squares(resid_fn, x0, jac=jac_fn, bounds=(lb, ub), max_nfev=200)
         except ValueError:
             continue
         if best is None or sol.cost < best.cost:
