@@ -15,7 +15,7 @@ import pytest
 
 from pipeline.diagnose import diagnose
 from pipeline.diagnose.problem import Window, block_average, block_noise
-from pipeline.diagnose.synthetic import simulated_trial
+from diagnose_synthetic import simulated_trial
 from pipeline.diagnose.waves import fit_wave_spectrum
 from pipeline.sim import Effects, sea_trial
 from pipeline.vessel import parse_vessel

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.diagnose import diagnose
-from pipeline.diagnose.synthetic import simulated_trial
+from diagnose_synthetic import simulated_trial
 from pipeline.sim import Effects
 from pipeline.sim.manoeuvres import chain, free_decay
 from pipeline.vessel import load_vessel
