@@ -89,3 +89,25 @@ def test_parallel_dofs_give_the_same_report(tmp_path):
     assert len({c.dof for c in one.candidates}) >= 2
     assert [(c.label, c.dof, c.shrink) for c in one.candidates] == [(c.label, c.dof, c.shrink) for c in two.candidates]
     assert (one.effect, one.dof) == (two.effect, two.dof)
+
+
+def _gyro_biased(trial, bias):
+    from dataclasses import replace
+
+    data = trial.data.copy()
+    data["r"] = data["r"] + bias
+    return replace(trial, data=data)
+
+
+def test_gyro_bias_is_a_sensor_bias_not_a_moment(tmp_path):
+    # The gyro reads r + 0.01 rad/s; the compass sees the true heading. A yaw moment would turn
+    # the boat, so the compass tells the two apart.
+    ship = parse_vessel({"name": "small", "nomoto": {"K": 0.5, "T": 5.0}})
+    trial, _ = simulated_trial(ship, sea_trial(ship), Effects(), tmp_path, "gyro_bias", seed=4, dt=0.05, rate=10.0)
+    rep = diagnose(_gyro_biased(trial, 0.01), ship)
+    top = [(c.label, c.dof, round(c.shrink, 1), c.p_value) for c in rep.candidates[:3]]
+    assert (rep.effect, rep.dof) == ("sensor_bias", "yaw"), top
+    b = {p.name: p for p in rep.verdict.params}["b_sensor"]
+    assert abs(b.value - 0.01) < 3 * max(b.stderr, 5e-4), b
+    clean = diagnose(trial, ship)
+    assert clean.effect is None, [(c.label, c.dof, round(c.shrink, 1)) for c in clean.candidates[:3]]

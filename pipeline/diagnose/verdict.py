@@ -40,7 +40,7 @@ def _unit(name: str, p: DofProblem, run: CandidateRun) -> str:
     if name.startswith("k_"):
         return f"({uy})/({CHANNEL_UNITS.get(name[2:], '-')})"
     wave_ch = p.angle if run.candidate.data.angle is not None else p.channel
-    return {"d2": f"1/({uy})", "V_n": "m/s", "V_e": "m/s", "b": "rad", "bias": uy, "ratio": "-",
+    return {"d2": f"1/({uy})", "V_n": "m/s", "V_e": "m/s", "b": "rad", "bias": uy, "b_sensor": uy, "ratio": "-",
             "R": f"{us}/s", "omega0": "rad/s", "lambda": "-", "sigma_w": CHANNEL_UNITS.get(wave_ch or "", ""),
             "c": f"({uy})/({us})"}.get(name, "")
 
