@@ -177,6 +177,9 @@ def run_shape(files, diagnose_it: bool, vessel=VESSEL, truth=TRUTH) -> dict:
         try:
             rep = diagnose(trial, vessel, fits=fits)
             out["effect"] = rep.effect or "none"
+            if rep.unexplained:
+                out["effect"] += " (unexplained: " + ", ".join(f"{u.dof} {u.channel} {u.gap:.1f}"
+                                                               for u in rep.unexplained) + ")"
         except VesselidError as exc:
             out["effect"] = f"error: {str(exc)[:80]}"
     out["seconds"] = time.perf_counter() - t0
