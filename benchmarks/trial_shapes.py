@@ -265,7 +265,7 @@ def main(argv=None) -> int:
     print("| rate Hz | layout | sensors | runs | segs | within 2 SE | within 3 SE | worst (z) | not identified | "
           "diagnosis | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for bv in (True, False):
+    for bv in (False, True):
         for rate in args.rates:
             res = simulate(VESSEL, schedule, sensors=sensors(rate, bv), seed=args.seed, actuator_rate=rate)
             for layout in ("one file", "file per run"):
