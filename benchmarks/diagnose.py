@@ -406,13 +406,20 @@ def timing(minutes: float = 30.0) -> None:
         cmd = [sys.executable, "-m", "pipeline.cli", "diagnose", "--vessel", str(ROOT / "vessel_configs" / "aauship.toml"),
                str(path), "--json", str(out)]
         t2 = time.perf_counter()
+        import resource
+
+        cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
         t3 = time.perf_counter()
+        cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
+        load = os.getloadavg()[0]
         doc = json.loads(out.read_text()) if out.exists() else {}
     print(f"trial: {long.duration / 60:.1f} min of AAUSHIP sea trials ({reps} repeats, actuator delay 0.3 s), "
           f"simulated and written in {t1 - t0:.1f} s")
     print(f"command: {' '.join(cmd[1:])}")
-    print(f"vesselid diagnose: exit {proc.returncode}, {t3 - t2:.1f} s wall clock (target < 120 s on 2 cores)")
+    print(f"vesselid diagnose: exit {proc.returncode}, {t3 - t2:.1f} s wall clock (target < 60 s on 2 cores), "
+          f"{cpu:.1f} s CPU in all its processes; load average {load:.1f} when it ended")
     print(f"verdict: {doc.get('verdict')}, gap {doc.get('gap_before')} -> {doc.get('gap_after')}")
     if proc.returncode:
         print(proc.stderr)

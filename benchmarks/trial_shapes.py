@@ -177,6 +177,9 @@ def run_shape(files, diagnose_it: bool, vessel=VESSEL, truth=TRUTH) -> dict:
         try:
             rep = diagnose(trial, vessel, fits=fits)
             out["effect"] = rep.effect or "none"
+            if rep.unexplained:
+                out["effect"] += " (unexplained: " + ", ".join(f"{u.dof} {u.channel} {u.gap:.1f}"
+                                                               for u in rep.unexplained) + ")"
         except VesselidError as exc:
             out["effect"] = f"error: {str(exc)[:80]}"
     out["seconds"] = time.perf_counter() - t0
@@ -262,7 +265,7 @@ def main(argv=None) -> int:
     print("| rate Hz | layout | sensors | runs | segs | within 2 SE | within 3 SE | worst (z) | not identified | "
           "diagnosis | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for bv in (True, False):
+    for bv in (False, True):
         for rate in args.rates:
             res = simulate(VESSEL, schedule, sensors=sensors(rate, bv), seed=args.seed, actuator_rate=rate)
             for layout in ("one file", "file per run"):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
-from pipeline.diagnose.synthetic import simulated_trial
+from diagnose_synthetic import simulated_trial
 from pipeline.sim import Effects, sea_trial
 from pipeline.vessel import parse_vessel
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from pipeline.diagnose import diagnose
-from pipeline.diagnose.synthetic import simulated_trial, waves_with_sigma
+from diagnose_synthetic import simulated_trial, waves_with_sigma
 from pipeline.sim import Effects, sea_trial
 from pipeline.sim.manoeuvres import chain, rudder_step, step_and_coast, zigzag
 from pipeline.vessel import load_vessel, parse_vessel

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.diagnose import diagnose
-from pipeline.diagnose.synthetic import simulated_trial
+from diagnose_synthetic import simulated_trial
 from pipeline.sim import Effects
 from pipeline.sim.manoeuvres import chain, free_decay
 from pipeline.vessel import load_vessel
@@ -44,3 +44,28 @@ def test_linear_roll_gives_no_roll_verdict(tmp_path):
     roll = [c for c in rep.candidates if c.dof in ("roll", "pitch")]
     assert roll and not any(c.significant for c in roll)
     assert rep.effects == ()
+
+
+def test_roll_a_slow_log_cannot_resolve_is_not_analysed(tmp_path):
+    # AAUSHIP's roll period is 0.6 s: a 5 Hz log has 3 samples per period. Not resolvable, so
+    # neither a verdict nor an "unexplained" roll gap on clean data.
+    import pandas as pd
+
+    from pipeline.flow import load_trial
+
+    _, path = simulated_trial(AAUSHIP, _decays(), Effects(), tmp_path, "roll5hz", seed=5)
+    df = pd.read_csv(path)
+    slow = tmp_path / "roll_5hz.csv"
+    step = int(round(1.0 / (5.0 * float(np.median(np.diff(df["t"]))))))  # to 5 Hz
+    df.iloc[::step].to_csv(slow, index=False)
+    from pipeline.errors import DiagnoseError
+
+    assert step >= 10
+    try:
+        rep = diagnose(load_trial([slow], AAUSHIP), AAUSHIP)
+    except DiagnoseError as exc:
+        # Decays only, none resolvable: nothing to analyse, said as such.
+        assert "expected a DOF" in str(exc)
+        return
+    assert "roll" not in {d.dof for d in rep.dofs}
+    assert not [u for u in rep.unexplained if u.dof == "roll"] and rep.effect is None

@@ -33,7 +33,7 @@ from . import waves as wave_model
 
 #: Effect names, in the order candidates are tried (ties go to the simpler, earlier one).
 EFFECTS = ("nonlinear_damping", "current", "actuator_delay", "actuator_rate_limit", "thrust_asymmetry",
-           "waves", "coupling")
+           "waves", "coupling", "sensor_bias")
 #: Input channels that are thrusts/forces (have an ahead and an astern direction).
 FORCE_INPUTS = ("tau_x", "tau_y", "tau_n", "tau_k", "tau_m")
 #: Largest quadratic-to-linear damping ratio at the largest speed of the data.
@@ -689,6 +689,45 @@ class Waves(Candidate):
         return out
 
 
+class SensorBias(Candidate):
+    """A constant bias of the response sensor (a gyro bias), exposed by a second sensor.
+
+    The rate gyro reads ``r + b`` while the compass reads the heading the true ``r`` integrates
+    to; a yaw moment or rudder bias (:class:`Current`) instead turns the boat, and the compass sees
+    the heading drift. Only offered where the heading is scored next to the rate (yaw with ``psi``):
+    with the rate alone, a sensor bias and a moment are the same constant after the first time
+    constant. A constant heading offset needs no candidate: the heading's reference is projected
+    out of every window.
+    """
+
+    effect = "sensor_bias"
+    param_names = ("b_sensor",)
+    n_extra = 1
+
+    def __init__(self, problem: DofProblem, data: GridData) -> None:
+        super().__init__(problem, data)
+        self.bspec = LinearSpec(self.spec.forcing, self.spec.offsets, ("__bias",))
+
+    def applicable(self) -> bool:
+        """See :meth:`Candidate.applicable`: the heading must be scored beside the rate."""
+        return self.problem.angle is not None and self.data.angle is not None
+
+    def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
+        """Refit on windows ``train``; see :meth:`Candidate.fit`.
+
+        Parameters
+        ----------
+        train : numpy.ndarray
+            Window indices.
+        start : Fitted, optional
+            The baseline fitted on the same windows.
+        """
+        d = self.data.rows(train)
+        t, theta, sse = self._fit(d, self.bspec, start)
+        params = {"T": t, **_gain_params(self.spec, theta[:len(self.spec.names)]), "b_sensor": float(theta[-1])}
+        return Fitted(params, self.param_names, sse, (self.bspec, theta))
+
+
 def candidates_for(problem: DofProblem, data: GridData) -> list[Candidate]:
     """Every applicable candidate of a DOF problem, baseline first.
 
@@ -705,7 +744,7 @@ def candidates_for(problem: DofProblem, data: GridData) -> list[Candidate]:
                             ActuatorDelay(problem, data)]
     out += [ActuatorRateLimit(problem, data, c) for c in problem.inputs]
     out += [ThrustAsymmetry(problem, data, c) for c in problem.inputs if c in FORCE_INPUTS]
-    out += [Waves(problem, data), Coupling(problem, data)]
+    out += [Waves(problem, data), Coupling(problem, data), SensorBias(problem, data)]
     return [c for c in out if c.applicable()]
 
 

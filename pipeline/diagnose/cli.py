@@ -21,6 +21,7 @@ effects, the candidates that count and where the gap lives. Every error is a
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from ..errors import DiagnoseError, VesselidError
@@ -51,6 +52,8 @@ def add_diagnose_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--plots", metavar="DIR", help="write the diagnosis figures into this folder")
     p.add_argument("--fs", type=float, help="resample rate [Hz] (default: the fastest state channel, at most 100)")
     p.add_argument("--segments", metavar="SEGMENTS.json", help="use these segments instead of detecting them")
+    p.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="processes that analyse the DOFs side by side (default: 2, or 1 on a one-core machine)")
     p.set_defaults(func=cmd_diagnose)
     return p
 
@@ -93,6 +96,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     out = _check_output(args.json, "--json")
     if args.fs is not None and not args.fs > 0:
         raise DiagnoseError(f"--fs: expected a positive sample rate [Hz], found {args.fs}")
+    jobs = args.jobs if args.jobs is not None else min(2, os.cpu_count() or 1)
+    if jobs < 1:
+        raise DiagnoseError(f"--jobs: expected a positive number of processes, found {args.jobs}")
     try:
         vessel = load_vessel(args.vessel)
         trial = load_trial(args.logs, vessel, fs=args.fs)
@@ -103,7 +109,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         raise DiagnoseError(str(exc)) from exc
     factory, holder = _progress()
     try:
-        report = diagnose(trial, vessel, segments, progress=factory)
+        report = diagnose(trial, vessel, segments, progress=factory, jobs=jobs)
     finally:
         if holder and "bar" in holder:
             holder["bar"].close()

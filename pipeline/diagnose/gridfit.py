@@ -162,8 +162,8 @@ def grid_data(p: DofProblem, inputs: Mapping[str, np.ndarray] | None = None) -> 
     w_angle = 1.0
     if angle is not None:
         w_angle = 1.0 / channel_scale(angle - _first(angle), smask & np.isfinite(angle))
-    sigma_y = block_noise(p.raw[p.channel], w, p.m)
-    sigma_a = block_noise(p.raw[p.angle], w, p.m) if p.angle else float("nan")
+    sigma_y = block_noise(p.raw[p.channel], w, p.m, trapezoid=True)
+    sigma_a = block_noise(p.raw[p.angle], w, p.m, trapezoid=True) if p.angle else float("nan")
     # Its standard error: a line's end point through 2m + 1 samples carries about 4 / (2m + 1) of a
     # sample's noise variance, i.e. about twice a block mean's; taken Y0_PRIOR_WIDTH times wider,
     # since the noise between samples is rarely as white as that count assumes, and a prior that
@@ -208,15 +208,19 @@ class LinearSpec:
         Names of forcing regressors in :attr:`GridData.forcing` (theta multiplies each).
     offsets : tuple[str, ...]
         Names of output-offset bases in :attr:`GridData.offsets`.
+    sensor_offsets : tuple[str, ...]
+        Constant offsets of the response sensor alone (a gyro bias): added to the response
+        channel, not integrated into the heading, which another sensor measures.
     """
 
     forcing: tuple[str, ...]
     offsets: tuple[str, ...] = ()
+    sensor_offsets: tuple[str, ...] = ()
 
     @property
     def names(self) -> tuple[str, ...]:
         """Linear parameter names, in solve order."""
-        return self.forcing + self.offsets
+        return self.forcing + self.offsets + self.sensor_offsets
 
 
 def _columns(d: GridData, spec: LinearSpec, t_const: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -245,6 +249,10 @@ def _columns(d: GridData, spec: LinearSpec, t_const: float) -> tuple[np.ndarray,
         off = np.stack([np.nan_to_num(d.offsets[name]) for name in spec.offsets])
         parts.append(off)
         within.append(0.5 * d.dt * off)
+    if spec.sensor_offsets:
+        ones = np.broadcast_to(d.mask.astype(float), (len(spec.sensor_offsets),) + d.y.shape)
+        parts.append(np.array(ones))
+        within.append(np.zeros_like(ones))
     if parts:
         return np.concatenate(parts), h0, np.concatenate(within), h0_within
     empty = np.zeros((0,) + d.y.shape)
@@ -284,6 +292,8 @@ def _normal(d: GridData, spec: LinearSpec, t_const: float) -> _Normal:
     if d.angle is not None:
         am = d.angle_mask
         ca = _demean(integrate_blocks(np.where(m, cols, 0.0), d.dt, cols_w), am) * d.w_angle
+        if spec.sensor_offsets:
+            ca[-len(spec.sensor_offsets):] = 0.0  # the response sensor's bias is not in the heading
         ha = _demean(integrate_blocks(np.where(m, h0[None, :], 0.0), d.dt, h0_w[None, :]), am) * d.w_angle
         chans.append((ca, ha, d.angle_demeaned * d.w_angle))
     k, w = cols.shape[0], d.y.shape[0]
@@ -307,6 +317,7 @@ def _normal(d: GridData, spec: LinearSpec, t_const: float) -> _Normal:
         b0 = np.zeros((k, w))
         for j, name in enumerate(spec.offsets):
             b0[len(spec.forcing) + j] = np.nan_to_num(d.offsets[name][:, 0])
+        b0[len(spec.forcing) + len(spec.offsets):] = 1.0
         g_yy += wgt
         g_yt += wgt * b0.T
         g_tt += wgt * np.einsum("iw,jw->ij", b0, b0)
@@ -474,11 +485,19 @@ def predict_linear(d: GridData, spec: LinearSpec, t_const: float, theta: np.ndar
     y0 = initial_states(d, spec, t_const, theta) if y0 is None else np.asarray(y0, float)
     yhat = y0[:, None] * h0[None, :]
     within = y0[:, None] * h0_w[None, :]
+    bias = 0.0
     if len(cols):
         th = np.asarray(theta, float)
+        ns = len(spec.sensor_offsets)
+        if ns:
+            # The response sensor's own bias: seen on the response, not integrated into the heading.
+            bias = np.einsum("k,kwn->wn", th[-ns:], cols[-ns:])
+            th, cols, cols_w = th[:-ns], cols[:-ns], cols_w[:-ns]
         yhat = yhat + np.einsum("k,kwn->wn", th, cols)
         within = within + np.einsum("k,kwn->wn", th, cols_w)
-    return outputs_from_response(d, yhat, within)
+    out = outputs_from_response(d, yhat, within)
+    out["y"] = out["y"] + bias
+    return out
 
 
 def outputs_from_response(d: GridData, yhat: np.ndarray, within: np.ndarray | None = None) -> dict[str, np.ndarray]:

@@ -36,6 +36,10 @@ STEPS_PER_PERIOD = 20
 SUBSTEPS = 1
 #: Shortest usable window, in natural periods.
 MIN_PERIODS = 1.5
+#: Fewest logged samples per natural period for the DOF to be analysed: below it the log cannot
+#: resolve the oscillation (AAUSHIP's 0.6 s roll at 1-5 Hz), and a replay on such a grid is a
+#: model error of the discretisation, not a gap of the boat. The fit stage says "not identified".
+MIN_SAMPLES_PER_PERIOD = 5.0
 
 
 @dataclass(frozen=True)
@@ -155,6 +159,8 @@ def build_oscillatory(trial: Trial, segments: Segments, dof: str) -> OscProblem 
     if not (math.isfinite(om) and om > 0):
         return None
     period = 2 * np.pi / om
+    if period * fs < MIN_SAMPLES_PER_PERIOD:
+        return None
     m = max(int(round(period / STEPS_PER_PERIOD * fs)), 1)
     dt = m / fs
     wins = []

@@ -174,7 +174,7 @@ def block_average(x: np.ndarray, windows: tuple[Window, ...], m: int, n: int, tr
         if nb == 0:
             continue
         seg = x[w.i0:w.i0 + nb * m].reshape(nb, m)
-        if trapezoid and m > 1:
+        if trapezoid:
             after = w.i0 + m * np.arange(1, nb + 1)
             nxt = np.where(after < len(x), x[np.minimum(after, len(x) - 1)], np.nan)
             # Where the closing sample is missing, the block's own last sample stands in.
@@ -182,7 +182,7 @@ def block_average(x: np.ndarray, windows: tuple[Window, ...], m: int, n: int, tr
             seg = np.concatenate([0.5 * seg[:, :1], seg[:, 1:], 0.5 * nxt[:, None]], axis=1)
         ok = np.isfinite(seg)
         # Weights: a trapezoid's two half samples count as one sample between them.
-        cnt = ok.sum(axis=1) - (1.0 if trapezoid and m > 1 else 0.0)
+        cnt = ok.sum(axis=1) - (1.0 if trapezoid else 0.0)
         s = np.where(ok, seg, 0.0).sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             out[k, :nb] = np.where(cnt > 0, s / np.maximum(cnt, 1), np.nan)
@@ -214,18 +214,20 @@ def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) ->
     """
     out = np.zeros((3, len(windows), n))
     lag = (m - 1 - np.arange(m)).astype(float)
+    u = np.asarray(u, float)
+    u = np.where(np.isfinite(u), u, 0.0) if not np.isfinite(u).all() else u
     for k, w in enumerate(windows):
         nb = len_blocks(w, m)
         if nb == 0:
             continue
-        seg = np.nan_to_num(u[w.i0:w.i0 + nb * m].reshape(nb, m))
+        seg = u[w.i0:w.i0 + nb * m].reshape(nb, m)
         out[0, k, :nb] = seg.sum(axis=1)
         out[1, k, :nb] = seg @ lag
         out[2, k, :nb] = seg @ lag**2
     return out
 
 
-def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int) -> float:
+def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: bool = False) -> float:
     """White-noise standard deviation of an ``m``-sample block mean of ``x`` [SI].
 
     Blocks of ``mb = max(m, 8)`` samples are split in quarters and the contrast
@@ -244,6 +246,10 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int) -> float:
         Windows to measure it in.
     m : int
         Samples per block.
+    trapezoid : bool
+        The block means are trapezoidal (:func:`block_average` with ``trapezoid=True``): weights
+        ``1/2, 1, ..., 1, 1/2`` over ``m + 1`` samples, variance ``(m - 1/2) s^2 / m^2`` instead
+        of ``s^2 / m`` (half a sample's at ``m = 1``).
     """
     mb = max(m, 8)
     q = mb // 4
@@ -259,7 +265,8 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int) -> float:
     if len(c) < 8:
         return float("nan")
     s_mb = 1.4826 * np.median(np.abs(c - np.median(c))) / 4.0
-    return float(s_mb * np.sqrt(mb / m))
+    s_m = s_mb * np.sqrt(mb / m)
+    return float(s_m * np.sqrt((m - 0.5) / m) if trapezoid else s_m)
 
 
 def initial_values(x: np.ndarray, windows: tuple[Window, ...], half: int) -> np.ndarray:

@@ -40,7 +40,7 @@ def _unit(name: str, p: DofProblem, run: CandidateRun) -> str:
     if name.startswith("k_"):
         return f"({uy})/({CHANNEL_UNITS.get(name[2:], '-')})"
     wave_ch = p.angle if run.candidate.data.angle is not None else p.channel
-    return {"d2": f"1/({uy})", "V_n": "m/s", "V_e": "m/s", "b": "rad", "bias": uy, "ratio": "-",
+    return {"d2": f"1/({uy})", "V_n": "m/s", "V_e": "m/s", "b": "rad", "bias": uy, "b_sensor": uy, "ratio": "-",
             "R": f"{us}/s", "omega0": "rad/s", "lambda": "-", "sigma_w": CHANNEL_UNITS.get(wave_ch or "", ""),
             "c": f"({uy})/({us})"}.get(name, "")
 
@@ -71,7 +71,7 @@ def _refine_time_constants(trial: Trial, segments: Segments, vessel: Vessel | No
 
 
 def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | None = None, fits: Fits | None = None,
-             progress: Callable[[int], Callable[[], None]] | None = None) -> GapReport:
+             progress: Callable[[int], Callable[[], None]] | None = None, jobs: int = 1) -> GapReport:
     """Diagnose the sim-to-real gap of a trial.
 
     Parameters
@@ -87,6 +87,9 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         notes the fit stage's Nomoto and damping values for comparison.
     progress : callable, optional
         ``progress(total_steps)`` returning a ``tick()`` called once per step (a progress bar).
+    jobs : int
+        Processes that cross-validate the DOFs side by side (1: in this process). The results do
+        not depend on it.
 
     Returns
     -------
@@ -121,9 +124,10 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     summaries: list[DofSummary] = []
     per_dof: dict[str, dict] = {}
     states: dict[str, sel.DofState] = {}
-    for p, d, cs in zip(problems, datas, cands):
+    pre = _cross_validate_all(problems, datas, cands, jobs, tick)
+    for p, d, cs, runs0 in zip(problems, datas, cands, pre):
         names = {"y": p.channel, "angle": p.angle}
-        runs, scored, base_score = _score_dof(p, d, cs, tick)
+        runs, scored, base_score = _score_dof(p, d, cs, tick, runs=runs0)
         base = runs[0]
         results += [res for res, _, _ in scored]
         gaps, neff = sel.channel_gaps_of(base_score)
@@ -283,9 +287,37 @@ def _oscillatory_dof(q):
     return res, base_run, cand_run, summary, state
 
 
-def _score_dof(p: DofProblem, d, cs: list[Candidate], tick) -> tuple[list[CandidateRun], list, sig.Score]:
-    """Cross-validate and score every candidate of one DOF against its baseline (``cs[0]``)."""
-    runs = cross_validate(p, d, cs, tick=tick)
+def _cross_validate_job(args: tuple) -> list[CandidateRun]:
+    """One DOF's cross-validation (a worker process's job)."""
+    p, d, cs = args
+    return cross_validate(p, d, cs)
+
+
+def _cross_validate_all(problems: list[DofProblem], datas: list, cands: list, jobs: int,
+                        tick) -> list[list[CandidateRun] | None]:
+    """Every DOF's cross-validation in ``jobs`` worker processes (None per DOF: done later in turn)."""
+    if jobs <= 1 or len(problems) < 2:
+        return [None] * len(problems)
+    from concurrent.futures import ProcessPoolExecutor
+
+    # Largest problems first, so that the last one to finish is a small one.
+    order = sorted(range(len(problems)), key=lambda i: -datas[i].mask.sum() * len(cands[i]))
+    out: list = [None] * len(problems)
+    with ProcessPoolExecutor(max_workers=min(jobs, len(problems))) as pool:
+        futs = {i: pool.submit(_cross_validate_job, (problems[i], datas[i], cands[i])) for i in order}
+        for i in order:
+            out[i] = futs[i].result()
+            if tick is not None:
+                for _ in range(int(out[i][0].fold_of.max()) + 2):
+                    tick()
+    return out
+
+
+def _score_dof(p: DofProblem, d, cs: list[Candidate], tick, runs: list[CandidateRun] | None = None,
+               ) -> tuple[list[CandidateRun], list, sig.Score]:
+    """Cross-validate (unless ``runs`` are given) and score every candidate of one DOF against its
+    baseline (``cs[0]``)."""
+    runs = cross_validate(p, d, cs, tick=tick) if runs is None else runs
     names = {"y": p.channel, "angle": p.angle}
     base = runs[0]
     scored = []

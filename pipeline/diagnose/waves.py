@@ -6,10 +6,18 @@ Waves add a narrow-band, zero-mean motion to what the sensors see (Fossen 2021, 
 
 A deterministic simulation cannot predict a random sea, so the candidate is judged the way a
 wave-filtering autopilot uses it: the residual spectrum of the baseline on the training windows
-(an autoregressive estimate, which short windows support) is fitted with ``S(omega) = N0 + A / omega^2 + S_w(omega)`` (white noise, leakage of low-frequency
-model error, waves), and on held-out windows the wave part is separated by the non-causal Wiener
+(an autoregressive estimate, which short windows support) is fitted with
+``S(omega) = N0 (1 + 2 rho cos(omega dt)) + A / omega^2 + S_w(omega)`` (sensor noise, leakage of
+low-frequency model error, waves), and on held-out windows the wave part is separated by the non-causal Wiener
 smoother ``G = S_w / S`` (Wiener 1949). If there are no waves, ``S_w`` fits to nearly nothing and
 the held-out gap does not move; the significance test decides what "nearly" means.
+
+The sensor noise is not white on the analysis grid: a trapezoidal block mean shares its end
+sample with the next block (lag-1 correlation ``1 / (4 m - 2)``, one half at one sample per step),
+and a sensor logged slower than the trial rate and interpolated (GNSS-derived velocities) is
+low-pass. ``rho`` in ``[-1/2, 1/2]`` (the spectrum of any first-order moving average) takes that
+smooth colouring, so that a wave is a resolved peak above it and not a broad hump that mimics the
+noise's own shape.
 
 PSD convention: one-sided per rad/s, ``var = integral_0^inf S(omega) d omega`` [unit^2 s/rad].
 """
@@ -34,6 +42,8 @@ BAND_ABS = (0.2, 12.0)
 EDGE_MARGIN = 1.15
 #: Smallest peak height of the wave PSD over the background (noise + leakage) at omega_0.
 PEAK_RATIO = 3.0
+#: Bounds of the lag-1 correlation of the background noise (any MA(1) spectrum).
+RHO_BOUNDS = (-0.5, 0.5)
 #: Relative damping bounds of the wave spectrum (Fossen: 0.05-0.2 for sea states).
 LAMBDA_BOUNDS = (0.02, 0.8)
 
@@ -56,6 +66,10 @@ class WaveSpectrum:
         Low-frequency leakage ``A`` in ``A / omega^2`` [unit^2 rad/s].
     band : tuple[float, float]
         Band searched [rad/s].
+    rho : float
+        Lag-1 correlation of the background noise [-]: it is ``N0 (1 + 2 rho cos(omega dt))``.
+    dt : float
+        Sample step of the spectrum [s] (with ``rho``).
     """
 
     omega0: float
@@ -64,6 +78,19 @@ class WaveSpectrum:
     n0: float
     a_lf: float
     band: tuple[float, float]
+    rho: float = 0.0
+    dt: float = 0.0
+
+    def background(self, omega: np.ndarray) -> np.ndarray:
+        """Noise plus leakage PSD at ``omega`` [rad/s].
+
+        Parameters
+        ----------
+        omega : numpy.ndarray
+            Frequencies [rad/s].
+        """
+        w = np.maximum(np.asarray(omega, float), 1e-9)
+        return self.n0 * (1.0 + 2.0 * self.rho * np.cos(w * self.dt)) + self.a_lf / w**2
 
     def parts(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Wave PSD and the rest (noise + leakage) at ``omega`` [rad/s].
@@ -75,8 +102,8 @@ class WaveSpectrum:
         """
         w = np.maximum(np.asarray(omega, float), 1e-9)
         if not np.isfinite(self.omega0) or self.sigma <= 0:
-            return np.zeros_like(w), self.n0 + self.a_lf / w**2
-        return wave_psd(w, self.omega0, self.lam, self.sigma), self.n0 + self.a_lf / w**2
+            return np.zeros_like(w), self.background(w)
+        return wave_psd(w, self.omega0, self.lam, self.sigma), self.background(w)
 
 
 def kw_for_variance(omega0: float, lam: float, sigma: float) -> float:
@@ -96,7 +123,8 @@ def kw_for_variance(omega0: float, lam: float, sigma: float) -> float:
     sigma : float
         Standard deviation of the wave component [unit].
     """
-    return float(np.sqrt(4.0 * lam * omega0 / np.pi) * sigma)
+    kw = np.sqrt(4.0 * lam * omega0 / np.pi) * sigma
+    return float(kw) if np.ndim(kw) == 0 else kw
 
 
 def wave_psd(omega: np.ndarray, omega0: float, lam: float, sigma: float) -> np.ndarray:
@@ -188,7 +216,8 @@ def residual_psd(resid: np.ndarray, dt: float, omega_lo: float, n_omega: int = 2
 
 
 def fit_wave_spectrum(resid: np.ndarray, dt: float, band: tuple[float, float]) -> WaveSpectrum:
-    """Fit ``N0 + A / omega^2 + S_w`` to the residual PSD in ``band`` (log least squares).
+    """Fit ``N0 (1 + 2 rho cos(omega dt)) + A / omega^2 + S_w`` to the residual PSD in ``band``
+    (log least squares).
 
     Parameters
     ----------
@@ -218,16 +247,30 @@ def fit_wave_spectrum(resid: np.ndarray, dt: float, band: tuple[float, float]) -
     n0_0 = float(np.percentile(s, 20))
     a0 = max(float(np.min(s * w**2)) * 0.5, 1e-30)
 
+    cos_w = np.cos(w * dt)
+
     def model(x: np.ndarray) -> np.ndarray:
-        n0, a, om, lam, sig = np.exp(x[0]), np.exp(x[1]), np.exp(x[2]), x[3], np.exp(x[4])
-        return n0 + a / w**2 + wave_psd(w, om, lam, sig)
+        # x is (6,) or (6, B): a batch of parameter vectors evaluated at once (the Jacobian's).
+        x = x[..., None]
+        n0, a, om, lam, sig, rho = np.exp(x[0]), np.exp(x[1]), np.exp(x[2]), x[3], np.exp(x[4]), x[5]
+        return n0 * (1.0 + 2.0 * rho * cos_w) + a / w**2 + wave_psd(w, om, lam, sig)
 
     def resid_fn(x: np.ndarray) -> np.ndarray:
         return np.log(model(x)) - logs
 
+    def jac_fn(x: np.ndarray) -> np.ndarray:
+        # Forward differences, all six perturbed vectors in one vectorised evaluation.
+        h = 1e-7 * np.maximum(np.abs(x), 1.0)
+        batch = x[:, None] + np.diag(h)
+        f0 = np.log(model(x))
+        return ((np.log(model(batch)) - f0) / h[:, None]).T
+
     best = None
-    lb = [np.log(n0_0) - 12, np.log(a0) - 20, np.log(lo), LAMBDA_BOUNDS[0], np.log(1e-12) + 0.5 * np.log(n0_0 * hi)]
-    ub = [np.log(n0_0) + 12, np.log(a0) + 20, np.log(hi), LAMBDA_BOUNDS[1], 0.5 * np.log(np.sum(s) * hi) + 5]
+    # rho stops just short of +-1/2, where the background reaches zero at one end of the band.
+    lb = [np.log(n0_0) - 12, np.log(a0) - 20, np.log(lo), LAMBDA_BOUNDS[0], np.log(1e-12) + 0.5 * np.log(n0_0 * hi),
+          RHO_BOUNDS[0] * 0.98]
+    ub = [np.log(n0_0) + 12, np.log(a0) + 20, np.log(hi), LAMBDA_BOUNDS[1], 0.5 * np.log(np.sum(s) * hi) + 5,
+          RHO_BOUNDS[1] * 0.98]
     inb = (w >= lo) & (w <= hi)
     # Start at the strongest whitened peaks in the band and at a few spread frequencies.
     peaks = list(w[inb][np.argsort(s[inb])[-3:]]) if inb.any() else []
@@ -236,10 +279,10 @@ def fit_wave_spectrum(resid: np.ndarray, dt: float, band: tuple[float, float]) -
     for om in starts:
         excess = max(float(np.interp(om, w, s)) - n0_0, n0_0 * 0.1)
         sig0 = np.sqrt(excess * np.pi / (4 * 0.15 * om) * 1.0)
-        x0 = np.array([np.log(n0_0), np.log(a0), np.log(om), 0.15, np.log(max(sig0, 1e-15))])
+        x0 = np.array([np.log(n0_0), np.log(a0), np.log(om), 0.15, np.log(max(sig0, 1e-15)), 0.0])
         x0 = np.clip(x0, np.array(lb) + 1e-6, np.array(ub) - 1e-6)
         try:
-            sol = scipy.optimize.least_squares(resid_fn, x0, bounds=(lb, ub), max_nfev=200)
+            sol = scipy.optimize.least_squares(resid_fn, x0, jac=jac_fn, bounds=(lb, ub), max_nfev=200)
         except ValueError:
             continue
         if best is None or sol.cost < best.cost:
@@ -248,13 +291,13 @@ def fit_wave_spectrum(resid: np.ndarray, dt: float, band: tuple[float, float]) -
         return null
     x = best.x
     om, lam_, sig = float(np.exp(x[2])), float(x[3]), float(np.exp(x[4]))
-    sw, rest = wave_psd(np.array([om]), om, lam_, sig)[0], np.exp(x[0]) + np.exp(x[1]) / om**2
+    rest_spec = WaveSpectrum(om, lam_, sig, float(np.exp(x[0])), float(np.exp(x[1])), band, float(x[5]), dt)
+    sw, rest = wave_psd(np.array([om]), om, lam_, sig)[0], float(rest_spec.background(np.array([om]))[0])
     # A wave is a resolved peak inside the band: not a spectrum rising toward the band's low edge
     # (that is the model's own low-frequency error) and clearly above the background.
     if om < lo * EDGE_MARGIN or om > hi / EDGE_MARGIN or sw < PEAK_RATIO * rest:
         return null
-    return WaveSpectrum(float(np.exp(x[2])), float(x[3]), float(np.exp(x[4])), float(np.exp(x[0])),
-                        float(np.exp(x[1])), band)
+    return rest_spec
 
 
 def smooth_waves(resid: np.ndarray, dt: float, spec: WaveSpectrum) -> np.ndarray:

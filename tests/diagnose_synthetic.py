@@ -1,4 +1,6 @@
-"""Synthetic trials for the diagnosis' tests and benchmark: simulate, write a real log, read it back.
+"""Synthetic trials for the diagnosis' tests: simulate, write a real log, read it back.
+
+Test support, not part of the package (moved out of ``pipeline.diagnose``).
 
 Small helpers the simulator does not have: sensors a Nomoto ship's simulation can feed (it has
 no roll, pitch or accelerations, which :func:`pipeline.sim.sensors.default_sensors` asks for),
@@ -11,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..flow import load_trial
-from ..model.waves import WaveParams
-from ..records import Trial
-from ..sim import Effects, simulate
-from ..sim.manoeuvres import Schedule
-from ..sim.sensors import NOISE_LEVELS, SensorSpec, default_sensors
-from ..sim.writers import write_log
-from ..vessel import Vessel
+from pipeline.flow import load_trial
+from pipeline.model.waves import WaveParams
+from pipeline.records import Trial
+from pipeline.sim import Effects, simulate
+from pipeline.sim.manoeuvres import Schedule
+from pipeline.sim.sensors import NOISE_LEVELS, SensorSpec, default_sensors
+from pipeline.sim.writers import write_log
+from pipeline.vessel import Vessel
 
 
 def nomoto_sensors(level: str = "nominal", rate: float = 50.0) -> tuple[SensorSpec, ...]:
