@@ -96,6 +96,22 @@ def test_same_channels_without_time_are_separate_runs(yaw_sim):
     assert "2 run(s)" in text and "why:" in text
 
 
+def test_a_command_file_that_repeats_the_gyro_joins_the_sensor_file(yaw_sim):
+    """A sensor CSV and a command CSV (rudder and the gyro, its logger started 2 s later), no absolute
+    time: the command file brings inputs the sensor file lacks, so it is not "the same sensors again"
+    but the same recording, placed by cross-correlating the shared gyro."""
+    ch = yaw_sim.log.channels
+    sensors = _log("sensors.csv", {n: (ch[n].t, ch[n].values) for n in ("r", "p", "q", "psi", "phi", "theta")})
+    commands = _log("commands.csv", {n: (ch[n].t - 2.0, ch[n].values) for n in ("delta", "tau_x", "r")})
+    (group,) = group_runs([sensors, commands])
+    assert group.offsets["commands.csv"].offset_s == pytest.approx(2.0, abs=0.05)
+    assert "cross-correlation" in group.reason
+    # Two files of the same loggers (same inputs, nested states) stay separate runs.
+    again = _log("again.csv", {n: (ch[n].t, ch[n].values) for n in ("delta", "tau_x", "r")})
+    groups = group_runs([sensors, commands, again])
+    assert [g.sources for g in groups] == [("sensors.csv", "commands.csv"), ("again.csv",)]
+
+
 def test_a_log_of_inputs_only_without_a_clock_is_refused(yaw_sim):
     ch = yaw_sim.log.channels
     a = _log("nav.csv", {n: (ch[n].t, ch[n].values) for n in ("r", "psi")})

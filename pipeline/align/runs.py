@@ -11,7 +11,7 @@ run when
 
 Logs whose absolute times do not overlap are never merged, whatever a correlation says. A log
 without absolute time whose measured quantities (state channels, ``@sensor`` suffixes ignored) are
-all in a log of a run, or that holds all of that log's, adds no sensor to the run: it is taken as
+all in a log of a run, or that holds all of that log's, and that does not bring logged inputs along with fewer measured quantities (a command file), adds no sensor to the run: it is taken as
 another recording of the same sensors and is not correlated against it. Two surge coast-downs of
 one boat on different days correlate as well as two sensors of one coast-down, so a correlation
 alone cannot tell them apart; a redundant second logger of one recording is therefore kept as a
@@ -118,9 +118,21 @@ def _channel_set(log: RawLog) -> frozenset[str]:
     return frozenset(n.split("@")[0] for n, c in log.channels.items() if n.split("@")[0] not in INPUT_UNITS and len(c.t))
 
 
+def _input_set(log: RawLog) -> frozenset[str]:
+    """Logged inputs of a log: base names of its input channels."""
+    return frozenset(n.split("@")[0] for n, c in log.channels.items() if n.split("@")[0] in INPUT_UNITS and len(c.t))
+
+
 def _same_sensors(a: RawLog, b: RawLog) -> bool:
+    """Whether ``a`` and ``b`` look like two recordings of one logger: nested measured quantities,
+    unless the log with fewer of them brings logged inputs the other lacks (a command file that
+    repeats the gyro beside a sensor file: a second logger of the same recording, placed by its clock)."""
     sa, sb = _channel_set(a), _channel_set(b)
-    return bool(sa) and bool(sb) and (sa <= sb or sb <= sa)
+    if not (sa and sb and (sa <= sb or sb <= sa)):
+        return False
+    ia, ib = _input_set(a), _input_set(b)
+    command_file = (sa < sb and bool(ia - ib)) or (sb < sa and bool(ib - ia))
+    return not command_file
 
 
 def _has_states(log: RawLog) -> bool:
