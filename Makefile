@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-all install clean bench
+.PHONY: run test test-all test-ci install clean bench
 
 $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
@@ -24,7 +24,11 @@ test: $(STAMP)
 
 ## make test-all: the whole suite: make test, then the slow regression runs (pytest -m slow)
 test-all: test
-	$(BIN)/python -m pytest -q -n 2 -m slow
+	$(BIN)/python -m pytest -q -n 2 -m slow --dist loadscope
+
+## make test-ci: make test, then the slow runs except the 12-case regression module (what .ci/run calls)
+test-ci: test
+	$(BIN)/python -m pytest -q -n 2 -m slow --dist loadscope --ignore=tests/test_regression_recovery.py
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/ingest.py
