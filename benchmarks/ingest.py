@@ -59,7 +59,6 @@ import time
 from pathlib import Path
 from typing import Callable
 
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -68,6 +67,7 @@ from pipeline.ingest import read_log  # noqa: E402
 from pipeline.records import RawLog  # noqa: E402
 from pipeline.sim import SensorSpec, chain, sea_trial, simulate  # noqa: E402
 from pipeline.sim.writers import write_log  # noqa: E402
+from pipeline.terminal import show_progress  # noqa: E402
 from pipeline.vessel import load_vessel  # noqa: E402
 
 VESSEL = ROOT / "vessel_configs" / "aauship.toml"
@@ -80,10 +80,6 @@ QUICK_S = 2.0
 #: Targets of issue 3.
 MAX_SECONDS_PER_HOUR = 20.0
 MIN_SPEEDUP = {"bin": 10.0, "ubx": 10.0}
-
-
-def _progress_enabled() -> bool:
-    return sys.stderr.isatty() and not os.environ.get("CI")
 
 
 def sensors() -> tuple[SensorSpec, ...]:
@@ -329,7 +325,7 @@ def main(argv=None) -> int:
         ap.error(f"expected formats among {FORMATS} and minutes > 0, found {unknown or args.minutes}")
     folder = args.dir or Path(tempfile.mkdtemp(prefix="vesselid-ingest-"))
     folder.mkdir(parents=True, exist_ok=True)
-    show = _progress_enabled()
+    show = show_progress()
     from tqdm import tqdm
 
     steps = ["simulate", "write"] + [f"time {f}" for f in formats]

@@ -16,7 +16,6 @@ import datetime
 import hashlib
 import json
 import math
-import os
 import sys
 import threading
 from dataclasses import asdict, dataclass, field, replace
@@ -33,16 +32,12 @@ from .ingest import read_log
 from .manifest import expand_logs
 from .records import Fits, Provenance, RawLog, Segment, Segments, Trial
 from .segment import apply_manifest_segments, detect_segments
+from .terminal import show_progress
 from .vessel import Vessel
 
 if TYPE_CHECKING:  # the later stages are imported where they run: they import this module themselves
     from .autopilot import AutopilotResult
     from .report import ReportPaths
-
-
-def show_progress() -> bool:
-    """Progress bars on an interactive terminal only; quiet under CI and when piped."""
-    return sys.stderr.isatty() and not os.environ.get("CI")
 
 
 #: A step shorter than this [s] shows no progress line at all.

@@ -15,9 +15,10 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from pipeline.errors import IngestError, SimError
-from pipeline.ingest.mavlink_tlog import VARIABLE_MAP, _want_progress, read_tlog
+from pipeline.ingest.mavlink_tlog import VARIABLE_MAP, read_tlog
 from pipeline.records import Channel, IngestSummary, RawLog
 from pipeline.sim.writers.tlog import write_tlog
+from pipeline.terminal import want_progress
 from pipeline.vessel import ActuatorMap, Vessel
 
 BOOT_OFFSET = 5.0  # [s], write_tlog's default boot_offset_ms / 1000
@@ -423,5 +424,7 @@ def test_progress_bar_and_ci_quiet(tmp_path, monkeypatch, capsys):
     read_tlog(path, VESSEL, progress=False)
     assert capsys.readouterr().err == ""
     monkeypatch.setenv("CI", "true")
-    assert _want_progress(None, 10**9) is False
-    assert _want_progress(True, 10) is True
+    assert want_progress(None, 10**9, 4 * 1024 * 1024) is False
+    assert want_progress(True, 10, 4 * 1024 * 1024) is True
+    monkeypatch.delenv("CI")
+    assert want_progress(None, 10, 4 * 1024 * 1024) is False  # a small file reads too fast for a bar

@@ -84,7 +84,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     int
         0 when every trial was processed or skipped, 1 when some failed (each recorded with its error).
     """
-    from ..flow import show_progress
+    from ..terminal import show_progress
     from .batch import run_batch
     from .html import write_catalog_pages
 

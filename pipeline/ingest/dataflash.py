@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
 import struct
 import sys
 from collections import Counter, defaultdict
@@ -61,7 +60,9 @@ import numpy as np
 from pymavlink.DFReader import FORMAT_TO_STRUCT, DFFormat, DFReader_binary, null_term
 
 from ..errors import IngestError
+from ..geo import wrap_pi
 from ..records import Channel, IngestSummary, RawLog
+from ..terminal import want_progress
 from ..vessel import ActuatorMap, Vessel
 from ._common import check_file, describe_failure
 from ._gpstime import GPS_EPOCH_UNIX, WEEK_S, leap_seconds, unix_text
@@ -527,16 +528,10 @@ def _check_units(p: Path, reader: _IndexedDFReader, types: Mapping[str, tuple[st
 
 
 # ----------------------------------------------------------------------------- build
-def _want_progress(progress: bool | None) -> bool:
-    if progress is not None:
-        return bool(progress)
-    if os.environ.get("CI"):
-        return False
-    return sys.stderr.isatty()
 
 
 def _bar(p: Path, total: int, progress: bool | None) -> Any:
-    if not _want_progress(progress):
+    if not want_progress(progress):
         return None
     from tqdm import tqdm
 
@@ -565,9 +560,6 @@ def _clean_times(tus: np.ndarray) -> np.ndarray:
     return out
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """Wrap angles [rad] to (-pi, pi]."""
-    return math.pi - np.mod(math.pi - np.asarray(angle, float), 2 * math.pi)
 
 
 def _split_instances(name: str, canon: str, cols: Mapping[str, np.ndarray]) -> list[tuple[int, np.ndarray]]:
@@ -646,7 +638,7 @@ def _build(p: Path, decoded: Mapping[str, Mapping[str, np.ndarray]],
         read[name] += int(used.sum())
         skipped[name] += int(n_msgs - used.sum())
     if impossible:
-        warnings.append(f"corrupted records dropped (no checksum in DataFlash): "
+        warnings.append("corrupted records dropped (no checksum in DataFlash): "
                         + ", ".join(f"{k} {v}" for k, v in sorted(impossible.items()))
                         + f" (plausible TimeUS span {lo_us * 1e-6:.1f}-{hi_us * 1e-6:.1f} s; instance <= "
                         f"{MAX_INSTANCE}; values within physical limits)")
@@ -720,7 +712,7 @@ def _channels(name: str, canon: str, inst: int, t: np.ndarray, cols: Mapping[str
         if canon == "ATT":
             for a in ("phi", "theta", "psi"):
                 if a in values:
-                    values[a] = _wrap(values[a])
+                    values[a] = wrap_pi(values[a])
         elif canon == "GPS":
             if "Status" in cols:
                 nofix = keep & (cols["Status"] < 2)
@@ -734,7 +726,7 @@ def _channels(name: str, canon: str, inst: int, t: np.ndarray, cols: Mapping[str
                     valid["lat"] = valid["lat"] & ~zero
                     valid["lon"] = valid["lon"] & ~zero
             if "cog" in values:
-                values["cog"] = _wrap(values["cog"])
+                values["cog"] = wrap_pi(values["cog"])
         elif canon == "POS" and "lat" in values and "lon" in values:
             zero = keep & (values["lat"] == 0) & (values["lon"] == 0)
             valid["lat"] = valid["lat"] & ~zero

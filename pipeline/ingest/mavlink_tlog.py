@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import math
 import mmap
-import os
 import struct
 import sys
 from collections import Counter, defaultdict
@@ -44,7 +43,9 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import IngestError
+from ..geo import wrap_pi
 from ..records import Channel, IngestSummary, RawLog
+from ..terminal import want_progress
 from ..vessel import ActuatorMap, Vessel
 from ._common import check_file
 from ._gpstime import unix_text
@@ -142,17 +143,8 @@ def _fields_of(msg_type: str) -> tuple[str, ...]:
     return tuple(fields)
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """Wrap angles [rad] to (-pi, pi]."""
-    return math.pi - np.mod(math.pi - np.asarray(angle, float), 2 * math.pi)
 
 
-def _want_progress(progress: bool | None, size: int) -> bool:
-    if progress is not None:
-        return bool(progress)
-    if os.environ.get("CI"):
-        return False
-    return size > _PROGRESS_MIN_BYTES and sys.stderr.isatty()
 
 
 class _Framer:
@@ -293,7 +285,7 @@ def read_tlog(path: str | Path, vessel: Vessel | None = None, progress: bool | N
     size = p.stat().st_size
     mav = _dialect()
     with open(p, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as buf:
-        rows, counts = _scan(p, buf, mav, _want_progress(progress, size))
+        rows, counts = _scan(p, buf, mav, want_progress(progress, size, _PROGRESS_MIN_BYTES))
     return _build(p, rows, counts, vessel)
 
 
@@ -554,7 +546,7 @@ def _channels(msg_type: str, t: np.ndarray, col: Mapping[str, np.ndarray], keep:
 
     if msg_type == "ATTITUDE":
         for name in ("phi", "theta", "psi"):
-            raw[name] = _wrap(raw[name])
+            raw[name] = wrap_pi(raw[name])
         out = raw
     elif msg_type == "GLOBAL_POSITION_INT":
         no_pos = (col["lat"] == 0) & (col["lon"] == 0)
@@ -567,7 +559,7 @@ def _channels(msg_type: str, t: np.ndarray, col: Mapping[str, np.ndarray], keep:
               "no fix (fix_type < 2)", dropped)
         _drop(valid, ("sog@gps",), (col["vel"] == _UINT16_MAX) & keep, "vel unknown (65535)", dropped)
         _drop(valid, ("cog@gps",), (col["cog"] == _UINT16_MAX) & keep, "cog unknown (65535)", dropped)
-        raw["cog@gps"] = _wrap(raw["cog@gps"])
+        raw["cog@gps"] = wrap_pi(raw["cog@gps"])
         out = raw
     elif msg_type in INPUT_MESSAGES:
         out, valid = _inputs(msg_type, col, keep, maps, warnings, dropped)

@@ -61,9 +61,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
 import re
-import sys
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from datetime import date, datetime, timedelta, timezone
@@ -75,7 +73,8 @@ import numpy as np
 
 from ..errors import IngestError
 from ..records import ANGLE_CHANNELS, Channel, IngestSummary, RawLog
-from ._common import check_file, describe_failure, increasing
+from ..terminal import want_progress
+from ._common import check_file, describe_failure
 
 _DEG = math.pi / 180.0
 _KNOT = 1852.0 / 3600.0   # [m/s] per knot
@@ -180,12 +179,6 @@ def looks_like_nmea(path: str | Path, nbytes: int = 4096) -> bool:
     return any(nmea_checksum(m.group(0)[1:-3]) == int(m.group(3), 16) for m in _SENTENCE_RE.finditer(head))
 
 
-def _want_progress(progress: bool | None, size: int) -> bool:
-    if progress is not None:
-        return bool(progress)
-    if os.environ.get("CI"):
-        return False
-    return size > _PROGRESS_MIN_BYTES and sys.stderr.isatty()
 
 
 def _time_of_day(s: str) -> float:
@@ -749,7 +742,7 @@ def read_nmea(path: str | Path, sensor: str = "", progress: bool | None = None) 
 
     lines = data.splitlines()
     it = lines
-    if _want_progress(progress, len(data)):
+    if want_progress(progress, len(data), _PROGRESS_MIN_BYTES):
         from tqdm import tqdm
 
         it = tqdm(lines, desc=p.name, unit="line", leave=False)

@@ -57,9 +57,7 @@ stamps and ``trial`` for stamps from a clock that starts near zero (simulation t
 from __future__ import annotations
 
 import math
-import os
 import re
-import sys
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -71,6 +69,7 @@ import numpy as np
 
 from ..errors import IngestError
 from ..records import ANGLE_CHANNELS, CHANNEL_UNITS, INPUT_UNITS, Channel, IngestSummary, RawLog
+from ..terminal import want_progress
 from ._common import describe_failure, increasing
 
 #: Roles a topic can have (besides ``float64:<channel>``).
@@ -492,12 +491,6 @@ def _check_path(path: str | Path) -> Path:
     return p
 
 
-def _want_progress(progress: bool | None, size: int) -> bool:
-    if progress is not None:
-        return bool(progress)
-    if os.environ.get("CI"):
-        return False
-    return size > _PROGRESS_MIN_BYTES and sys.stderr.isatty()
 
 
 def _size(p: Path) -> int:
@@ -642,7 +635,7 @@ def _read_open(p: Path, reader: Any, fallback: Any, roles_given: Mapping[str, Ro
     wanted = [c for t in topics for c in conns_by_topic[t]]
     total = sum(topics[t].count for t in topics)
     stream = reader.messages(connections=wanted)
-    if _want_progress(progress, _size(p)):
+    if want_progress(progress, _size(p), _PROGRESS_MIN_BYTES):
         from tqdm import tqdm
 
         stream = tqdm(stream, total=total, desc=p.name, unit="msg", leave=False)

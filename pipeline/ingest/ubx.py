@@ -69,7 +69,6 @@ accurate to about one IMU sample when ESF-RAW is output promptly; the offset is 
 from __future__ import annotations
 
 import math
-import os
 import re
 import struct
 import sys
@@ -84,7 +83,9 @@ from pyubx2.exceptions import UBXMessageError, UBXParseError, UBXTypeError
 from pyubx2.ubxtypes_core import SCALROUND, UBX_MSGIDS
 
 from ..errors import IngestError
+from ..geo import wrap_pi
 from ..records import Channel, IngestSummary, RawLog
+from ..terminal import want_progress
 from ._common import check_file
 from ._gpstime import GPS_EPOCH_UNIX, WEEK_S, leap_seconds, unix_text
 from .nmea import nmea_rawlog, parse_nmea
@@ -256,16 +257,8 @@ def _increasing(t: np.ndarray) -> np.ndarray:
     return ok
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    return math.pi - np.mod(math.pi - np.asarray(angle, float), 2 * math.pi)
 
 
-def _want_progress(progress: bool | None) -> bool:
-    if progress is not None:
-        return bool(progress)
-    if os.environ.get("CI"):
-        return False
-    return sys.stderr.isatty()
 
 
 # ----------------------------------------------------------------------------- reader
@@ -354,7 +347,7 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
     # pyubx2 an hour of 100 Hz ESF-RAW took ~25 s, as long as the plain pyubx2 loop. Other
     # RELPOSNED versions (rare) still go through pyubx2, one message at a time.
     bar = None
-    if _want_progress(progress):
+    if want_progress(progress):
         from tqdm import tqdm
 
         bar = tqdm(total=len(starts), unit="msg", unit_scale=True, desc=p.name, file=sys.stderr,
@@ -541,7 +534,7 @@ def _pvt_channels(pvt: np.ndarray, t_ms: np.ndarray, suffix: str, src_note: str,
         warnings.append(f"NAV-PVT: {dup} message(s) with a duplicate or out-of-order iTOW skipped (first kept)")
     values = {base: pvt[f].astype(np.float64) * scale
               for (m, f), (base, scale) in VARIABLE_MAP.items() if m == "NAV-PVT"}
-    values["cog"] = _wrap(values["cog"])
+    values["cog"] = wrap_pi(values["cog"])
     for base, v in values.items():
         if not inc.any():
             break
@@ -573,7 +566,7 @@ def _relposned_channels(rel: list, t_ms: np.ndarray, itow: np.ndarray, suffix: s
         warnings.append(f"NAV-RELPOSNED: {dup} message(s) with a duplicate or out-of-order iTOW skipped (first kept)")
     base, scale = VARIABLE_MAP[("NAV-RELPOSNED", "relPosHeading")]
     if inc.any():
-        chans[base + suffix] = Channel(base + suffix, t[inc], _wrap(head[inc] * scale),
+        chans[base + suffix] = Channel(base + suffix, t[inc], wrap_pi(head[inc] * scale),
                                        source=f"NAV-RELPOSNED ({src_note})")
     read["NAV-RELPOSNED"] += int(inc.sum())
     skipped["NAV-RELPOSNED"] += int(len(decoded) - inc.sum())
@@ -790,7 +783,7 @@ def _parsed_channels(parsed: list, names: list, t_ms: np.ndarray, suffix: str, s
                                 "iTOW skipped (first kept)")
             v = arr[ok, 1]
             if base in ("phi", "theta", "psi", "cog"):
-                v = _wrap(v)
+                v = wrap_pi(v)
             chans[base + tag] = Channel(base + tag, arr[ok, 0], v, source=f"{name} ({src_note})")
 
 
@@ -862,7 +855,7 @@ def _nmea_inside(lines: list[bytes], chans: dict, read: Counter, skipped: Counte
     for name, (t_abs, values, sids) in res.merged.items():
         key = name + suffix if name + suffix not in chans else f"{name}@nmea"
         if name in ("phi", "theta", "psi", "cog"):
-            values = _wrap(values)
+            values = wrap_pi(values)
         chans[key] = Channel(key, np.array([res.clock.unix(x) for x in t_abs]) - start_time, values,
                              source=f"NMEA inside UBX ({sids})")
     warnings.extend(f"NMEA: {w}" for w in res.warnings if w.startswith(("sentence types", "fix stats")))

@@ -40,11 +40,11 @@ from __future__ import annotations
 import math
 from collections import Counter
 from pathlib import Path
-from typing import Any, Mapping
 
 import numpy as np
 
 from ..errors import IngestError
+from ..geo import wrap_pi
 from ..records import Channel, IngestSummary, RawLog
 from ..vessel import Vessel
 from ._common import check_file, describe_failure
@@ -76,8 +76,6 @@ _SHORT = {"vehicle_attitude": "att", "vehicle_angular_velocity": "rate", "sensor
           "vehicle_gps_position": "gps", "sensor_gps": "gps", "vehicle_local_position": "ekf"}
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    return math.pi - np.mod(math.pi - np.asarray(angle, float), 2 * math.pi)
 
 
 def quaternion_to_euler(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -100,7 +98,7 @@ def quaternion_to_euler(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     phi = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
     theta = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
     psi = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return phi, theta, _wrap(psi)
+    return phi, theta, wrap_pi(psi)
 
 
 def _strict(t: np.ndarray) -> np.ndarray:
@@ -223,7 +221,7 @@ def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
             if "vel_m_s" in data:
                 add("sog", topic, inst, t[good], data["vel_m_s"][good], f"{topic}.vel_m_s")
             if "cog_rad" in data:
-                add("cog", topic, inst, t[good], _wrap(data["cog_rad"][good]), f"{topic}.cog_rad")
+                add("cog", topic, inst, t[good], wrap_pi(data["cog_rad"][good]), f"{topic}.cog_rad")
             if "time_utc_usec" in data:
                 utc = data["time_utc_usec"].astype(np.int64)
                 ok = good & (utc > 0)
@@ -239,7 +237,7 @@ def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
             if v_ok.any():
                 vx, vy = data["vx"][v_ok].astype(float), data["vy"][v_ok].astype(float)
                 add("sog@ekf", topic, inst, t[v_ok], np.hypot(vx, vy), f"{topic}.vx,vy")
-                add("cog@ekf", topic, inst, t[v_ok], _wrap(np.arctan2(vy, vx)), f"{topic}.vx,vy")
+                add("cog@ekf", topic, inst, t[v_ok], wrap_pi(np.arctan2(vy, vx)), f"{topic}.vx,vy")
             used |= xy_ok | v_ok
             if (keep & ~(xy_ok | v_ok)).any():
                 skipped[f"{topic} invalid (xy_valid and v_xy_valid false)"] += int((keep & ~(xy_ok | v_ok)).sum())
