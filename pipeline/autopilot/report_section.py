@@ -11,6 +11,7 @@ import html
 import math
 from typing import Mapping
 
+from ..text_format import number, plus_minus
 from .closed_loop import CASE_LABELS, CASES
 from .design import AutopilotResult
 
@@ -21,17 +22,11 @@ ZERO = 1e-9
 
 
 def _f(x, fmt: str = ".4g", unit: str = "") -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "&mdash;"
-    if abs(x) < ZERO:
-        x = 0.0
-    return f"{x:{fmt}}{(' ' + unit) if unit else ''}"
+    return number(x, fmt, missing="&mdash;", unit=unit, zero=ZERO)
 
 
 def _pm(v: float, se: float, fmt: str = ".4g", unit: str = "") -> str:
-    if se is None or not math.isfinite(se):
-        return _f(v, fmt, unit) + " (no standard error)"
-    return f"{v:{fmt}} &plusmn; {se:.2g}{(' ' + unit) if unit else ''}"
+    return plus_minus(v, se, fmt, unit=unit, missing="&mdash;", no_stderr=" (no standard error)")
 
 
 def _img(png: bytes, alt: str) -> str:

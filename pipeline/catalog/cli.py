@@ -10,6 +10,7 @@ import math
 import shlex
 from pathlib import Path
 
+from ..text_format import number
 from .errors import CatalogError
 from .schema import DEFAULT_CATALOG
 
@@ -161,11 +162,8 @@ def add_catalog_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _f(x, digits: int = 5) -> str:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return "-"
-    return f"{v:.{digits}g}" if math.isfinite(v) else "-"
+    """A number with ``digits`` significant digits for the terminal tables, ``-`` when missing."""
+    return number(x, f".{digits}g", missing="-")
 
 
 def cmd_catalog_list(args: argparse.Namespace) -> int:

@@ -7,7 +7,6 @@ trials' own report folders, which are relative so the pages and reports can move
 from __future__ import annotations
 
 import base64
-import html
 import io
 import math
 import os
@@ -16,6 +15,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..atomic import atomic_path
+from ..text_format import esc, plus_minus
 from .stats import coefficient_trend, plot_trend
 from .store import Catalog
 
@@ -29,14 +29,6 @@ _STYLE = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#2
           "th{background:#eee}td.l{text-align:left}.failed{background:#fdd}.sig{color:#b00;font-weight:bold}")
 
 
-def _fmt(x, digits: int = 4) -> str:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return ""
-    return f"{v:.{digits}g}" if math.isfinite(v) else ""
-
-
 def _png(fig) -> str:
     import matplotlib.pyplot as plt
 
@@ -47,8 +39,8 @@ def _png(fig) -> str:
 
 
 def _page(title: str, body: str) -> str:
-    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<style>{_STYLE}</style></head><body><h1>{html.escape(title)}</h1>{body}</body></html>\n")
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{esc(title)}</title>"
+            f"<style>{_STYLE}</style></head><body><h1>{esc(title)}</h1>{body}</body></html>\n")
 
 
 def _write(path: Path, text: str) -> None:
@@ -68,21 +60,21 @@ def _vessel_page(cat: Catalog, vessel: str, trials: pd.DataFrame, out_dir: Path)
     diag = {r.trial_id: (r.effect or r.status) for r in diag.itertuples()}
     rows = []
     for t in trials.itertuples():
-        link = html.escape(t.name)
+        link = esc(t.name)
         if isinstance(t.report_dir, str) and (Path(t.report_dir) / "report.html").exists():
             rel = os.path.relpath(Path(t.report_dir) / "report.html", out_dir)
-            link = f"<a href='{html.escape(rel)}'>{html.escape(t.name)}</a>"
+            link = f"<a href='{esc(rel)}'>{esc(t.name)}</a>"
         date = "" if pd.isna(t.started_utc) else pd.Timestamp(t.started_utc).strftime("%Y-%m-%d %H:%M")
         place = "" if pd.isna(t.lat) else f"{t.lat:.4f}, {t.lon:.4f}"
-        cells = [link, date, place, html.escape(t.status if t.status == "ok" else f"failed: {t.error}"),
-                 html.escape(t.package_version), html.escape(str(t.mode or "")), html.escape(str(diag.get(t.trial_id, "")))]
+        cells = [link, date, place, esc(t.status if t.status == "ok" else f"failed: {t.error}"),
+                 esc(t.package_version), esc(str(t.mode or "")), esc(str(diag.get(t.trial_id, "")))]
         for c in shown:
             m = coefs[(coefs["trial_id"] == t.trial_id) & (coefs["name"] == c)]
-            cells.append(f"{_fmt(m['value'].iloc[0])} ± {_fmt(m['stderr'].iloc[0], 2)}" if len(m) else "")
+            cells.append(plus_minus(m["value"].iloc[0], m["stderr"].iloc[0], sign=" ± ", missing="") if len(m) else "")
         cls = " class='failed'" if t.status != "ok" else ""
         rows.append(f"<tr{cls}>" + "".join(f"<td class='l'>{c}</td>" if i < 7 else f"<td>{c}</td>"
                                             for i, c in enumerate(cells)) + "</tr>")
-    table = ("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>")
+    table = ("<table><tr>" + "".join(f"<th>{esc(h)}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>")
     plots = []
     for c in [n for n in counts.index if counts[n] >= 3][:MAX_TRENDS]:
         for tr in coefficient_trend(cat, c, vessel):
@@ -90,8 +82,8 @@ def _vessel_page(cat: Catalog, vessel: str, trials: pd.DataFrame, out_dir: Path)
                     f"{100 * tr.rel_slope_se:.2g} % per {tr.x_unit}), p = {tr.p_value:.3g}; x = {tr.x_label}; {tr.note}"
                     if math.isfinite(tr.slope) else tr.note)
             cls = " class='sig'" if tr.significant else ""
-            plots.append(f"<h3>{html.escape(c)}</h3><p{cls}>{'significant drift: ' if tr.significant else ''}"
-                         f"{html.escape(text)}</p><img src='data:image/png;base64,{_png(plot_trend(tr))}'>")
+            plots.append(f"<h3>{esc(c)}</h3><p{cls}>{'significant drift: ' if tr.significant else ''}"
+                         f"{esc(text)}</p><img src='data:image/png;base64,{_png(plot_trend(tr))}'>")
     return _page(f"vesselid catalogue: {vessel}",
                  f"<p>{len(trials)} trial(s); values ± standard error. Trend plots: coefficients identified in 3 or "
                  f"more trials, weighted straight-line drift, 95% band of the slope dotted.</p>{table}"
@@ -125,8 +117,8 @@ def write_catalog_pages(cat: Catalog, out_dir: str | Path) -> list[Path]:
         _write(page, _vessel_page(cat, vessel, g, out_dir))
         written.append(page)
         n_ok = int((g["status"] == "ok").sum())
-        items.append(f"<li><a href='{html.escape(page.name)}'>{html.escape(vessel)}</a>: {len(g)} trial(s), "
+        items.append(f"<li><a href='{esc(page.name)}'>{esc(vessel)}</a>: {len(g)} trial(s), "
                      f"{n_ok} processed, {len(g) - n_ok} failed</li>")
     index = out_dir / "index.html"
-    _write(index, _page("vesselid catalogue", f"<p>Catalogue {html.escape(str(cat.path))}.</p><ul>{''.join(items)}</ul>"))
+    _write(index, _page("vesselid catalogue", f"<p>Catalogue {esc(str(cat.path))}.</p><ul>{''.join(items)}</ul>"))
     return [index] + written

@@ -6,22 +6,14 @@ Every text that comes from data is escaped; figures are referenced by the file n
 
 from __future__ import annotations
 
-import html
 import math
 from typing import Mapping
 
 from .figures import figure_names
 from ..records import CandidateResult, EffectParam, GapReport
+from ..text_format import esc as _e, number as _num
 
 TITLE = "Sim-to-real gap"
-
-
-def _e(text) -> str:
-    return html.escape(str(text), quote=True)
-
-
-def _num(x: float, fmt: str = ".3g") -> str:
-    return format(x, fmt) if x is not None and math.isfinite(x) else "n/a"
 
 
 def _param(p: EffectParam) -> str:

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import ReportError
 from ..records import DOFS, Fits, Provenance, Segment, Trial
+from ..text_format import esc
 from .rows import Formatted, check_fits, checked_matrices, coefficient_rows, finite, format_uncertain, \
     note_labels
 from .summary import SummaryRow, method_key, method_label
@@ -63,11 +64,6 @@ pre { background: #f7f7f7; padding: .5em; overflow-x: auto; font-size: .85em; }
 """
 
 
-def _esc(text) -> str:
-    """``html.escape`` of ``str(text)``, quotes included."""
-    return html.escape(str(text), quote=True)
-
-
 def _html_symbol(name: str) -> str:
     """``X_u`` -> ``X<sub>u</sub>``; Nomoto K and T named; anything else escaped as is."""
     if name == "K_nomoto":
@@ -76,15 +72,15 @@ def _html_symbol(name: str) -> str:
         return "<i>T</i> (Nomoto)"
     head, sep, sub = name.partition("_")
     if sep and re.fullmatch(r"[A-Za-z]", head) and (re.fullmatch(r"[A-Za-z0-9]+", sub) or sub in GREEK):
-        sub_txt = f"&{sub};" if sub in GREEK else _esc(sub)
-        return f"<i>{_esc(head)}</i><sub>{sub_txt}</sub>"
-    return _esc(name)
+        sub_txt = f"&{sub};" if sub in GREEK else esc(sub)
+        return f"<i>{esc(head)}</i><sub>{sub_txt}</sub>"
+    return esc(name)
 
 
 def _html_unit(unit: str) -> str:
     """``kg m^2/s`` -> ``kg&nbsp;m<sup>2</sup>/s``, escaped."""
     pieces = re.split(r"\^(-?\d+)", str(unit))
-    return "".join(f"<sup>{p}</sup>" if k % 2 else _esc(p).replace(" ", "&nbsp;") for k, p in enumerate(pieces))
+    return "".join(f"<sup>{p}</sup>" if k % 2 else esc(p).replace(" ", "&nbsp;") for k, p in enumerate(pieces))
 
 
 def _html_number(f: Formatted) -> str:
@@ -92,8 +88,8 @@ def _html_number(f: Formatted) -> str:
     core = f"{f.value} ± {f.stderr}" if f.stderr is not None else f.value
     if f.exponent:
         core = (f"({core})" if f.stderr is not None else core)
-        return _esc(core) + f"×10<sup>{f.exponent}</sup>"
-    return _esc(core)
+        return esc(core) + f"×10<sup>{f.exponent}</sup>"
+    return esc(core)
 
 
 def _html_ci(f: Formatted | None) -> str:
@@ -101,7 +97,7 @@ def _html_ci(f: Formatted | None) -> str:
     if f is None or f.ci is None:
         return "n/a"
     tail = f"×10<sup>{f.exponent}</sup>" if f.exponent else ""
-    return _esc(f"[{f.ci[0]}, {f.ci[1]}]") + tail
+    return esc(f"[{f.ci[0]}, {f.ci[1]}]") + tail
 
 
 def method_footnotes(fits: Fits) -> dict[str, int]:
@@ -141,16 +137,16 @@ def coefficient_table_html(fits: Fits, added_mass: Mapping[str, float] | None = 
     labels = note_labels(rows)
     methods = method_footnotes(fits)
     out = ['<table class="coefficients" id="coefficient-table">',
-           f"<caption>Identified hydrodynamic coefficients of {_esc(fits.vessel)}, SI units as listed per "
+           f"<caption>Identified hydrodynamic coefficients of {esc(fits.vessel)}, SI units as listed per "
            f"row, with standard errors and 95&nbsp;% confidence intervals. Sign convention: "
-           f"{_esc(fits.convention)} Letters: notes; numbers: methods, below.</caption>",
+           f"{esc(fits.convention)} Letters: notes; numbers: methods, below.</caption>",
            "<thead><tr><th>Coefficient</th><th>Value ± std. error</th><th>95&nbsp;% CI</th><th>Unit</th>"
            "<th>Segments</th><th>Method</th></tr></thead>", "<tbody>"]
     for row in rows:
         marks = "".join(f"<sup>{labels[n]}</sup>" for n in row.notes)
         if row.method:
             k = methods[method_key(row.method)]
-            method = f'{_esc(method_label(row.method))}&nbsp;<a href="#method-{k}">[{k}]</a>'
+            method = f'{esc(method_label(row.method))}&nbsp;<a href="#method-{k}">[{k}]</a>'
         else:
             method = "--"
         if row.identified:
@@ -162,13 +158,13 @@ def coefficient_table_html(fits: Fits, added_mass: Mapping[str, float] | None = 
                    f'<td class="num">{row.n_segments}</td><td>{method}</td></tr>')
     out.append("</tbody></table>")
     if labels:
-        out.append('<details class="notes"><summary>Notes a&ndash;' + _esc(list(labels.values())[-1])
+        out.append('<details class="notes"><summary>Notes a&ndash;' + esc(list(labels.values())[-1])
                    + '</summary><ol type="a">')
-        out += [f"<li>{_esc(note)}</li>" for note in labels]
+        out += [f"<li>{esc(note)}</li>" for note in labels]
         out.append("</ol></details>")
     if methods:
         out.append('<div class="methods"><p><b>Methods</b></p><ol>')
-        out += [f'<li id="method-{k}">{_esc(text)}</li>' for text, k in methods.items()]
+        out += [f'<li id="method-{k}">{esc(text)}</li>' for text, k in methods.items()]
         out.append("</ol></div>")
     return "\n".join(out)
 
@@ -188,8 +184,8 @@ def damping_table_html(fits: Fits) -> str:
     """
     D, D_se = checked_matrices(fits)
     out = ['<table class="damping" id="damping-matrix">',
-           f"<caption>Linear damping matrix <i>D</i> of {_esc(fits.vessel)} in M&nbsp;ν̇ + D&nbsp;ν = τ; rows "
-           f"force/moment, columns velocity, DOF order {_esc(', '.join(DOFS))}; D<sub>ij</sub> is minus the "
+           f"<caption>Linear damping matrix <i>D</i> of {esc(fits.vessel)} in M&nbsp;ν̇ + D&nbsp;ν = τ; rows "
+           f"force/moment, columns velocity, DOF order {esc(', '.join(DOFS))}; D<sub>ij</sub> is minus the "
            f"hydrodynamic derivative (positive diagonal). Units: kg/s (force per speed), kg&nbsp;m/s "
            f"(force per rate, moment per speed), kg&nbsp;m<sup>2</sup>/s (moment per rate). "
            f"-- : not identified; an entry without ± has no standard error.</caption>",
@@ -231,10 +227,10 @@ def segment_table_html(segments: Sequence[Segment]) -> str:
         inp = "--" if s.input_channel is None else (
             f"{s.input_channel}: {s.input_before:.4g} → {s.input_after:.4g}")
         quality = f"{s.quality:.2f}" if finite(s.quality) else "n/a"
-        out.append(f"<tr><td class=\"num\">{k}</td><td>{_esc(s.kind)}</td><td>{_esc(s.dof)}</td>"
+        out.append(f"<tr><td class=\"num\">{k}</td><td>{esc(s.kind)}</td><td>{esc(s.dof)}</td>"
                    f'<td class="num">{s.t_start:.2f}</td><td class="num">{s.t_end:.2f}</td>'
-                   f'<td class="num">{s.duration:.2f}</td><td>{_esc(inp)}</td><td class="num">{quality}</td>'
-                   f"<td>{_esc(s.origin)}</td><td>{_esc(s.label)}</td></tr>")
+                   f'<td class="num">{s.duration:.2f}</td><td>{esc(inp)}</td><td class="num">{quality}</td>'
+                   f"<td>{esc(s.origin)}</td><td>{esc(s.label)}</td></tr>")
     out.append("</tbody></table>")
     return "\n".join(out)
 
@@ -275,7 +271,7 @@ def runs_table_html(trial: Trial) -> str:
            "<th>Duration [s]</th><th>Absolute start</th><th>Why grouped so</th></tr></thead>", "<tbody>"]
     for k, run in enumerate(runs):
         files = "<br>".join(
-            f"{_esc(src)} ({run.offsets.get(src, 0.0):+.3f} ± {run.offset_stderr.get(src, 0.0):.2g})"
+            f"{esc(src)} ({run.offsets.get(src, 0.0):+.3f} ± {run.offset_stderr.get(src, 0.0):.2g})"
             for src in run.sources) or "--"
         if finite(run.start_time):
             when = _utc_text(run.start_time)
@@ -283,9 +279,9 @@ def runs_table_html(trial: Trial) -> str:
             when = _time_of_day_text(run.time_of_day)
         else:
             when = "unknown (no absolute clock)"
-        out.append(f'<tr><td class="num">{k}</td><td>{_esc(run.name)}</td><td>{files}</td>'
+        out.append(f'<tr><td class="num">{k}</td><td>{esc(run.name)}</td><td>{files}</td>'
                    f'<td class="num">{run.t_start:.2f}</td><td class="num">{run.t_end:.2f}</td>'
-                   f'<td class="num">{run.duration:.2f}</td><td>{_esc(when)}</td><td>{_esc(run.reason)}</td></tr>')
+                   f'<td class="num">{run.duration:.2f}</td><td>{esc(when)}</td><td>{esc(run.reason)}</td></tr>')
     out.append("</tbody></table>")
     return "\n".join(out)
 
@@ -303,17 +299,17 @@ def trial_section_html(trial: Trial) -> str:
     str
         HTML fragment.
     """
-    out = [f"<p>Trial <b>{_esc(trial.name)}</b>, {len(trial.data)} samples at {trial.fs:g} Hz.</p>",
+    out = [f"<p>Trial <b>{esc(trial.name)}</b>, {len(trial.data)} samples at {trial.fs:g} Hz.</p>",
            runs_table_html(trial)]
     if trial.sources:
-        out.append("<p>Sources:</p><ul>" + "".join(f"<li>{_esc(s)}</li>" for s in trial.sources) + "</ul>")
+        out.append("<p>Sources:</p><ul>" + "".join(f"<li>{esc(s)}</li>" for s in trial.sources) + "</ul>")
     if trial.gaps:
         out.append("<p>Data gaps:</p><ul>" + "".join(
-            f"<li>{_esc(g.channel)}: {g.t_start:.2f}-{g.t_end:.2f} s</li>" for g in trial.gaps) + "</ul>")
+            f"<li>{esc(g.channel)}: {g.t_start:.2f}-{g.t_end:.2f} s</li>" for g in trial.gaps) + "</ul>")
     if trial.notes:
-        out.append("<p>Alignment notes:</p><ul>" + "".join(f"<li>{_esc(n)}</li>" for n in trial.notes) + "</ul>")
+        out.append("<p>Alignment notes:</p><ul>" + "".join(f"<li>{esc(n)}</li>" for n in trial.notes) + "</ul>")
     if trial.summaries:
-        out.append("<pre>" + _esc("\n".join(s.text() for s in trial.summaries)) + "</pre>")
+        out.append("<pre>" + esc("\n".join(s.text() for s in trial.summaries)) + "</pre>")
     return "\n".join(out)
 
 
@@ -363,16 +359,16 @@ def summary_html(rows: Sequence[SummaryRow], headline: str = "", n_warnings: int
            '<table class="summary"><thead><tr><th>Quantity</th><th>Value ± std. error</th><th>95&nbsp;% CI</th>'
            "<th>Unit</th><th>Flags</th></tr></thead><tbody>"]
     for r in rows:
-        flags = "; ".join(_esc(f) for f in r.flags)
+        flags = "; ".join(esc(f) for f in r.flags)
         if r.name:
-            out.append(f"<tr><td>{_esc(r.label)}</td><td class=\"num\">{_esc(r.value)}</td>"
-                       f"<td class=\"num\">{_esc(r.ci)}</td><td>{_html_unit(r.unit)}</td>"
+            out.append(f"<tr><td>{esc(r.label)}</td><td class=\"num\">{esc(r.value)}</td>"
+                       f"<td class=\"num\">{esc(r.ci)}</td><td>{_html_unit(r.unit)}</td>"
                        f'<td class="flag">{flags}</td></tr>')
         else:
-            out.append(f'<tr><td>{_esc(r.label)}</td><td colspan="4">{_esc(r.value)}</td></tr>')
+            out.append(f'<tr><td>{esc(r.label)}</td><td colspan="4">{esc(r.value)}</td></tr>')
     out.append("</tbody></table>")
     if headline:
-        out.append(f'<p class="headline"><b>Sim-to-real gap:</b> {_esc(headline)} '
+        out.append(f'<p class="headline"><b>Sim-to-real gap:</b> {esc(headline)} '
                    f'<a href="#sec-sim-to-real-gap">details</a></p>')
     if n_warnings:
         out.append(f'<p class="headline flag"><a href="#warnings">{n_warnings} warning'
@@ -401,7 +397,7 @@ def quality_table_html(fits: Fits, qualities: Sequence) -> str:
         pct = f"{q.fit_percent:.1f}" if finite(q.fit_percent) else "n/a"
         rmse = f"{sf.rmse:.3g}" if finite(sf.rmse) else "n/a"
         if q.resid is None:
-            white = indep = f"not tested: {_esc(q.message)}"
+            white = indep = f"not tested: {esc(q.message)}"
         else:
             white = ("yes" if q.resid.white else '<span class="flag">no</span>') + \
                 f" ({q.resid.ljung_box_p:.2g})"
@@ -411,9 +407,9 @@ def quality_table_html(fits: Fits, qualities: Sequence) -> str:
             else:
                 indep = "constant input"
         status = "" if sf.success else ' <span class="flag">failed</span>'
-        out.append(f'<tr><td class="num"><a href="#fit-{i}">{i}</a></td><td>{_esc(seg.kind)}/{_esc(seg.dof)} '
-                   f"{seg.t_start:.1f}-{seg.t_end:.1f}&nbsp;s{status}</td><td>{_esc(sf.model)}</td>"
-                   f'<td>{_esc(sf.channel)}</td><td class="num">{pct}</td><td class="num">{rmse}</td>'
+        out.append(f'<tr><td class="num"><a href="#fit-{i}">{i}</a></td><td>{esc(seg.kind)}/{esc(seg.dof)} '
+                   f"{seg.t_start:.1f}-{seg.t_end:.1f}&nbsp;s{status}</td><td>{esc(sf.model)}</td>"
+                   f'<td>{esc(sf.channel)}</td><td class="num">{pct}</td><td class="num">{rmse}</td>'
                    f"<td>{white}</td><td>{indep}</td></tr>")
     out.append("</tbody></table>")
     return "\n".join(out)
@@ -432,8 +428,8 @@ def correlation_table_html(names: Sequence[str], corr: np.ndarray, caption: str)
         Table caption (plain text).
     """
     if corr.size == 0 or corr.shape[0] != len(names):
-        return f"<p>{_esc(caption)}: no covariance available.</p>"
-    head = "".join(f"<th>{_esc(n)}</th>" for n in names)
+        return f"<p>{esc(caption)}: no covariance available.</p>"
+    head = "".join(f"<th>{esc(n)}</th>" for n in names)
     rows = []
     for i, n in enumerate(names):
         cells = []
@@ -442,8 +438,8 @@ def correlation_table_html(names: Sequence[str], corr: np.ndarray, caption: str)
             txt = f"{x:.2f}" if finite(x) else "n/a"
             cls = ' class="num flag"' if (i != j and finite(x) and abs(x) > 0.9) else ' class="num"'
             cells.append(f"<td{cls}>{txt}</td>")
-        rows.append(f"<tr><th>{_esc(n)}</th>{''.join(cells)}</tr>")
-    return (f'<table class="correlation"><caption>{_esc(caption)} (|&rho;| &gt; 0.9 marked).</caption>'
+        rows.append(f"<tr><th>{esc(n)}</th>{''.join(cells)}</tr>")
+    return (f'<table class="correlation"><caption>{esc(caption)} (|&rho;| &gt; 0.9 marked).</caption>'
             f"<thead><tr><th></th>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>")
 
 
@@ -458,11 +454,11 @@ def footer_html(provenance: Provenance | None) -> str:
     from .. import __version__
 
     if provenance is None:
-        return f"<footer><p>vesselid {_esc(__version__)}</p></footer>"
-    files = "".join(f"<li><code>{_esc(h[:16]) or 'unreadable'}</code>&hellip; {_esc(p)}</li>"
+        return f"<footer><p>vesselid {esc(__version__)}</p></footer>"
+    files = "".join(f"<li><code>{esc(h[:16]) or 'unreadable'}</code>&hellip; {esc(p)}</li>"
                     for p, h in provenance.inputs)
-    return (f"<footer><p>{_esc(provenance.version)} &middot; created {_esc(provenance.created)} &middot; "
-            f"command: <code>{_esc(provenance.command)}</code></p>"
+    return (f"<footer><p>{esc(provenance.version)} &middot; created {esc(provenance.created)} &middot; "
+            f"command: <code>{esc(provenance.command)}</code></p>"
             + (f"<p>Inputs (SHA-256, first 16 hex digits):</p><ul>{files}</ul>" if files else "") + "</footer>")
 
 
@@ -525,17 +521,17 @@ def render_html(fits: Fits, figures: Sequence[tuple[str, str]] = (), segments: S
     extra = check_extra_sections(extra_sections)
     title = f"vesselid report: {fits.vessel}"
     sections: list[tuple[str, str]] = []
-    warn = ('<ul class="warnings">' + "".join(f"<li>{_esc(w)}</li>" for w in warnings) + "</ul>") if warnings \
+    warn = ('<ul class="warnings">' + "".join(f"<li>{esc(w)}</li>" for w in warnings) + "</ul>") if warnings \
         else "<p>No warnings: every coefficient was identified with an error bar and white residuals.</p>"
     if notes:
         warn += (f"<details><summary>{len(notes)} notes (information, nothing to act on)</summary><ul>"
-                 + "".join(f"<li>{_esc(n)}</li>" for n in notes) + "</ul></details>")
+                 + "".join(f"<li>{esc(n)}</li>" for n in notes) + "</ul></details>")
     sections.append(("Warnings", warn))
     if trial is not None:
         sections.append(("Data", trial_section_html(trial)))
     seg_html = ""
     if overview:
-        seg_html += (f'<figure><img src="{_esc(overview)}" alt="trial overview with segments">'
+        seg_html += (f'<figure><img src="{esc(overview)}" alt="trial overview with segments">'
                      f"<figcaption>The trial's main channels with the {len(segments)} segments shaded and numbered "
                      f"as in the table; angles in degrees.</figcaption></figure>")
     sections.append(("Segments", seg_html + segment_table_html(segments)))
@@ -552,17 +548,17 @@ def render_html(fits: Fits, figures: Sequence[tuple[str, str]] = (), segments: S
         q = qualities[i] if i < len(qualities) else None
         inner = []
         if fig:
-            inner.append(f'<img src="{_esc(fig)}" alt="fit {i}: data, fit and residual">')
+            inner.append(f'<img src="{esc(fig)}" alt="fit {i}: data, fit and residual">')
         if res:
-            inner.append(f'<img src="{_esc(res)}" alt="fit {i}: residual autocorrelation and input '
+            inner.append(f'<img src="{esc(res)}" alt="fit {i}: residual autocorrelation and input '
                          f'cross-correlation with 95 % bands">')
         if q is not None and len(sf.param_names) > 1:
             inner.append(correlation_table_html(sf.param_names, q.correlation,
                                                 f"fit {i}: parameter correlation"))
         pct = f", fit {q.fit_percent:.1f} %" if q is not None and finite(q.fit_percent) else ""
         seg = sf.segment
-        q_parts.append(f'<details id="fit-{i}"><summary>fit {i}: {_esc(seg.kind)}/{_esc(seg.dof)}, '
-                       f"{seg.t_start:.1f}-{seg.t_end:.1f} s, {_esc(sf.model)} on {_esc(sf.channel)}{pct}"
+        q_parts.append(f'<details id="fit-{i}"><summary>fit {i}: {esc(seg.kind)}/{esc(seg.dof)}, '
+                       f"{seg.t_start:.1f}-{seg.t_end:.1f} s, {esc(sf.model)} on {esc(sf.channel)}{pct}"
                        f"</summary>{''.join(inner)}</details>")
     cov = getattr(fits, "covariance", None)
     names = getattr(fits, "covariance_names", None)
@@ -572,23 +568,23 @@ def render_html(fits: Fits, figures: Sequence[tuple[str, str]] = (), segments: S
     sections.extend(extra)
     if figures:
         sections.append(("Figures", "\n".join(
-            f'<figure><img src="{_esc(src)}" alt="{_esc(cap)}"><figcaption>{_esc(cap)}</figcaption></figure>'
+            f'<figure><img src="{esc(src)}" alt="{esc(cap)}"><figcaption>{esc(cap)}</figcaption></figure>'
             for src, cap in figures)))
     toc = '<nav class="toc"><b>Contents</b><ol>' + "".join(
-        f'<li><a href="#{slug(t)}">{_esc(t)}</a></li>' for t, _ in sections) + "</ol></nav>"
-    body = [f"<h1>{_esc(title)}</h1>", summary_html(summary, headline, len(warnings)), toc]
+        f'<li><a href="#{slug(t)}">{esc(t)}</a></li>' for t, _ in sections) + "</ol></nav>"
+    body = [f"<h1>{esc(title)}</h1>", summary_html(summary, headline, len(warnings)), toc]
     for k, (sec_title, fragment) in enumerate(sections):
         anchor = "warnings" if sec_title == "Warnings" else slug(sec_title)
-        body.append(f'<section id="{anchor}"><h2 id="{slug(sec_title)}">{_esc(sec_title)}</h2>\n{fragment}\n</section>'
+        body.append(f'<section id="{anchor}"><h2 id="{slug(sec_title)}">{esc(sec_title)}</h2>\n{fragment}\n</section>'
                     if anchor != slug(sec_title) else
-                    f'<section id="{anchor}"><h2>{_esc(sec_title)}</h2>\n{fragment}\n</section>')
-    body.append(f'<p class="convention"><b>Convention.</b> {_esc(fits.convention)}</p>')
+                    f'<section id="{anchor}"><h2>{esc(sec_title)}</h2>\n{fragment}\n</section>')
+    body.append(f'<p class="convention"><b>Convention.</b> {esc(fits.convention)}</p>')
     body.append(footer_html(provenance))
     page = "\n".join(body)
     page = re.sub(r"(<table\b.*?</table>)", r'<div class="tw">\1</div>', page, flags=re.S)
     return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
-            f"<title>{_esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n"
+            f"<title>{esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n"
             + page + "\n</body>\n</html>\n")
 
 

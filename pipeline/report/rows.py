@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import ReportError
 from ..records import DOFS, Estimate, FitParameter, Fits, Segment, Segments, SegmentFit
+from ..text_format import number
 
 #: Force/moment symbol of each DOF row of D (Fossen 2021, SNAME 1950 notation).
 FORCE_SYMBOLS: tuple[str, ...] = ("X", "Y", "K", "M", "N")
@@ -191,9 +192,7 @@ def format_number(x: float, sig: int = 3) -> str:
     sig : int
         Significant digits.
     """
-    if not finite(x):
-        return "nan"
-    return f"{float(x):.{sig}g}"
+    return number(x, f".{sig}g", missing="nan")
 
 
 # --------------------------------------------------------------------------- rows
