@@ -38,6 +38,19 @@ def test_help_imports_no_stage_dependency():
     assert not loaded & {"pandas", "duckdb", "dask", "scipy"}, sorted(loaded & set(HEAVY))
 
 
+def test_every_subcommand_help_imports_no_stage_dependency():
+    # The stage packages load their names on first use (pipeline/lazy.py), so `vesselid X --help`
+    # builds X's parser without numpy, scipy, pandas or casadi (it took 6-8 s on a loaded machine).
+    commands = [a for a in build_parser()._actions if a.__class__.__name__ == "_SubParsersAction"][0].choices
+    code = ("import sys\nfrom pipeline.cli import main\nheavy = %r\nfor name in %r:\n"
+            "    try:\n        main([name, '--help'])\n    except SystemExit:\n        pass\n"
+            "    print('MODULES', name, ' '.join(sorted({m.split('.')[0] for m in sys.modules} & set(heavy))))")
+    _, out = _python(code % (HEAVY, sorted(commands)))
+    loaded = {ln.split()[1]: ln.split()[2:] for ln in out.splitlines() if ln.startswith("MODULES")}
+    assert set(loaded) == set(commands)
+    assert {c: m for c, m in loaded.items() if m} == {}
+
+
 def test_help_start_up_is_close_to_bare_python():
     # Relative to the interpreter's own start-up in the same run, so a loaded machine does not fail it;
     # the eager imports this guards against cost 2 s or more.
@@ -45,6 +58,10 @@ def test_help_start_up_is_close_to_bare_python():
     help_ = min(_python("from pipeline.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass")[0]
                 for _ in range(3))
     assert help_ - bare < 0.6, f"vesselid --help took {help_:.2f} s against {bare:.2f} s for python -c pass"
+    for name in LAZY_COMMANDS:
+        sub = min(_python("from pipeline.cli import main\ntry:\n    main([%r, '--help'])\nexcept SystemExit:\n"
+                          "    pass" % name)[0] for _ in range(2))
+        assert sub - bare < 0.6, f"vesselid {name} --help took {sub:.2f} s against {bare:.2f} s for python -c pass"
 
 
 def test_lazy_subcommands_list_the_help_their_parsers_give():

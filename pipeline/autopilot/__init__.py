@@ -15,28 +15,26 @@ Modules
 Units are SI and radians throughout; degrees only in report text and CLI flags that say so.
 """
 
-from .closed_loop import (CASES, ClosedLoopCheck, ClosedLoopRun, LoopMetrics, Scenario, closed_loop_check,
-                          default_scenarios, simulate_heading_loop)
-from .config import (ArduPilotExport, AutopilotConfig, NomotoCoefficients, SourceFile, ardupilot_params,
-                     build_autopilot_config, read_autopilot_toml, read_coefficients_json, read_waves_json,
-                     write_ardupilot_params, write_autopilot_toml)
-from .kalman import (KALMAN_STATES, KalmanModel, KalmanRun, kalman_model, kalman_predict,
-                     kalman_update, observability, run_kalman_filter, sampled_noise_variance, steady_state)
-from .pd import DiscretePD, PDGains, default_crossover, discretise_pd, loop_margins, margin_table, pd_gains
-from .report_section import autopilot_html_section
-from .design import AutopilotResult, build_autopilot, nomoto_from_fits, write_autopilot_outputs
-from .waves_fit import HeadingRecord, WaveFit, fit_wave_record, fit_wave_spectrum, read_heading_record, welch_psd
+from ..lazy import lazy_exports
 
-__all__ = [
-    "CASES", "ClosedLoopCheck", "ClosedLoopRun", "LoopMetrics", "Scenario", "closed_loop_check",
-    "default_scenarios", "simulate_heading_loop",
-    "ArduPilotExport", "AutopilotConfig", "NomotoCoefficients", "SourceFile", "ardupilot_params",
-    "build_autopilot_config", "read_autopilot_toml", "read_coefficients_json", "read_waves_json",
-    "write_ardupilot_params", "write_autopilot_toml",
-    "KALMAN_STATES", "KalmanModel", "KalmanRun", "kalman_model", "kalman_predict",
-    "kalman_update", "observability", "run_kalman_filter", "sampled_noise_variance", "steady_state",
-    "DiscretePD", "PDGains", "default_crossover", "discretise_pd", "loop_margins", "margin_table", "pd_gains",
-    "autopilot_html_section",
-    "AutopilotResult", "build_autopilot", "nomoto_from_fits", "write_autopilot_outputs",
-    "HeadingRecord", "WaveFit", "fit_wave_record", "fit_wave_spectrum", "read_heading_record", "welch_psd",
-]
+#: Public name -> module defining it; loaded on first use, so ``vesselid autopilot --help`` stays fast.
+_EXPORTS = {
+    "CASES": ".closed_loop", "ClosedLoopCheck": ".closed_loop", "ClosedLoopRun": ".closed_loop",
+    "LoopMetrics": ".closed_loop", "Scenario": ".closed_loop", "closed_loop_check": ".closed_loop",
+    "default_scenarios": ".closed_loop", "simulate_heading_loop": ".closed_loop",
+    "ArduPilotExport": ".config", "AutopilotConfig": ".config", "NomotoCoefficients": ".config",
+    "SourceFile": ".config", "ardupilot_params": ".config", "build_autopilot_config": ".config",
+    "read_autopilot_toml": ".config", "read_coefficients_json": ".config", "read_waves_json": ".config",
+    "write_ardupilot_params": ".config", "write_autopilot_toml": ".config",
+    "KALMAN_STATES": ".kalman", "KalmanModel": ".kalman", "KalmanRun": ".kalman", "kalman_model": ".kalman",
+    "kalman_predict": ".kalman", "kalman_update": ".kalman", "observability": ".kalman",
+    "run_kalman_filter": ".kalman", "sampled_noise_variance": ".kalman", "steady_state": ".kalman",
+    "DiscretePD": ".pd", "PDGains": ".pd", "default_crossover": ".pd", "discretise_pd": ".pd",
+    "loop_margins": ".pd", "margin_table": ".pd", "pd_gains": ".pd",
+    "autopilot_html_section": ".report_section",
+    "AutopilotResult": ".design", "build_autopilot": ".design", "nomoto_from_fits": ".design",
+    "write_autopilot_outputs": ".design",
+    "HeadingRecord": ".waves_fit", "WaveFit": ".waves_fit", "fit_wave_record": ".waves_fit",
+    "fit_wave_spectrum": ".waves_fit", "read_heading_record": ".waves_fit", "welch_psd": ".waves_fit",
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

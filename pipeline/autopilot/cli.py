@@ -12,14 +12,11 @@ import json
 import math
 from pathlib import Path
 
-from ..errors import AutopilotError, VesselidError
-from .config import (DEFAULT_TS, read_coefficients_json, read_waves_json, source_file,
-                     write_ardupilot_params, write_autopilot_toml)
-from .kalman import DEFAULT_Q, sampled_noise_variance
 from ..atomic import atomic_write_bytes
-from .pd import CROSSOVER_TIMES_T
-from .design import build_autopilot, write_autopilot_outputs
-from .waves_fit import fit_wave_record, read_heading_record
+from ..errors import AutopilotError, VesselidError
+from .defaults import CROSSOVER_TIMES_T, DEFAULT_Q, DEFAULT_TS
+
+# The design modules (numpy, scipy, casadi) load in the handlers, so ``--help`` stays fast.
 
 
 # --------------------------------------------------------------------------- waves
@@ -74,6 +71,9 @@ def cmd_waves(args: argparse.Namespace) -> int:
     AutopilotError
         Unreadable record, failed fit, unwritable output.
     """
+    from .config import source_file
+    from .waves_fit import fit_wave_record, read_heading_record
+
     rec = read_heading_record(args.log, column=getattr(args, "column", None), unit=getattr(args, "unit", None))
     band = tuple(args.band) if getattr(args, "band", None) else None
     fit = fit_wave_record(rec, nperseg=getattr(args, "nperseg", None), band=band)
@@ -176,6 +176,12 @@ def cmd_autopilot(args: argparse.Namespace) -> int:
     AutopilotError
         Missing or malformed inputs, out-of-range design values, unwritable outputs.
     """
+    from .config import (read_coefficients_json, read_waves_json, source_file, write_ardupilot_params,
+                         write_autopilot_toml)
+    from .design import build_autopilot, write_autopilot_outputs
+    from .kalman import sampled_noise_variance
+    from .waves_fit import read_heading_record
+
     crossover = None if args.crossover is None else _positive_arg("--crossover", args.crossover, "rad/s")
     pm_deg = args.phase_margin
     if pm_deg is None or not math.isfinite(pm_deg) or not 0 < pm_deg < 90:

@@ -32,6 +32,7 @@ from .. import __version__
 from ..atomic import atomic_write_bytes
 from ..errors import AutopilotError
 from ..model.waves import WaveParams
+from .defaults import DEFAULT_TS  # the default lives where the CLI's --help can read it
 from .kalman import DEFAULT_P0, DEFAULT_Q, DEFAULT_R, KALMAN_STATES, KalmanModel, kalman_model
 from .pd import DEFAULT_PHASE_MARGIN, PDGains, pd_gains
 
@@ -43,8 +44,6 @@ DEFAULT_MAX_RATE = math.radians(65.0 / 28.0)
 #: Default wave model when no wave record is given: our fit to the TTK4115 course record
 #: (omega0 = 0.785 rad/s, lambda = 0.090, K_w = 0.00938 rad s^-1/2 in this package's convention).
 DEFAULT_WAVES = WaveParams(omega0=0.7848, lam=0.0896, kw=0.00938)
-#: Default filter sample time [s] (the seed's 10 Hz).
-DEFAULT_TS = 0.1
 
 
 @dataclass(frozen=True)

@@ -53,13 +53,10 @@ from ..geo import wrap_pi
 from ..model import discretise
 from ..model.nomoto import HEADING_MODEL_STATES, heading_model_matrices
 from ..model.waves import WaveParams
+from .defaults import DEFAULT_Q  # the default lives where the CLI's --help can read it
 
 #: Filter states, in order.
 KALMAN_STATES = HEADING_MODEL_STATES
-#: Default continuous process-noise intensities ``(q_w [-], q_b [rad^2/s])`` (the seed's hand-out).
-#: In this package's convention the wave noise w_w has unit intensity, so q_w = 30 is a tuning
-#: choice, not a physical value: it makes the filter follow the measured wave band more closely.
-DEFAULT_Q = (30.0, 1e-6)
 #: Default initial a-priori covariance diagonal (the seed's hand-out) [rad^2 s^2, rad^2, rad^2, rad^2/s^2, rad^2].
 DEFAULT_P0 = (1.0, 0.013, math.pi**2, 1.0, 2.5e-3)
 #: Default sampled compass-noise variance [rad^2]: the course simulator's compass, 0.002 deg^2

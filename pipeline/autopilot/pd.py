@@ -29,10 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import AutopilotError
+from .defaults import CROSSOVER_TIMES_T  # the default lives where the CLI's --help can read it
 
-#: omega_c T of the ship-autopilot seed's design (0.1 rad/s for T = 72.4 s). The default crossover keeps
-#: this product, so a small, fast model ship gets the same loop shape instead of a crossover 30x too low.
-CROSSOVER_TIMES_T = 0.1 * 72.4
 
 
 def default_crossover(T: float) -> float:

@@ -5,28 +5,15 @@ stores each trial in the catalogue (:class:`Catalog`); :func:`compare_trials` an
 :func:`coefficient_trend` read it back; :func:`write_catalog_pages` writes one HTML page per vessel.
 """
 
-import importlib
+from ..lazy import lazy_exports
 
 #: Public name -> submodule defining it. Submodules load on first use (PEP 562), so that
 #: ``vesselid --help`` and the ``catalog`` parser do not import Dask, DuckDB and scipy.stats.
 _EXPORTS = {
-    "BatchSummary": "batch", "find_trials": "batch", "run_batch": "batch",
-    "CatalogError": "errors", "write_catalog_pages": "html", "SCHEMA_VERSION": "schema", "migrate": "schema",
-    "Trend": "stats", "coefficient_trend": "stats", "compare_trials": "stats", "holm": "stats",
-    "plot_trend": "stats", "DEFAULT_CATALOG": "schema", "Catalog": "store", "TrialIdentity": "trial_job",
-    "TrialRecord": "trial_job", "identify_trial": "trial_job", "process_trial": "trial_job",
+    "BatchSummary": ".batch", "find_trials": ".batch", "run_batch": ".batch",
+    "CatalogError": ".errors", "write_catalog_pages": ".html", "SCHEMA_VERSION": ".schema", "migrate": ".schema",
+    "Trend": ".stats", "coefficient_trend": ".stats", "compare_trials": ".stats", "holm": ".stats",
+    "plot_trend": ".stats", "DEFAULT_CATALOG": ".schema", "Catalog": ".store", "TrialIdentity": ".trial_job",
+    "TrialRecord": ".trial_job", "identify_trial": ".trial_job", "process_trial": ".trial_job",
 }
-__all__ = list(_EXPORTS)
-
-
-def __getattr__(name: str):
-    """Load the submodule that defines ``name`` on first use (PEP 562)."""
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'pipeline.catalog' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(list(globals()) + __all__)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -11,10 +11,14 @@ the boat, which unmodelled effect explains it, and how far the gap shrinks with 
   jackknife errors, overlay figures (:mod:`.figures`) and an HTML section (:mod:`.html`).
 """
 
-from .candidates import EFFECTS
-from ..records import CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Place, Spectrum, Trace
-from .segments import diagnose_segments
-from .verdict import diagnose
+from ..lazy import lazy_exports
 
-__all__ = ["diagnose", "diagnose_segments", "EFFECTS", "GapReport", "CandidateResult", "ChannelGap", "DofSummary",
-           "EffectParam", "Place", "Spectrum", "Trace"]
+#: Public name -> module defining it; loaded on first use, so ``vesselid diagnose --help`` stays fast.
+_EXPORTS = {
+    "diagnose": ".verdict",
+    "diagnose_segments": ".segments",
+    "EFFECTS": ".candidates",
+    "GapReport": "..records", "CandidateResult": "..records", "ChannelGap": "..records", "DofSummary": "..records",
+    "EffectParam": "..records", "Place": "..records", "Spectrum": "..records", "Trace": "..records",
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

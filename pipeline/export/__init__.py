@@ -8,7 +8,11 @@
 - :mod:`.cli`: ``vesselid export``.
 """
 
-from .model import ExportModel, model_from_coefficients
-from .writers import FORMATS, export_text, write_export
+from ..lazy import lazy_exports
 
-__all__ = ["ExportModel", "model_from_coefficients", "FORMATS", "export_text", "write_export"]
+#: Public name -> module defining it; loaded on first use, so ``vesselid export --help`` stays fast.
+_EXPORTS = {
+    "ExportModel": ".model", "model_from_coefficients": ".model",
+    "FORMATS": ".formats", "export_text": ".writers", "write_export": ".writers",
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from .writers import FORMATS
+from .formats import FORMATS
 
 
 def add_export_parser(subparsers) -> argparse.ArgumentParser:

@@ -9,13 +9,12 @@ from typing import Any, Mapping
 from ..atomic import atomic_write_text
 from .ardupilot import ardupilot_text
 from .errors import ExportError
+from .formats import FORMATS
 from .model import ExportModel
 from .pvs import pvs_module
 from .ros2 import ros2_yaml
 from .vrx import vrx_sdf
 
-#: Export targets of ``vesselid export --to``.
-FORMATS = ("vrx", "pvs", "ardupilot", "ros2")
 
 
 def export_text(model: ExportModel, coefficients: Mapping[str, Any], target: str) -> str:
