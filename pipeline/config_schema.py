@@ -16,7 +16,7 @@ plain data, readable as the reference of both files.
 Spec language
 -------------
 A spec is one of: ``"string"``, ``"number"`` (finite int or float, not bool), ``"positive"``
-(number > 0), ``"integer>=1"``, ``"boolean"``, ``("one of", words)``, ``("list", n, spec)``
+(number > 0), ``"non-negative"`` (number >= 0), ``"text"`` (a non-empty string), ``"integer>=1"``, ``"boolean"``, ``("one of", words)``, ``("list", n, spec)``
 (``n`` items, None: any non-empty length), ``("matrix", rows, cols)`` of numbers,
 ``("table", {key: spec}, required)`` (unknown keys refused), ``("map", spec)`` (free keys, each
 value ``spec``), ``("tables", spec)`` (a TOML array of tables, each ``spec``), ``("refuse",
@@ -51,11 +51,14 @@ STEADY = ("table", {"speed": ("list", None, _NUM), "force": ("list", None, _NUM)
                     "speed_se": ("any of", _NUM, ("list", None, _NUM)),
                     "force_se": ("any of", _POS, ("list", None, _POS)), "source": "string"},
           ("speed", "force", "force_se"))
+#: The DOFs a ``[steady_state]`` table may name, and the keys of one DOF's table (the fit reads them here).
+STEADY_DOFS = ("surge", "sway", "yaw")
+STEADY_KEYS = tuple(STEADY[1])
 
 VESSEL_SCHEMA = ("table", {
-    "name": "string",
-    "rigid_body": ("table", {"mass": _POS, "inertia": ("list", 3, _NUM), "cg": ("list", 3, _NUM)}, ()),
-    "added_mass": ("table", {d: _NUM for d in DOF_WORDS}, ()),
+    "name": "text",
+    "rigid_body": ("table", {"mass": _POS, "inertia": ("list", 3, _POS), "cg": ("list", 3, _NUM)}, ()),
+    "added_mass": ("table", {d: "non-negative" for d in DOF_WORDS}, ()),  # -X_udot, -Y_vdot, ...
     "restoring": ("table", {"roll": _NUM, "pitch": _NUM}, ()),
     "damping": ("table", {"matrix": ("matrix", 5, 5), "diagonal": ("list", 5, _NUM),
                           "quadratic": ("list", 5, _NUM)}, ()),
@@ -68,7 +71,7 @@ VESSEL_SCHEMA = ("table", {
     "thrusters": ("table", {d: THRUSTER for d in ("surge", "sway", "yaw")}, ()),
     "topics": ("map", "string"),
     "sensors": ("map", SENSOR),
-    "steady_state": ("table", {d: STEADY for d in ("surge", "sway", "yaw")}, ()),
+    "steady_state": ("table", {d: STEADY for d in STEADY_DOFS}, ()),
 }, ("name",))
 
 #: A manifest's hand-named segment (``[[segments]]``).
@@ -77,7 +80,7 @@ SEGMENT = ("table", {"kind": ("one of", SEGMENT_KINDS), "dof": ("one of", SEGMEN
            ("kind", "dof", "t_start", "t_end"))
 
 MANIFEST_SCHEMA = ("table", {
-    "name": "string",
+    "name": "text",
     "vessel": "string",
     "logs": ("list", None, "string"),
     "fs": _POS,
@@ -110,7 +113,8 @@ def _is_number(value: Any) -> bool:
 def _describe(spec) -> str:
     if isinstance(spec, str):
         return {"string": "a string", "number": "a finite number", "positive": "a positive number",
-                "integer>=1": "an integer >= 1", "boolean": "true or false"}[spec]
+                "integer>=1": "an integer >= 1", "boolean": "true or false",
+                "non-negative": "a number >= 0", "text": "a non-empty string"}[spec]
     tag = spec[0]
     if tag == "one of":
         return "one of " + ", ".join(repr(w) for w in spec[1])
@@ -142,6 +146,8 @@ def _check(where: str, value: Any, spec, errors: list[str]) -> None:
         ok = {"string": lambda v: isinstance(v, str),
               "number": _is_number,
               "positive": lambda v: _is_number(v) and v > 0,
+              "non-negative": lambda v: _is_number(v) and v >= 0,
+              "text": lambda v: isinstance(v, str) and bool(v.strip()),
               "integer>=1": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1,
               "boolean": lambda v: isinstance(v, bool)}[spec](value)
         if not ok:

@@ -26,18 +26,12 @@ input_channel = "tau_x"
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 from .config_schema import MANIFEST_SCHEMA, read_toml, validate
 from .errors import ConfigError
-
-_KEYS = {"name", "vessel", "logs", "fs", "segments_mode", "segments", "columns", "units", "autopilot", "waves",
-         "runs", "inputs"}
-_RUN_KEYS = {"name", "logs"}
-
 
 @dataclass(frozen=True)
 class Manifest:
@@ -162,29 +156,21 @@ def load_manifest(path: str | Path) -> Manifest:
     path : str or Path
         The TOML manifest; ``vessel`` and ``logs`` in it are relative to its folder.
 
+    Every table is checked first by the one schema (:data:`pipeline.config_schema.MANIFEST_SCHEMA`);
+    what remains here is what a schema cannot say: logs that exist, and runs that hold every log once.
+
     Raises
     ------
     ConfigError
         Missing file, invalid TOML, unknown keys, missing vessel or logs, logs that do not exist.
     """
     p, doc = read_toml(path, "trial manifest")
-    unknown = sorted(set(doc) - _KEYS)
-    if unknown:
-        raise ConfigError(f"{p}: unknown key(s) {unknown}; allowed: {sorted(_KEYS)}")
-    for req in ("vessel", "logs"):
-        if req not in doc and not (req == "logs" and "runs" in doc):
-            raise ConfigError(f"{p}: expected key {req!r}, found keys {sorted(doc)}")
+    validate(doc, MANIFEST_SCHEMA, str(p))  # every table ([autopilot], [[segments]], ...; [waves] refused), before any work
+    if "logs" not in doc and "runs" not in doc:
+        raise ConfigError(f"{p}: expected key 'logs' (or [[runs]] tables with logs), found keys {sorted(doc)}")
     base = p.parent
-    runs = None
-    if "runs" in doc:
-        runs = _runs(p, doc["runs"], base)
-    if "logs" in doc or runs is None:
-        logs = doc.get("logs")
-        if not isinstance(logs, list) or not logs or not all(isinstance(x, str) for x in logs):
-            raise ConfigError(f"{p}: 'logs' expected a non-empty list of file names, found {logs!r}")
-        log_paths = tuple(_existing(p, base, logs))
-    else:
-        log_paths = ()
+    runs = _runs(p, doc["runs"], base) if "runs" in doc else None
+    log_paths = tuple(_existing(p, base, doc["logs"])) if "logs" in doc else ()
     if runs is not None:
         in_runs = [x for _, r in runs for x in r]
         outside = [str(x) for x in log_paths if x not in in_runs]
@@ -194,25 +180,13 @@ def load_manifest(path: str | Path) -> Manifest:
         if twice:
             raise ConfigError(f"{p}: expected each log in one run only, found {twice} in more than one")
         log_paths = tuple(in_runs)
-    inputs = doc.get("inputs", {})
-    if not isinstance(inputs, dict) or not all(v in ("command", "measured") for v in inputs.values()):
-        raise ConfigError(f"{p}: 'inputs' expected a table of channel = \"command\" or \"measured\", found {inputs!r}")
     fs = doc.get("fs")
-    # bool is an int to Python (fs = true would be 1 Hz), and nan passes "not <= 0".
-    if fs is not None and (isinstance(fs, bool) or not isinstance(fs, (int, float)) or not math.isfinite(fs)
-                           or fs <= 0):
-        raise ConfigError(f"{p}: 'fs' expected a positive rate [Hz], found {fs!r}")
-    for key in ("columns", "units"):
-        table = doc.get(key, {})
-        if not isinstance(table, dict) or not all(isinstance(v, str) for v in table.values()):
-            raise ConfigError(f"{p}: '{key}' expected a table of raw column name = \"name\", found {table!r}")
-    validate(doc, MANIFEST_SCHEMA, str(p))  # every table ([autopilot], [[segments]], ...; [waves] refused), before any work
     return Manifest(name=str(doc.get("name", p.stem)), vessel=(base / doc["vessel"]).resolve(), logs=log_paths,
                     fs=float(fs) if fs is not None else None, segments=tuple(doc.get("segments", [])),
                     segments_mode=str(doc.get("segments_mode", "replace")), columns=dict(doc.get("columns", {})),
                     units=dict(doc.get("units", {})),
                     options={k: doc[k] for k in ("autopilot",) if k in doc}, path=p.resolve(),
-                    runs=runs, inputs=dict(inputs))
+                    runs=runs, inputs=dict(doc.get("inputs", {})))
 
 
 def _existing(p: Path, base: Path, names) -> list[Path]:
@@ -223,18 +197,11 @@ def _existing(p: Path, base: Path, names) -> list[Path]:
     return expand_logs(paths)
 
 
-def _runs(p: Path, runs: Any, base: Path) -> tuple[tuple[str, tuple[Path, ...]], ...]:
-    if not isinstance(runs, list) or not runs or not all(isinstance(r, dict) for r in runs):
-        raise ConfigError(f"{p}: 'runs' expected [[runs]] tables with logs = [...], found {runs!r}")
+def _runs(p: Path, runs: list[Mapping[str, Any]], base: Path) -> tuple[tuple[str, tuple[Path, ...]], ...]:
+    """The stated runs ``(name, logs)`` of a manifest whose ``[[runs]]`` passed the schema."""
     out = []
-    for i, r in enumerate(runs, 1):
-        unknown = sorted(set(r) - _RUN_KEYS)
-        if unknown:
-            raise ConfigError(f"{p}: run {i}: unknown key(s) {unknown}; allowed: {sorted(_RUN_KEYS)}")
-        logs = r.get("logs")
-        if not isinstance(logs, list) or not logs or not all(isinstance(x, str) for x in logs):
-            raise ConfigError(f"{p}: run {i}: 'logs' expected a non-empty list of file names, found {logs!r}")
-        files = tuple(_existing(p, base, logs))
+    for r in runs:
+        files = tuple(_existing(p, base, r["logs"]))
         out.append((str(r.get("name", files[0].stem)), files))
     names = [n for n, _ in out]
     dup = sorted({n for n in names if names.count(n) > 1})

@@ -19,7 +19,6 @@ Sections
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -28,20 +27,7 @@ import numpy as np
 
 from .config_schema import VESSEL_SCHEMA, read_toml, validate
 from .errors import ConfigError
-from .records import DOF_NAMES, DOFS, INPUT_UNITS
-
-_TOP_KEYS = {"name", "rigid_body", "added_mass", "restoring", "damping", "nomoto", "rudder", "actuators",
-             "thrusters", "topics", "sensors", "steady_state"}
-_SECTION_KEYS: Mapping[str, set[str]] = {
-    "rigid_body": {"mass", "inertia", "cg"},
-    "added_mass": set(DOF_NAMES.values()),
-    "restoring": {"roll", "pitch"},
-    "damping": {"matrix", "diagonal", "quadratic"},
-    "nomoto": {"K", "T"},
-    "rudder": {"max_angle", "max_rate", "yaw_moment", "sway_force"},
-}
-_ACTUATOR_KEYS = {"source", "channel", "target", "pwm_trim", "pwm_span", "full_scale", "reverse_scale"}
-
+from .records import DOF_NAMES, DOFS
 
 @dataclass(frozen=True)
 class ActuatorMap:
@@ -222,30 +208,6 @@ def _velocity_of(dof: str) -> str:
     raise ConfigError(f"unknown DOF {dof!r}; expected one of {list(DOF_NAMES.values())}")
 
 
-def _check_keys(where: str, found: Mapping[str, Any], allowed: set[str]) -> None:
-    unknown = sorted(set(found) - allowed)
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-
-
-def _vector(where: str, value: Any, n: int) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{where}: expected {n} numbers, found {value!r}") from None
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-        raise ConfigError(f"{where}: expected {n} finite numbers, found {value!r}")
-    return arr
-
-
-def _number(where: str, value: Any, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ConfigError(f"{where}: expected a finite number, found {value!r}")
-    if positive and value <= 0:
-        raise ConfigError(f"{where}: expected a positive number, found {value!r}")
-    return float(value)
-
-
 def _check_positive_definite(where: str, D: np.ndarray) -> None:
     """Raise ConfigError unless ``D`` is positive definite (its symmetric part has eigenvalues > 0).
 
@@ -270,6 +232,11 @@ def _check_positive_definite(where: str, D: np.ndarray) -> None:
 def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
     """Build a :class:`Vessel` from a parsed TOML document.
 
+    Every table is checked first by the one schema (:data:`pipeline.config_schema.VESSEL_SCHEMA`:
+    key names, types, lengths, signs, allowed words; every problem listed at once); what remains
+    here is what a schema cannot say: mass and inertia given together, one damping form, and a
+    positive definite damping matrix.
+
     Parameters
     ----------
     doc : Mapping
@@ -280,83 +247,44 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
     Raises
     ------
     ConfigError
-        Unknown keys, wrong types, missing ``name``.
+        Unknown keys, wrong types, missing ``name``, inconsistent tables.
     """
-    _check_keys(path, doc, _TOP_KEYS)
-    if not isinstance(doc.get("name"), str) or not doc["name"]:
-        raise ConfigError(f"{path}: expected a non-empty string 'name', found {doc.get('name')!r}")
-    for sec, allowed in _SECTION_KEYS.items():
-        if sec in doc:
-            if not isinstance(doc[sec], Mapping):
-                raise ConfigError(f"{path}: [{sec}] must be a table, found {type(doc[sec]).__name__}")
-            _check_keys(f"{path} [{sec}]", doc[sec], allowed)
+    validate(doc, VESSEL_SCHEMA, path)
     kw: dict[str, Any] = {"name": doc["name"], "path": path}
 
     rb = doc.get("rigid_body", {})
-    if "mass" in rb:
-        kw["mass"] = _number(f"{path} rigid_body.mass", rb["mass"], positive=True)
-    if "inertia" in rb:
-        inertia = _vector(f"{path} rigid_body.inertia", rb["inertia"], 3)
-        if np.any(inertia <= 0):
-            raise ConfigError(f"{path} rigid_body.inertia: expected positive Ixx, Iyy, Izz, found {rb['inertia']!r}")
-        kw["inertia"] = inertia
-    if "cg" in rb:
-        kw["cg"] = _vector(f"{path} rigid_body.cg", rb["cg"], 3)
     if ("mass" in rb) != ("inertia" in rb):
         raise ConfigError(f"{path} [rigid_body]: expected both mass and inertia, found only {sorted(rb)}")
-
-    kw["added_mass"] = {k: _number(f"{path} added_mass.{k}", v) for k, v in doc.get("added_mass", {}).items()}
-    for k, v in kw["added_mass"].items():
-        if v < 0:
-            raise ConfigError(f"{path} added_mass.{k}: expected a positive number (-X_udot style), found {v}")
-    kw["restoring"] = {k: _number(f"{path} restoring.{k}", v) for k, v in doc.get("restoring", {}).items()}
+    if "mass" in rb:
+        kw["mass"] = float(rb["mass"])
+        kw["inertia"] = np.asarray(rb["inertia"], float)
+    if "cg" in rb:
+        kw["cg"] = np.asarray(rb["cg"], float)
+    kw["added_mass"] = {k: float(v) for k, v in doc.get("added_mass", {}).items()}
+    kw["restoring"] = {k: float(v) for k, v in doc.get("restoring", {}).items()}
 
     dmp = doc.get("damping", {})
     if "matrix" in dmp and "diagonal" in dmp:
         raise ConfigError(f"{path} [damping]: give either matrix or diagonal, found both")
     if "matrix" in dmp:
-        try:
-            mat = np.asarray(dmp["matrix"], dtype=float)
-        except (TypeError, ValueError):
-            raise ConfigError(f"{path} damping.matrix: expected a 5x5 array of numbers (u v p q r), "
-                              f"found {dmp['matrix']!r}") from None
-        if mat.shape != (5, 5) or not np.all(np.isfinite(mat)):
-            raise ConfigError(f"{path} damping.matrix: expected 5x5 finite numbers (u v p q r), found shape {mat.shape}")
-        kw["damping"] = mat
+        kw["damping"] = np.asarray(dmp["matrix"], float)
     elif "diagonal" in dmp:
-        kw["damping"] = np.diag(_vector(f"{path} damping.diagonal", dmp["diagonal"], 5))
+        kw["damping"] = np.diag(np.asarray(dmp["diagonal"], float))
     if "damping" in kw:
         _check_positive_definite(f"{path} [damping]", kw["damping"])
     if "quadratic" in dmp:
-        kw["quadratic_damping"] = _vector(f"{path} damping.quadratic", dmp["quadratic"], 5)
+        kw["quadratic_damping"] = np.asarray(dmp["quadratic"], float)
 
-    kw["nomoto"] = {k: _number(f"{path} nomoto.{k}", v, positive=(k == "T")) for k, v in doc.get("nomoto", {}).items()}
-    kw["rudder"] = {k: _number(f"{path} rudder.{k}", v) for k, v in doc.get("rudder", {}).items()}
-
+    kw["nomoto"] = {k: float(v) for k, v in doc.get("nomoto", {}).items()}
+    kw["rudder"] = {k: float(v) for k, v in doc.get("rudder", {}).items()}
     acts = []
-    for i, a in enumerate(doc.get("actuators", [])):
-        where = f"{path} actuators[{i}]"
-        if not isinstance(a, Mapping):
-            raise ConfigError(f"{where}: expected a table, found {a!r}")
-        _check_keys(where, a, _ACTUATOR_KEYS)
-        for req in ("source", "channel", "target"):
-            if req not in a:
-                raise ConfigError(f"{where}: missing key {req!r}; expected source, channel, target")
-        if a["source"] not in ("servo", "rc"):
-            raise ConfigError(f"{where}.source: expected 'servo' or 'rc', found {a['source']!r}")
-        if a["target"] not in INPUT_UNITS:
-            raise ConfigError(f"{where}.target: expected one of {sorted(INPUT_UNITS)}, found {a['target']!r}")
-        if isinstance(a["channel"], bool) or not isinstance(a["channel"], int) or a["channel"] < 1:
-            raise ConfigError(f"{where}.channel: expected a channel number >= 1, found {a['channel']!r}")
-        fs = _number(f"{where}.full_scale", a.get("full_scale", 1.0))
+    for a in doc.get("actuators", []):
+        fs = float(a.get("full_scale", 1.0))
         acts.append(ActuatorMap(source=a["source"], channel=int(a["channel"]), target=a["target"],
-                                pwm_trim=_number(f"{where}.pwm_trim", a.get("pwm_trim", 1500.0)),
-                                pwm_span=_number(f"{where}.pwm_span", a.get("pwm_span", 400.0), positive=True),
-                                full_scale=fs,
-                                reverse_scale=_number(f"{where}.reverse_scale", a.get("reverse_scale", fs))))
+                                pwm_trim=float(a.get("pwm_trim", 1500.0)), pwm_span=float(a.get("pwm_span", 400.0)),
+                                full_scale=fs, reverse_scale=float(a.get("reverse_scale", fs))))
     kw["actuators"] = tuple(acts)
     kw["extra"] = {k: doc[k] for k in ("thrusters", "topics", "sensors", "steady_state") if k in doc}
-    validate(doc, VESSEL_SCHEMA, path)  # every table, incl. [thrusters] [topics] [sensors] (pipeline.config_schema)
     return Vessel(**kw)
 
 

@@ -93,7 +93,7 @@ def test_good_manifest_with_every_table(tmp_path):
     ('[waves]\nomega0 = 0.8\n', r"waves: no stage reads a manifest \[waves\] table"),
     ('[autopilot]\ncrossover = "fast"\n', r"autopilot.crossover: expected a positive number, found 'fast'"),
     ('[autopilot]\ngain = 1.0\n', r"autopilot: unknown key\(s\) \['gain'\]"),
-    ('[[runs]]\nname = "a"\nlogs = ["log.csv"]\ncolour = "red"\n', r"run 1: unknown key\(s\) \['colour'\]"),
+    ('[[runs]]\nname = "a"\nlogs = ["log.csv"]\ncolour = "red"\n', r"runs\[0\]: unknown key\(s\) \['colour'\]"),
     ('[[segments]]\nkind = "spin"\ndof = "surge"\nt_start = 1.0\nt_end = 2.0\n',
      r"segments\[0\].kind: expected one of 'coast_down'"),
     ('[[segments]]\nkind = "step"\ndof = "surge"\nt_start = "late"\nt_end = 2.0\n',

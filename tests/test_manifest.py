@@ -96,15 +96,16 @@ def test_unknown_key_names_key_and_allowed(folder):
         assert f"'{allowed}'" in msg
 
 
-@pytest.mark.parametrize("body, missing", [('vessel = "v.toml"\n', "logs"), ('logs = ["logs/a.csv"]\n', "vessel")])
-def test_missing_required_key(folder, body, missing):
-    with pytest.raises(ConfigError, match=rf"expected key '{missing}', found keys \["):
+@pytest.mark.parametrize("body, message", [('vessel = "v.toml"\n', r"expected key 'logs' \(or \[\[runs\]\] tables"),
+                                           ('logs = ["logs/a.csv"]\n', r"missing key\(s\) \['vessel'\]; found \['logs'\]")])
+def test_missing_required_key(folder, body, message):
+    with pytest.raises(ConfigError, match=message):
         load_manifest(_manifest(folder, body))
 
 
 @pytest.mark.parametrize("logs", ['[]', '"logs/a.csv"', '[1, 2]', '["logs/a.csv", 3]'])
 def test_logs_must_be_a_list_of_names(folder, logs):
-    with pytest.raises(ConfigError, match=r"'logs' expected a non-empty list of file names, found"):
+    with pytest.raises(ConfigError, match=r"logs(\[\d\])?: expected a (list of one or more strings|string), found"):
         load_manifest(_manifest(folder, f'vessel = "v.toml"\nlogs = {logs}\n'))
 
 
@@ -118,13 +119,13 @@ def test_missing_log_file_is_named(folder):
 
 @pytest.mark.parametrize("fs", ["0", "-10", '"fast"', "true", "[100]", "nan"])
 def test_bad_fs(folder, fs):
-    with pytest.raises(ConfigError, match=r"'fs' expected a positive rate \[Hz\], found"):
+    with pytest.raises(ConfigError, match=r"fs: expected a positive number, found"):
         load_manifest(_manifest(folder, f'vessel = "v.toml"\nlogs = ["logs/a.csv"]\nfs = {fs}\n'))
 
 
 @pytest.mark.parametrize("key, value", [("columns", '"psi"'), ("units", "[1, 2]"), ("columns", "{ heading = 3 }")])
 def test_column_map_and_units_must_be_tables_of_names(folder, key, value):
-    with pytest.raises(ConfigError, match=rf"'{key}' expected a table of .*, found"):
+    with pytest.raises(ConfigError, match=rf"{key}(.heading)?: expected a (table of name = a string|string), found"):
         load_manifest(_manifest(folder, f'vessel = "v.toml"\nlogs = ["logs/a.csv"]\n{key} = {value}\n'))
 
 
@@ -155,17 +156,17 @@ def test_runs_and_inputs(folder):
 
 
 @pytest.mark.parametrize("body, message", [
-    ('[[runs]]\nlogs = []\n', r"run 1: 'logs' expected a non-empty list of file names, found \[\]"),
-    ('[[runs]]\nlogs = ["logs/a.csv"]\nfs = 3\n', r"run 1: unknown key\(s\) \['fs'\]; allowed: \['logs', 'name'\]"),
-    ('runs = 3\n', r"'runs' expected \[\[runs\]\] tables with logs = \[...\], found 3"),
+    ('[[runs]]\nlogs = []\n', r"runs\[0\].logs: expected a list of one or more strings, found \[\]"),
+    ('[[runs]]\nlogs = ["logs/a.csv"]\nfs = 3\n', r"runs\[0\]: unknown key\(s\) \['fs'\]; expected some of \['name', 'logs'\]"),
+    ('runs = 3\n', r"runs: expected an array of tables \[\[...\]\], found 3"),
     ('[[runs]]\nlogs = ["logs/a.csv"]\n[[runs]]\nlogs = ["logs/a.csv"]\n',
      r"expected distinct run names, found \['a'\] more than once"),
     ('[[runs]]\nname = "x"\nlogs = ["logs/a.csv"]\n[[runs]]\nname = "y"\nlogs = ["logs/a.csv"]\n',
      r"expected each log in one run only, found \[.*a.csv'\] in more than one"),
     ('logs = ["logs/a.csv", "logs/b.csv"]\n[[runs]]\nlogs = ["logs/a.csv"]\n',
      r"expected every log in one of the \[\[runs\]\], found \[.*b.csv'\] in 'logs' only"),
-    ('[inputs]\ndelta = "servo"\nlogs = ["logs/a.csv"]\n', r"'inputs' expected a table of channel = \"command\" or "
-                                                           r"\"measured\", found"),
+    ('[inputs]\ndelta = "servo"\nlogs = ["logs/a.csv"]\n', r"inputs.delta: expected one of 'command', 'measured', "
+                                                           r"found 'servo'"),
 ])
 def test_bad_runs_and_inputs_are_named(folder, body, message):
     if body.startswith("[inputs]"):

@@ -27,13 +27,13 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ..config_schema import STEADY_DOFS, STEADY_KEYS
 from ..errors import ConfigError, FitError
 from .quadratic import TERM_NAMES, TERM_UNITS, SteadyPoint
 
-#: DOFs a steady-state map can describe (those driven by thrust against damping).
-STEADY_DOFS = ("surge", "sway", "yaw")
-#: Keys of one DOF's table.
-KEYS = {"speed", "force", "speed_se", "force_se", "source"}
+#: Keys of one DOF's table; they and the DOFs a steady-state map can describe (those driven by
+#: thrust against damping, ``STEADY_DOFS``) are declared once, in the config schema.
+KEYS = set(STEADY_KEYS)
 
 
 @dataclass(frozen=True)
