@@ -63,11 +63,12 @@ import contextlib
 import math
 import re
 from collections import Counter, defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import date, datetime, timedelta, timezone
 from functools import reduce
 from operator import xor
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -330,15 +331,266 @@ class NmeaParse:
     n_lines: int
 
 
-def _open(epoch: float | None, fresh: bool, t: float, in_epoch: Counter, epochs: list) -> tuple[float, bool]:
-    """A time-bearing sentence at ``t`` [s]: open a new epoch when time moved forward."""
-    if epoch is None or t > epoch:
-        in_epoch.clear()
-        epochs.append(t)
-        return t, True
-    if t == epoch:
-        return epoch, fresh
-    return epoch, False   # a step back: untimed sentences after it cannot be placed
+class _Skip(Exception):
+    """A sentence not used; the message is the reason counted in the summary (``"GGA no fix"``)."""
+
+
+#: Decoders' answer for a sentence that only sets the clock (ZDA): read, no samples.
+_CLOCK_ONLY = (None, None)
+
+
+@dataclass
+class _ParseState:
+    """Everything :func:`parse_nmea` accumulates while it walks the sentences."""
+
+    clock: _UtcClock = field(default_factory=_UtcClock)
+    # (channel, sentence id) -> lists of absolute UTC seconds and SI values, in file order.
+    samples: dict = field(default_factory=lambda: defaultdict(lambda: ([], [])))
+    read: Counter = field(default_factory=Counter)
+    skipped: Counter = field(default_factory=Counter)
+    seen: Counter = field(default_factory=Counter)
+    n_sentences: int = 0
+    n_lines: int = 0
+    quality: Counter = field(default_factory=Counter)
+    nsat: list = field(default_factory=list)
+    hdop: list = field(default_factory=list)
+    epoch: float | None = None    # time of the latest time-bearing sentence: untimed sentences take it
+    fresh: bool = False           # the latest epoch moved time forward (not a repeat or a step back)
+    in_epoch: Counter = field(default_factory=Counter)  # untimed sentences of each type since the epoch opened
+    untimed: dict = field(default_factory=lambda: defaultdict(list))  # (channel, sid) -> (epoch, k, value)
+    last_t: dict = field(default_factory=dict)   # per sentence id, the latest epoch used
+    epochs: list = field(default_factory=list)   # every epoch that moved time forward, in order
+    variation: float | None = None                # latest magnetic variation [deg, E positive] (HDG or RMC)
+    magnetic_only: Counter = field(default_factory=Counter)
+
+    def open(self, t: float) -> None:
+        """A time-bearing sentence at ``t`` [s]: open a new epoch when time moved forward."""
+        if self.epoch is None or t > self.epoch:
+            self.in_epoch.clear()
+            self.epochs.append(t)
+            self.epoch, self.fresh = t, True
+        elif t < self.epoch:
+            self.fresh = False   # a step back: untimed sentences after it cannot be placed
+
+    def place(self, sid: str, t_own: float | None, puts: list[tuple[str, float]]) -> None:
+        """File one decoded sentence: on its own time, or (untimed) as the k-th of its type in the epoch."""
+        if t_own is not None:
+            self.open(t_own)
+        else:
+            if not self.fresh:
+                self.skipped[f"{sid} repeated or out of order"] += 1
+                return
+            k = self.in_epoch[sid]
+            self.in_epoch[sid] += 1
+            for name, value in puts:
+                self.untimed[(name, sid)].append((self.epoch, k, value))
+            self.read[sid] += 1
+            return
+        prev = self.last_t.get(sid)
+        if prev is not None and t_own <= prev:
+            # Once per sentence, whatever number of channels it carries; the untimed
+            # sentences that follow it belong to the repeated epoch and are dropped too.
+            self.skipped[f"{sid} repeated or out of order"] += 1
+            self.fresh = False
+            return
+        self.last_t[sid] = t_own
+        for name, value in puts:
+            ts, vs = self.samples[(name, sid)]
+            ts.append(t_own)
+            vs.append(value)
+        self.read[sid] += 1
+
+
+def _lat_lon(lat: str, ns: str, lon: str, ew: str) -> list[tuple[str, float]]:
+    return [("lat", _angle(lat, ns, "N", "S", 90.0)), ("lon", _angle(lon, ew, "E", "W", 180.0))]
+
+
+# ----------------------------------------------------------------------------- sentence families
+# Each decoder takes (sentence id, fields, state) and returns (own time [s] or None, [(channel, SI value)]),
+# or raises _Skip (not used, with the reason) or ValueError/IndexError (malformed).
+
+def _position(sid: str, f: list[str], st: _ParseState) -> tuple[float | None, list]:
+    """GGA, GNS, GLL: a position fix on its own time; a time without a fix still opens the epoch."""
+    if sid == "GGA":
+        # time, lat, N/S, lon, E/W, quality, numSV, HDOP, alt, M, sep, M, diffAge, diffStation
+        tod, q = _time_of_day(f[0]), int(f[5]) if f[5] else 0
+        if q == 0 or not f[1] or not f[3]:
+            st.open(st.clock.stamp(tod))
+            st.quality[0] += 1
+            raise _Skip("GGA no fix")
+        puts = _lat_lon(*f[1:5])
+        t = st.clock.stamp(tod)
+        st.quality[q] += 1
+        if len(f) > 6 and f[6].isdigit():
+            st.nsat.append(int(f[6]))
+        if len(f) > 7 and f[7]:
+            with contextlib.suppress(ValueError):
+                st.hdop.append(float(f[7]))
+        return t, puts
+    if sid == "GNS":
+        # time, lat, N/S, lon, E/W, mode (one letter per constellation), numSV, HDOP, ...
+        tod = _time_of_day(f[0])
+        mode = f[5] if len(f) > 5 else ""
+        if not f[1] or not f[3] or (mode and set(mode) <= {"N"}):
+            st.open(st.clock.stamp(tod))
+            raise _Skip("GNS no fix")
+        puts = _lat_lon(*f[1:5])
+        return st.clock.stamp(tod), puts
+    # GLL: lat, N/S, lon, E/W, time, status, posMode
+    tod = _time_of_day(f[4])
+    if f[5] != "A" or (len(f) > 6 and f[6] == "N") or not f[0] or not f[2]:
+        st.open(st.clock.stamp(tod))
+        raise _Skip("GLL void")
+    puts = _lat_lon(*f[0:4])
+    return st.clock.stamp(tod), puts
+
+
+def _date_time(sid: str, f: list[str], st: _ParseState) -> tuple[float | None, list | None]:
+    """ZDA: time, day, month, year, local zone hours, minutes: the clock only."""
+    st.open(st.clock.stamp(_time_of_day(f[0]), _zda_date(f)))
+    return _CLOCK_ONLY
+
+
+def _recommended_minimum(sid: str, f: list[str], st: _ParseState) -> tuple[float | None, list]:
+    """RMC: time, status, lat, N/S, lon, E/W, spd [kn], cog [deg], date, mv, mvEW, posMode."""
+    tod = _time_of_day(f[0])
+    t = st.clock.stamp(tod, _rmc_date(f[8]) if len(f) > 8 else None)
+    if len(f) > 10 and f[9]:
+        with contextlib.suppress(ValueError):
+            st.variation = _east(f[9], f[10])
+    if f[1] != "A":
+        st.open(t)
+        raise _Skip("RMC void")
+    if not (f[2] and f[4]) and not f[6] and not f[7]:
+        st.open(t)
+        raise _Skip("RMC empty")
+    puts = _lat_lon(*f[2:6]) if f[2] and f[4] else []
+    if f[6]:
+        puts.append(("sog", _nonneg(f[6], 1e4) * _KNOT))
+    if f[7]:
+        puts.append(("cog", _nonneg(f[7], 360.0) * _DEG))
+    return t, puts
+
+
+def _attitude(sid: str, f: list[str], st: _ParseState) -> tuple[float | None, list]:
+    """Proprietary attitude on its own time: $PASHR (heading, roll, pitch) and $PTNL,AVR (yaw)."""
+    if sid == "PASHR":
+        # time, heading, T, roll, pitch, heave, acc roll, acc pitch, acc heading, GPS flag, IMU flag
+        if len(f) < 5 or f[2] != "T":
+            raise _Skip("PASHR other layout")
+        t = st.clock.stamp(_time_of_day(f[0]))
+        if len(f) > 10 and f[10] == "0":
+            st.open(t)
+            raise _Skip("PASHR IMU not aligned")
+        return t, [("psi", _nonneg(f[1], 360.0) * _DEG), ("phi", _signed(f[3], 180.0) * _DEG),
+                   ("theta", _signed(f[4], 90.0) * _DEG)]
+    # PTNL,AVR: time, yaw, 'Yaw', tilt, 'Tilt', roll, 'Roll', range, quality, PDOP, numSV
+    t = st.clock.stamp(_time_of_day(f[0]))
+    if len(f) > 8 and f[8] in ("", "0"):
+        st.open(t)
+        raise _Skip("PTNL,AVR no solution")
+    return t, [("psi", _signed(f[1], 360.0) * _DEG)]
+
+
+def _velocity(sid: str, f: list[str], st: _ParseState) -> tuple[None, list]:
+    """VTG: course and speed over ground (untimed)."""
+    if len(f) >= 8 and f[1] == "T":
+        # cogt, T, cogm, M, sogn, N, sogk, K[, posMode]
+        cogt, sogn, sogk = f[0], f[4], f[6]
+        mode = f[8] if len(f) > 8 else ""
+    else:
+        # NMEA 0183 v1.5 form without unit letters: cogt, cogm, sogn, sogk.
+        cogt, sogn, sogk, mode = f[0], f[2], f[3], ""
+    if mode == "N":
+        raise _Skip("VTG not valid")
+    if not (sogk or sogn or cogt):
+        # Receivers send an all-empty VTG while they have no velocity solution.
+        raise _Skip("VTG empty")
+    puts = []
+    # km/h first: at the usual three decimals it resolves 0.3 mm/s, knots 0.5 mm/s.
+    if sogk:
+        puts.append(("sog", _nonneg(sogk, 2e4) * _KMH))
+    elif sogn:
+        puts.append(("sog", _nonneg(sogn, 1e4) * _KNOT))
+    if cogt:
+        puts.append(("cog", _nonneg(cogt, 360.0) * _DEG))
+    return None, puts
+
+
+def _heading(sid: str, f: list[str], st: _ParseState) -> tuple[None, list]:
+    """HDT, THS (true heading); HDG, HDM (magnetic, corrected by deviation and the latest variation)."""
+    if sid == "THS" and (len(f) < 2 or f[1] == "V"):
+        raise _Skip("THS invalid")
+    if not f[0]:
+        raise _Skip(f"{sid} empty")
+    if sid in ("HDT", "THS"):
+        return None, [("psi", _nonneg(f[0], 360.0) * _DEG)]
+    hdg = _nonneg(f[0], 360.0)
+    if sid == "HDG":
+        # heading [deg magnetic], deviation, E/W, variation, E/W
+        hdg += _east(f[1] if len(f) > 1 else "", f[2] if len(f) > 2 else "")
+        if len(f) > 4 and f[3]:
+            st.variation = _east(f[3], f[4])
+    if st.variation is None:
+        st.magnetic_only[sid] += 1
+    return None, [("psi", (hdg + (st.variation or 0.0)) * _DEG)]
+
+
+def _water_speed(sid: str, f: list[str], st: _ParseState) -> tuple[None, list]:
+    """VHW: hdgT, T, hdgM, M, spdwN, N, spdwK, K (heading and speed through the water)."""
+    puts = []
+    if len(f) > 0 and f[0]:
+        puts.append(("psi", _nonneg(f[0], 360.0) * _DEG))
+    if len(f) > 6 and f[6]:
+        puts.append(("u", _signed(f[6], 200.0) * _KMH))
+    elif len(f) > 4 and f[4]:
+        puts.append(("u", _signed(f[4], 100.0) * _KNOT))
+    if not puts:
+        raise _Skip("VHW empty")
+    return None, puts
+
+
+def _rate_of_turn(sid: str, f: list[str], st: _ParseState) -> tuple[None, list]:
+    """ROT: rate of turn [deg/min], status."""
+    if len(f) > 1 and f[1] == "V":
+        raise _Skip("ROT invalid")
+    if not f[0]:
+        raise _Skip("ROT empty")
+    return None, [("r", _signed(f[0], 1e4) * _DEG / 60.0)]
+
+
+#: Sentence id -> its family's decoder (every id in ``SENTENCES``).
+_DECODERS = {"GGA": _position, "GNS": _position, "GLL": _position, "ZDA": _date_time, "RMC": _recommended_minimum,
+             "PASHR": _attitude, "PTNL,AVR": _attitude, "VTG": _velocity, "HDT": _heading, "THS": _heading,
+             "HDG": _heading, "HDM": _heading, "VHW": _water_speed, "ROT": _rate_of_turn}
+
+
+def _sentences(line: bytes, st: _ParseState) -> Iterator[tuple[str, list[str]]]:
+    """The checksum-good sentences of one line as (sentence id, fields); counts the line's defects."""
+    matches = list(_SENTENCE_RE.finditer(line))
+    if not matches:
+        if b"$" in line:
+            st.skipped["incomplete sentence"] += 1
+        elif line.strip():
+            st.skipped["garbage line"] += 1
+        return
+    for m in matches:
+        st.n_sentences += 1
+        body = m.group(0)[1:-3]
+        if nmea_checksum(body) != int(m.group(3), 16):
+            st.skipped["bad checksum"] += 1
+            continue
+        addr = m.group(1).decode()
+        f = (m.group(2) or b"").decode().split(",")
+        if m.group(0)[:1] == b"!":
+            sid = addr[2:] or addr       # AIS (!AIVDM): other ships, not this one
+        elif addr[0] == "P":
+            sid = f"{addr},{f[0]}" if addr in ("PTNL", "PSXN", "PGRM") and f else addr
+            if sid == "PTNL,AVR":
+                f = f[1:]
+        else:
+            sid = addr[2:]
+        yield sid, f
 
 
 def _spread_untimed(untimed: dict, epochs: np.ndarray, samples: dict) -> dict[str, int]:
@@ -371,271 +623,8 @@ def _spread_untimed(untimed: dict, epochs: np.ndarray, samples: dict) -> dict[st
     return out
 
 
-def parse_nmea(lines, path_text: str = "NMEA") -> NmeaParse:
-    """Parse NMEA 0183 lines (bytes) into channels on one UTC clock, counting every sentence.
-
-    Parameters
-    ----------
-    lines : iterable of bytes
-        Text lines, each holding zero or more sentences.
-    path_text : str
-        Name of the source for messages.
-
-    Returns
-    -------
-    NmeaParse
-        Samples per channel (absolute UTC seconds; ``merged`` may be empty) and the counts.
-    """
-    clock = _UtcClock()
-    # (channel, sentence id) -> lists of absolute UTC seconds and SI values, in file order.
-    samples: dict[tuple[str, str], tuple[list[float], list[float]]] = defaultdict(lambda: ([], []))
-    read: Counter = Counter()
-    skipped: Counter = Counter()
-    seen: Counter = Counter()
-    n_sentences = 0
-    n_lines = 0
-    quality: Counter = Counter()
-    nsat: list[int] = []
-    hdop: list[float] = []
-    epoch: float | None = None   # time of the latest time-bearing sentence: untimed sentences take it
-    fresh = False                # the latest epoch moved time forward (not a repeat or a step back)
-    in_epoch: Counter = Counter()  # untimed sentences of each type since the epoch opened
-    untimed: dict[tuple[str, str], list[tuple[float, int, float]]] = defaultdict(list)
-    last_t: dict[str, float] = {}  # per sentence id, the latest epoch used
-    epochs: list[float] = []       # every epoch that moved time forward, in order
-    variation: float | None = None  # latest magnetic variation [deg, E positive] from HDG or RMC
-    magnetic_only: Counter = Counter()
-
-    for line in lines:
-        n_lines += 1
-        matches = list(_SENTENCE_RE.finditer(line))
-        if not matches:
-            if not line.strip():
-                pass
-            elif b"$" in line:
-                skipped["incomplete sentence"] += 1
-            else:
-                skipped["garbage line"] += 1
-            continue
-        for m in matches:
-            n_sentences += 1
-            body = m.group(0)[1:-3]
-            if nmea_checksum(body) != int(m.group(3), 16):
-                skipped["bad checksum"] += 1
-                continue
-            addr = m.group(1).decode()
-            f = (m.group(2) or b"").decode().split(",")
-            if m.group(0)[:1] == b"!":
-                sid = addr[2:] or addr       # AIS (!AIVDM): other ships, not this one
-            elif addr[0] == "P":
-                sid = f"{addr},{f[0]}" if addr in ("PTNL", "PSXN", "PGRM") and f else addr
-                if sid == "PTNL,AVR":
-                    f = f[1:]
-            else:
-                sid = addr[2:]
-            seen[sid] += 1
-            if sid not in SENTENCES:
-                skipped[sid] += 1
-                continue
-            try:
-                t_own: float | None = None
-                put_list: list[tuple[str, float]] = []
-                if sid == "GGA":
-                    # time, lat, N/S, lon, E/W, quality, numSV, HDOP, alt, M, sep, M, diffAge, diffStation
-                    tod = _time_of_day(f[0])
-                    q = int(f[5]) if f[5] else 0
-                    if q == 0 or not f[1] or not f[3]:
-                        epoch, fresh = _open(epoch, fresh, clock.stamp(tod), in_epoch, epochs)
-                        skipped["GGA no fix"] += 1
-                        quality[0] += 1
-                        continue
-                    put_list = [("lat", _angle(f[1], f[2], "N", "S", 90.0)),
-                                ("lon", _angle(f[3], f[4], "E", "W", 180.0))]
-                    t_own = clock.stamp(tod)
-                    quality[q] += 1
-                    if len(f) > 6 and f[6].isdigit():
-                        nsat.append(int(f[6]))
-                    if len(f) > 7 and f[7]:
-                        with contextlib.suppress(ValueError):
-                            hdop.append(float(f[7]))
-                elif sid == "GNS":
-                    # time, lat, N/S, lon, E/W, mode (one letter per constellation), numSV, HDOP, ...
-                    tod = _time_of_day(f[0])
-                    mode = f[5] if len(f) > 5 else ""
-                    if not f[1] or not f[3] or (mode and set(mode) <= {"N"}):
-                        epoch, fresh = _open(epoch, fresh, clock.stamp(tod), in_epoch, epochs)
-                        skipped["GNS no fix"] += 1
-                        continue
-                    put_list = [("lat", _angle(f[1], f[2], "N", "S", 90.0)),
-                                ("lon", _angle(f[3], f[4], "E", "W", 180.0))]
-                    t_own = clock.stamp(tod)
-                elif sid == "GLL":
-                    # lat, N/S, lon, E/W, time, status, posMode
-                    tod = _time_of_day(f[4])
-                    if f[5] != "A" or (len(f) > 6 and f[6] == "N") or not f[0] or not f[2]:
-                        epoch, fresh = _open(epoch, fresh, clock.stamp(tod), in_epoch, epochs)
-                        skipped["GLL void"] += 1
-                        continue
-                    put_list = [("lat", _angle(f[0], f[1], "N", "S", 90.0)),
-                                ("lon", _angle(f[2], f[3], "E", "W", 180.0))]
-                    t_own = clock.stamp(tod)
-                elif sid == "ZDA":
-                    # time, day, month, year, local zone hours, minutes: the clock only.
-                    tod = _time_of_day(f[0])
-                    epoch, fresh = _open(epoch, fresh, clock.stamp(tod, _zda_date(f)), in_epoch, epochs)
-                    read[sid] += 1
-                    continue
-                elif sid == "RMC":
-                    # time, status, lat, N/S, lon, E/W, spd [kn], cog [deg], date, mv, mvEW, posMode
-                    tod = _time_of_day(f[0])
-                    ordinal = _rmc_date(f[8]) if len(f) > 8 else None
-                    t_rmc = clock.stamp(tod, ordinal)
-                    if len(f) > 10 and f[9]:
-                        with contextlib.suppress(ValueError):
-                            variation = _east(f[9], f[10])
-                    if f[1] != "A":
-                        epoch, fresh = _open(epoch, fresh, t_rmc, in_epoch, epochs)
-                        skipped["RMC void"] += 1
-                        continue
-                    if not (f[2] and f[4]) and not f[6] and not f[7]:
-                        epoch, fresh = _open(epoch, fresh, t_rmc, in_epoch, epochs)
-                        skipped["RMC empty"] += 1
-                        continue
-                    if f[2] and f[4]:
-                        put_list += [("lat", _angle(f[2], f[3], "N", "S", 90.0)),
-                                     ("lon", _angle(f[4], f[5], "E", "W", 180.0))]
-                    if f[6]:
-                        put_list.append(("sog", _nonneg(f[6], 1e4) * _KNOT))
-                    if f[7]:
-                        put_list.append(("cog", _nonneg(f[7], 360.0) * _DEG))
-                    t_own = t_rmc
-                elif sid == "PASHR":
-                    # time, heading, T, roll, pitch, heave, acc roll, acc pitch, acc heading, GPS flag, IMU flag
-                    if len(f) < 5 or f[2] != "T":
-                        skipped["PASHR other layout"] += 1
-                        continue
-                    t_own = clock.stamp(_time_of_day(f[0]))
-                    if len(f) > 10 and f[10] == "0":
-                        epoch, fresh = _open(epoch, fresh, t_own, in_epoch, epochs)
-                        skipped["PASHR IMU not aligned"] += 1
-                        continue
-                    put_list = [("psi", _nonneg(f[1], 360.0) * _DEG), ("phi", _signed(f[3], 180.0) * _DEG),
-                                ("theta", _signed(f[4], 90.0) * _DEG)]
-                elif sid == "PTNL,AVR":
-                    # time, yaw, 'Yaw', tilt, 'Tilt', roll, 'Roll', range, quality, PDOP, numSV
-                    t_own = clock.stamp(_time_of_day(f[0]))
-                    if len(f) > 8 and f[8] in ("", "0"):
-                        epoch, fresh = _open(epoch, fresh, t_own, in_epoch, epochs)
-                        skipped["PTNL,AVR no solution"] += 1
-                        continue
-                    put_list = [("psi", _signed(f[1], 360.0) * _DEG)]
-                else:
-                    if epoch is None:
-                        skipped[f"{sid} before the first time-bearing sentence"] += 1
-                        continue
-                    if sid == "VTG":
-                        if len(f) >= 8 and f[1] == "T":
-                            # cogt, T, cogm, M, sogn, N, sogk, K[, posMode]
-                            cogt, sogn, sogk = f[0], f[4], f[6]
-                            mode = f[8] if len(f) > 8 else ""
-                        else:
-                            # NMEA 0183 v1.5 form without unit letters: cogt, cogm, sogn, sogk.
-                            cogt, sogn, sogk, mode = f[0], f[2], f[3], ""
-                        if mode == "N":
-                            skipped["VTG not valid"] += 1
-                            continue
-                        if not (sogk or sogn or cogt):
-                            # Receivers send an all-empty VTG while they have no velocity solution.
-                            skipped["VTG empty"] += 1
-                            continue
-                        # km/h first: at the usual three decimals it resolves 0.3 mm/s, knots 0.5 mm/s.
-                        if sogk:
-                            put_list.append(("sog", _nonneg(sogk, 2e4) * _KMH))
-                        elif sogn:
-                            put_list.append(("sog", _nonneg(sogn, 1e4) * _KNOT))
-                        if cogt:
-                            put_list.append(("cog", _nonneg(cogt, 360.0) * _DEG))
-                    elif sid in ("HDT", "THS"):
-                        if sid == "THS" and (len(f) < 2 or f[1] == "V"):
-                            skipped["THS invalid"] += 1
-                            continue
-                        if not f[0]:
-                            skipped[f"{sid} empty"] += 1
-                            continue
-                        put_list.append(("psi", _nonneg(f[0], 360.0) * _DEG))
-                    elif sid == "HDG":
-                        # heading [deg magnetic], deviation, E/W, variation, E/W
-                        if not f[0]:
-                            skipped["HDG empty"] += 1
-                            continue
-                        hdg = _nonneg(f[0], 360.0) + _east(f[1] if len(f) > 1 else "", f[2] if len(f) > 2 else "")
-                        if len(f) > 4 and f[3]:
-                            variation = _east(f[3], f[4])
-                        if variation is None:
-                            magnetic_only[sid] += 1
-                        put_list.append(("psi", (hdg + (variation or 0.0)) * _DEG))
-                    elif sid == "HDM":
-                        if not f[0]:
-                            skipped["HDM empty"] += 1
-                            continue
-                        if variation is None:
-                            magnetic_only[sid] += 1
-                        put_list.append(("psi", (_nonneg(f[0], 360.0) + (variation or 0.0)) * _DEG))
-                    elif sid == "VHW":
-                        # hdgT, T, hdgM, M, spdwN, N, spdwK, K
-                        if len(f) > 0 and f[0]:
-                            put_list.append(("psi", _nonneg(f[0], 360.0) * _DEG))
-                        if len(f) > 6 and f[6]:
-                            put_list.append(("u", _signed(f[6], 200.0) * _KMH))
-                        elif len(f) > 4 and f[4]:
-                            put_list.append(("u", _signed(f[4], 100.0) * _KNOT))
-                        if not put_list:
-                            skipped["VHW empty"] += 1
-                            continue
-                    elif sid == "ROT":
-                        if len(f) > 1 and f[1] == "V":
-                            skipped["ROT invalid"] += 1
-                            continue
-                        if not f[0]:
-                            skipped["ROT empty"] += 1
-                            continue
-                        put_list.append(("r", _signed(f[0], 1e4) * _DEG / 60.0))
-                if t_own is not None:
-                    epoch, fresh = _open(epoch, fresh, t_own, in_epoch, epochs)
-                if t_own is None:
-                    # No own time: the k-th sentence of its type in this epoch; spread later.
-                    if not fresh:
-                        skipped[f"{sid} repeated or out of order"] += 1
-                        continue
-                    k = in_epoch[sid]
-                    in_epoch[sid] += 1
-                    for name, value in put_list:
-                        untimed[(name, sid)].append((epoch, k, value))
-                    read[sid] += 1
-                    continue
-                prev = last_t.get(sid)
-                if prev is not None and t_own <= prev:
-                    # Once per sentence, whatever number of channels it carries; the untimed
-                    # sentences that follow it belong to the repeated epoch and are dropped too.
-                    skipped[f"{sid} repeated or out of order"] += 1
-                    fresh = False
-                    continue
-                last_t[sid] = t_own
-                for name, value in put_list:
-                    ts, vs = samples[(name, sid)]
-                    ts.append(t_own)
-                    vs.append(value)
-            except (ValueError, IndexError):
-                skipped[f"{sid} malformed"] += 1
-                continue
-            read[sid] += 1
-
-    warnings: list[str] = []
-    spread = _spread_untimed(untimed, np.asarray(epochs, float), samples)
-    if spread:
-        warnings.append("sentences without their own time, several per epoch, spread evenly between the "
-                        "time-bearing sentences around them: " + ", ".join(f"{k} up to {v} an epoch"
-                                                                         for k, v in sorted(spread.items())))
+def _merge_channels(samples: dict) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
+    """One series per channel from every sentence giving it; at one epoch the preferred sentence wins."""
     merged: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
     for name in ("lat", "lon", "sog", "cog", "psi", "phi", "theta", "u", "r"):
         parts = [(np.asarray(ts), np.asarray(vs), sid) for (ch, sid), (ts, vs) in samples.items() if ch == name]
@@ -650,15 +639,22 @@ def parse_nmea(lines, path_text: str = "NMEA") -> NmeaParse:
         keep = np.ones(len(t_all), bool)
         keep[1:] = np.diff(t_all) > 0
         merged[name] = (t_all[keep], v_all[keep], "+".join(sorted({x[2] for x in parts})))
+    return merged
 
-    if quality:
-        total = sum(quality.values())
-        q_text = ", ".join(f"{FIX_QUALITY.get(q, str(q))} {100.0 * c / total:.1f}%" for q, c in sorted(quality.items()))
-        s_text = (f"; satellites {min(nsat)}-{max(nsat)} (median {float(np.median(nsat)):g})" if nsat else "")
-        h_text = (f"; HDOP {min(hdop):g}-{max(hdop):g} (median {float(np.median(hdop)):g})" if hdop else "")
+
+def _defect_warnings(st: _ParseState) -> list[str]:
+    """Summary lines for the fix statistics and every kind of sentence that was dropped, with counts."""
+    skipped, warnings = st.skipped, []
+    if st.quality:
+        total = sum(st.quality.values())
+        q_text = ", ".join(f"{FIX_QUALITY.get(q, str(q))} {100.0 * c / total:.1f}%"
+                           for q, c in sorted(st.quality.items()))
+        nsat, hdop = st.nsat, st.hdop
+        s_text = f"; satellites {min(nsat)}-{max(nsat)} (median {float(np.median(nsat)):g})" if nsat else ""
+        h_text = f"; HDOP {min(hdop):g}-{max(hdop):g} (median {float(np.median(hdop)):g})" if hdop else ""
         warnings.append(f"fix stats (GGA): quality {q_text}{s_text}{h_text}")
     if skipped["bad checksum"]:
-        warnings.append(f"bad checksum: {skipped['bad checksum']} of {n_sentences} sentence(s) skipped")
+        warnings.append(f"bad checksum: {skipped['bad checksum']} of {st.n_sentences} sentence(s) skipped")
     if skipped["garbage line"] or skipped["incomplete sentence"]:
         warnings.append(f"unreadable lines skipped: {skipped['garbage line']} without a sentence, "
                         f"{skipped['incomplete sentence']} with an incomplete sentence or no checksum")
@@ -679,26 +675,79 @@ def parse_nmea(lines, path_text: str = "NMEA") -> NmeaParse:
     bad = {k: v for k, v in skipped.items() if k.endswith("malformed")}
     if bad:
         warnings.append("malformed fields: " + ", ".join(f"{k} {v}" for k, v in sorted(bad.items())))
-    if magnetic_only:
+    if st.magnetic_only:
         warnings.append("magnetic heading without a variation anywhere before it (no HDG variation, no RMC mv): "
-                        + ", ".join(f"{k} {v}" for k, v in sorted(magnetic_only.items()))
+                        + ", ".join(f"{k} {v}" for k, v in sorted(st.magnetic_only.items()))
                         + " heading(s) kept as psi = magnetic heading (+ deviation); true heading differs by "
                         "the local variation, a constant offset")
-    if clock.rollovers:
-        warnings.append(f"UTC day rollover(s) handled: {clock.rollovers}")
-    if seen:
-        parts = []
-        for sid, n in sorted(seen.items()):
-            fate = []
-            if read[sid]:
-                fate.append(f"read {read[sid]}")
-            for k, v in sorted(skipped.items()):
-                if v and (k == sid or k.startswith(sid + " ")):
-                    fate.append(f"{k[len(sid):].strip() or 'not used' + (': ' + _NOT_USED[sid] if sid in _NOT_USED else '')} {v}")
-            parts.append(f"{sid} {n} ({', '.join(fate)})")
-        warnings.append("sentence types: " + "; ".join(parts))
-    return NmeaParse(merged=merged, clock=clock, read=read, skipped=skipped, warnings=warnings,
-                     n_sentences=n_sentences, n_lines=n_lines)
+    if st.clock.rollovers:
+        warnings.append(f"UTC day rollover(s) handled: {st.clock.rollovers}")
+    return warnings
+
+
+def _fates(st: _ParseState) -> str:
+    """``sentence types: GGA 120 (read 118, no fix 2); GSV 40 (not used: satellites in view 40); ...``."""
+    parts = []
+    for sid, n in sorted(st.seen.items()):
+        fate = [f"read {st.read[sid]}"] if st.read[sid] else []
+        for k, v in sorted(st.skipped.items()):
+            if v and (k == sid or k.startswith(sid + " ")):
+                why = k[len(sid):].strip() or "not used" + (f": {_NOT_USED[sid]}" if sid in _NOT_USED else "")
+                fate.append(f"{why} {v}")
+        parts.append(f"{sid} {n} ({', '.join(fate)})")
+    return "sentence types: " + "; ".join(parts)
+
+
+def parse_nmea(lines, path_text: str = "NMEA") -> NmeaParse:
+    """Parse NMEA 0183 lines (bytes) into channels on one UTC clock, counting every sentence.
+
+    Parameters
+    ----------
+    lines : iterable of bytes
+        Text lines, each holding zero or more sentences.
+    path_text : str
+        Name of the source for messages.
+
+    Returns
+    -------
+    NmeaParse
+        Samples per channel (absolute UTC seconds; ``merged`` may be empty) and the counts.
+    """
+    st = _ParseState()
+    for line in lines:
+        st.n_lines += 1
+        for sid, f in _sentences(line, st):
+            st.seen[sid] += 1
+            if sid not in SENTENCES:
+                st.skipped[sid] += 1
+                continue
+            if sid not in TIMED and st.epoch is None:
+                st.skipped[f"{sid} before the first time-bearing sentence"] += 1
+                continue
+            try:
+                t_own, puts = _DECODERS[sid](sid, f, st)
+            except _Skip as why:
+                st.skipped[str(why)] += 1
+                continue
+            except (ValueError, IndexError):
+                st.skipped[f"{sid} malformed"] += 1
+                continue
+            if puts is None:   # the clock only (ZDA)
+                st.read[sid] += 1
+            else:
+                st.place(sid, t_own, puts)
+    warnings: list[str] = []
+    spread = _spread_untimed(st.untimed, np.asarray(st.epochs, float), st.samples)
+    if spread:
+        warnings.append("sentences without their own time, several per epoch, spread evenly between the "
+                        "time-bearing sentences around them: " + ", ".join(f"{k} up to {v} an epoch"
+                                                                         for k, v in sorted(spread.items())))
+    merged = _merge_channels(st.samples)
+    warnings += _defect_warnings(st)
+    if st.seen:
+        warnings.append(_fates(st))
+    return NmeaParse(merged=merged, clock=st.clock, read=st.read, skipped=st.skipped, warnings=warnings,
+                     n_sentences=st.n_sentences, n_lines=st.n_lines)
 
 
 def read_nmea(path: str | Path, sensor: str = "", progress: bool | None = None) -> RawLog:
