@@ -184,36 +184,32 @@ def plain_mavlink(paths) -> int:
     return n
 
 
-def plain_ubx(paths) -> int:
-    """pyubx2 as a user reads a UBX log: UBXReader over the stream, every message parsed and kept."""
-    from pyubx2 import UBXReader
-
+def _plain_stream(paths, reader, kind: str) -> int:
+    """Messages a user reads with ``reader`` over each stream, every one parsed and kept by ``kind``."""
     n = 0
     for path, _ in paths:
         with open(path, "rb") as fh:
             rows: dict[str, list] = {}
-            for _, parsed in UBXReader(fh, quitonerror=0):
+            for _, parsed in reader(fh, quitonerror=0):
                 if parsed is None:
                     continue
-                rows.setdefault(parsed.identity, []).append(parsed)
+                rows.setdefault(getattr(parsed, kind), []).append(parsed)
                 n += 1
     return n
+
+
+def plain_ubx(paths) -> int:
+    """pyubx2 as a user reads a UBX log: UBXReader over the stream, every message parsed and kept."""
+    from pyubx2 import UBXReader
+
+    return _plain_stream(paths, UBXReader, "identity")
 
 
 def plain_nmea(paths) -> int:
     """pynmeagps as a user reads an NMEA log: NMEAReader over the stream, every sentence parsed."""
     from pynmeagps import NMEAReader
 
-    n = 0
-    for path, _ in paths:
-        with open(path, "rb") as fh:
-            rows: dict[str, list] = {}
-            for _, parsed in NMEAReader(fh, quitonerror=0):
-                if parsed is None:
-                    continue
-                rows.setdefault(parsed.msgID, []).append(parsed)
-                n += 1
-    return n
+    return _plain_stream(paths, NMEAReader, "msgID")
 
 
 def _fields(msg) -> list:

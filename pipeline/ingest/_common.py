@@ -33,6 +33,34 @@ def increasing(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return t[keep], np.asarray(values)[keep], int((~keep).sum())
 
 
+def actuators_reading(maps, source: str, n: int, what: str, warnings: list[str]) -> list:
+    """The actuator maps that read ``source`` (``servo`` or ``rc``); none: a warning, and the records are skipped.
+
+    Parameters
+    ----------
+    maps : sequence of ActuatorMap
+        The vessel's ``[[actuators]]``.
+    source : str
+        ``servo`` or ``rc``.
+    n : int
+        Records of the input message present.
+    what : str
+        Their name for the warning (``"RCOU record(s)"``, ``"SERVO_OUTPUT_RAW message(s)"``).
+    warnings : list of str
+        Appended to when no map reads ``source``.
+
+    Returns
+    -------
+    list of ActuatorMap
+        The maps reading ``source``, in the vessel's order.
+    """
+    mine = [a for a in maps if a.source == source]
+    if not mine:
+        warnings.append(f"inputs not mapped: {n} {what} present but no actuator map with source '{source}' given "
+                        f"(pass a vessel with [[actuators]]); counted as skipped")
+    return mine
+
+
 def describe_failure(exc: BaseException, limit: int = 160) -> str:
     """A library's failure in one line for an error message, without the exception's class name.
 

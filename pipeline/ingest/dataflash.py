@@ -64,7 +64,7 @@ from ..geo import wrap_pi
 from ..records import Channel, IngestSummary, RawLog
 from ..terminal import want_progress
 from ..vessel import ActuatorMap, Vessel
-from ._common import check_file, describe_failure
+from ._common import actuators_reading, check_file, describe_failure
 from ._gpstime import GPS_EPOCH_UNIX, WEEK_S, leap_seconds, unix_text
 
 HEAD1, HEAD2 = 0xA3, 0x95
@@ -761,10 +761,8 @@ def _channels(name: str, canon: str, inst: int, t: np.ndarray, cols: Mapping[str
 def _inputs(name: str, cols: Mapping[str, np.ndarray], keep: np.ndarray, maps: tuple[ActuatorMap, ...],
             warnings: list[str]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     src, patterns, count = INPUT_MESSAGES[name]
-    mine = [a for a in maps if a.source == src]
+    mine = actuators_reading(maps, src, int(keep.sum()), f"{name} record(s)", warnings)
     if not mine:
-        warnings.append(f"inputs not mapped: {int(keep.sum())} {name} record(s) present but no actuator map with "
-                        f"source '{src}' given (pass a vessel with [[actuators]]); counted as skipped")
         return {}, {}
     out: dict[str, np.ndarray] = {}
     valid: dict[str, np.ndarray] = {}

@@ -47,7 +47,7 @@ from ..geo import wrap_pi
 from ..records import Channel, IngestSummary, RawLog
 from ..terminal import want_progress
 from ..vessel import ActuatorMap, Vessel
-from ._common import check_file
+from ._common import actuators_reading, check_file
 from ._gpstime import unix_text
 
 #: Standard gravity [m/s^2], the one ArduPilot uses to turn m/s^2 into mG.
@@ -598,10 +598,8 @@ def _drop(valid: dict[str, np.ndarray], names: tuple[str, ...], bad: np.ndarray,
 def _inputs(msg_type: str, col: Mapping[str, np.ndarray], keep: np.ndarray, maps: tuple[ActuatorMap, ...],
             warnings: list[str], dropped: list[str]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     src, pattern, count = INPUT_MESSAGES[msg_type]
-    mine = [a for a in maps if a.source == src]
+    mine = actuators_reading(maps, src, int(keep.sum()), f"{msg_type} message(s)", warnings)
     if not mine:
-        warnings.append(f"inputs not mapped: {int(keep.sum())} {msg_type} message(s) present but no actuator "
-                        f"map with source '{src}' given (pass a vessel with [[actuators]]); counted as skipped")
         return {}, {}
     keep = keep.copy()
     if msg_type == "SERVO_OUTPUT_RAW":
