@@ -16,8 +16,9 @@ plain data, readable as the reference of both files.
 Spec language
 -------------
 A spec is one of: ``"string"``, ``"number"`` (finite int or float, not bool), ``"positive"``
-(number > 0), ``"non-negative"`` (number >= 0), ``"text"`` (a non-empty string), ``"integer>=1"``, ``"boolean"``, ``("one of", words)``, ``("list", n, spec)``
-(``n`` items, None: any non-empty length), ``("matrix", rows, cols)`` of numbers,
+(number > 0), ``"non-negative"`` (number >= 0), ``"text"`` (a non-empty string), ``"integer>=1"``,
+``"boolean"``, ``("one of", words)``, ``("list", n, spec)`` (``n`` items, None: any non-empty
+length), ``("matrix", rows, cols)`` of numbers,
 ``("table", {key: spec}, required)`` (unknown keys refused), ``("map", spec)`` (free keys, each
 value ``spec``), ``("tables", spec)`` (a TOML array of tables, each ``spec``), ``("refuse",
 why)`` (a key that is recognised but not accepted) and ``("any of", spec, ...)`` (the first that
@@ -64,8 +65,9 @@ VESSEL_SCHEMA = ("table", {
                           "quadratic": ("list", 5, _NUM)}, ()),
     "nomoto": ("table", {"K": _NUM, "T": _POS}, ()),
     "rudder": ("table", {"max_angle": _POS, "max_rate": _POS, "yaw_moment": _NUM, "sway_force": _NUM}, ()),
-    "actuators": ("tables", ("table", {"source": ("one of", ("servo", "rc")), "channel": "integer>=1",
-                                       "target": ("one of", tuple(INPUT_UNITS)), "pwm_trim": _NUM,
+    # source: PWM (servo, rc) or PX4's normalised actuator_motors / actuator_servos (motor, servo_control).
+    "actuators": ("tables", ("table", {"source": ("one of", ("servo", "rc", "motor", "servo_control")),
+                                       "channel": "integer>=1", "target": ("one of", tuple(INPUT_UNITS)), "pwm_trim": _NUM,
                                        "pwm_span": _POS, "full_scale": _NUM, "reverse_scale": _NUM},
                              ("source", "channel", "target"))),
     "thrusters": ("table", {d: THRUSTER for d in ("surge", "sway", "yaw")}, ()),

@@ -29,6 +29,11 @@ from .config_schema import VESSEL_SCHEMA, read_toml, validate
 from .errors import ConfigError
 from .records import DOF_NAMES, DOFS
 
+#: ``[[actuators]]`` sources whose values are normalised to [-1, 1] (PX4 ``actuator_motors`` and
+#: ``actuator_servos``) rather than PWM: their neutral is 0 and their span 1 unless given.
+NORMALISED_SOURCES = ("motor", "servo_control")
+
+
 @dataclass(frozen=True)
 class ActuatorMap:
     """How one PWM channel maps to a canonical input.
@@ -39,13 +44,15 @@ class ActuatorMap:
     Attributes
     ----------
     source : str
-        ``servo`` (SERVO_OUTPUT_RAW / RCOU) or ``rc`` (RC_CHANNELS / RCIN).
+        ``servo`` (SERVO_OUTPUT_RAW / RCOU / PX4 actuator_outputs) or ``rc`` (RC_CHANNELS / RCIN), PWM [us];
+        ``motor`` (PX4 actuator_motors) or ``servo_control`` (PX4 actuator_servos), normalised [-1, 1].
     channel : int
         1-based channel number.
     target : str
         Canonical input (``delta``, ``tau_x``, ...).
     pwm_trim, pwm_span : float
-        Neutral PWM and PWM distance to full scale [us].
+        Neutral PWM and PWM distance to full scale [us] (for a normalised source, in its units:
+        0 and 1 by default).
     full_scale, reverse_scale : float
         Input at ``pwm_trim + pwm_span`` and magnitude at ``pwm_trim - pwm_span`` [SI unit of target];
         ``reverse_scale`` defaults to ``full_scale``.
@@ -280,8 +287,9 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
     acts = []
     for a in doc.get("actuators", []):
         fs = float(a.get("full_scale", 1.0))
+        trim, span = (0.0, 1.0) if a["source"] in NORMALISED_SOURCES else (1500.0, 400.0)
         acts.append(ActuatorMap(source=a["source"], channel=int(a["channel"]), target=a["target"],
-                                pwm_trim=float(a.get("pwm_trim", 1500.0)), pwm_span=float(a.get("pwm_span", 400.0)),
+                                pwm_trim=float(a.get("pwm_trim", trim)), pwm_span=float(a.get("pwm_span", span)),
                                 full_scale=fs, reverse_scale=float(a.get("reverse_scale", fs))))
     kw["actuators"] = tuple(acts)
     kw["extra"] = {k: doc[k] for k in ("thrusters", "topics", "sensors", "steady_state") if k in doc}

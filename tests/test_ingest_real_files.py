@@ -101,6 +101,48 @@ def test_ulog_actuator_outputs_through_the_vessel_map():
     np.testing.assert_allclose(log.channels["delta"].t, out["timestamp"][ok] * 1e-6)
 
 
+#: PX4's own events sample: the one public ULog we know with ``actuator_motors`` (1.5 MB, so not
+#: kept under tests/data; read from a local mirror of PX4/pyulog at the pinned commit when present).
+PX4_EVENTS = ("/work/.mirror/PX4+pyulog/repo", "3cf17793f14709713ab297d3743314c658874068", "test/sample_px4_events.ulg")
+
+
+def test_ulog_motor_topic_through_a_normalised_actuator_map(tmp_path):
+    import subprocess
+
+    from pyulog import ULog
+
+    from pipeline.vessel import parse_vessel
+
+    git_dir, commit, name = PX4_EVENTS
+    path = tmp_path / Path(name).name
+    try:
+        path.write_bytes(subprocess.run(["git", "--git-dir", git_dir, "show", f"{commit}:{name}"], capture_output=True,
+                                        check=True).stdout)
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip(f"{name} not available (no mirror of PX4/pyulog at {git_dir})")
+    vessel = parse_vessel({"name": "quad as a boat", "actuators": [
+        {"source": "motor", "channel": 1, "target": "tau_x", "full_scale": 10.0},
+        {"source": "motor", "channel": 3, "target": "tau_x", "full_scale": 10.0},
+        {"source": "motor", "channel": 2, "target": "tau_n", "full_scale": 2.0, "reverse_scale": 1.0}]})
+    assert vessel.actuators[0].pwm_trim == 0.0 and vessel.actuators[0].pwm_span == 1.0  # normalised defaults
+    ref = ULog(str(path))
+    motors = next(d for d in ref.data_list if d.name == "actuator_motors").data
+    c0, c1, c2 = (motors[f"control[{k}]"].astype(float) for k in range(3))
+    log = read_log(path, vessel=vessel)
+    both = np.isfinite(c0) & np.isfinite(c2)
+    np.testing.assert_allclose(log.channels["tau_x"].values, 10.0 * (c0[both] + c2[both]))  # twin motors add
+    np.testing.assert_allclose(log.channels["tau_x"].t, motors["timestamp"][both] * 1e-6)
+    ok = np.isfinite(c1)
+    np.testing.assert_allclose(log.channels["tau_n"].values, np.where(c1[ok] >= 0, 2.0, 1.0) * c1[ok])
+    assert log.channels["tau_x"].source == "ulog:actuator_motors"
+    total = sum(len(d.data["timestamp"]) for d in ref.data_list)
+    assert sum(log.summary.read.values()) + sum(log.summary.skipped.values()) == total
+    assert log.summary.read["actuator_motors"] == int((both | ok).sum())
+    # Without a motor map the topic is counted as skipped, with the reason.
+    bare = read_log(path)
+    assert bare.summary.skipped["actuator_motors (no actuator map with source 'motor')"] == len(c0)
+
+
 def test_ulog_bad_input(tmp_path):
     cut = tmp_path / "cut.ulg"
     cut.write_bytes((DATA / "pyulog" / "sample_appended_multiple.ulg").read_bytes()[:10])

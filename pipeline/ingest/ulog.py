@@ -20,12 +20,16 @@ vehicle_local_position      x, y [m] -> x_n, y_e (when xy_valid); vx, vy [m/s] -
                             (when v_xy_valid)
 actuator_outputs            output[0..15] [us]   -> inputs through the vessel's ``[[actuators]]``
                             (source servo, channel k = output[k-1])
+actuator_motors             control[0..11] [-1, 1] -> inputs through ``[[actuators]]`` with source motor
+                            (channel k = control[k-1]; NaN = motor off, not read)
+actuator_servos             control[0..7] [-1, 1]  -> inputs through ``[[actuators]]`` with source
+                            servo_control (channel k = control[k-1]; NaN = not driven, not read)
 
 Instance ``multi_id`` 0 gives the plain names; instance k >= 1 gives ``name@<topic-short>k``
 (``p@imu1`` style: ``lat@gps1``, ``p@rate1``); when a log has both ``vehicle_gps_position``
 (PX4's selected or blended receiver) and ``sensor_gps`` (each receiver), the latter are
-``lat@sensor_gps<k>``. Topics not in the map (actuator_motors,
-actuator_servos normalised to [-1, 1], battery, estimator internals, ...) are counted per topic
+``lat@sensor_gps<k>``. Topics not in the map (battery, estimator internals, ...; and the
+actuator topics when the vessel maps none of their channels) are counted per topic
 in ``summary.skipped``; every sample of a used topic is either read or counted as skipped with
 the reason (no fix, invalid flag, repeated or out-of-order timestamp).
 
@@ -40,13 +44,14 @@ from __future__ import annotations
 import math
 from collections import Counter
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 
 from ..errors import IngestError
 from ..geo import wrap_pi
 from ..records import Channel, IngestSummary, RawLog
-from ..vessel import Vessel
+from ..vessel import ActuatorMap, Vessel
 from ._common import check_file, describe_failure
 
 #: (topic, field) -> (canonical channel, scale to SI). Euler angles come from the quaternion.
@@ -70,8 +75,13 @@ VARIABLE_MAP: dict[tuple[str, str], tuple[str, float]] = {
     ("vehicle_local_position", "vx vy"): ("sog@ekf cog@ekf", 1.0),
 }
 _GPS_TOPICS = ("vehicle_gps_position", "sensor_gps")
+#: Actuator topic -> (``[[actuators]]`` source that maps it, field of channel k (k from 0), what a sample
+#: must satisfy to be a command: a PWM above 0 us, or a finite normalised value).
+ACTUATOR_TOPICS = {"actuator_outputs": ("servo", "output[{}]", "pwm > 0"),
+                   "actuator_motors": ("motor", "control[{}]", "finite"),
+                   "actuator_servos": ("servo_control", "control[{}]", "finite")}
 _USED = ("vehicle_attitude", "vehicle_angular_velocity", "sensor_combined", *_GPS_TOPICS, "vehicle_local_position",
-         "actuator_outputs")
+         *ACTUATOR_TOPICS)
 _SHORT = {"vehicle_attitude": "att", "vehicle_angular_velocity": "rate", "sensor_combined": "imu",
           "vehicle_gps_position": "gps", "sensor_gps": "gps", "vehicle_local_position": "ekf"}
 
@@ -109,6 +119,31 @@ def _strict(t: np.ndarray) -> np.ndarray:
     return ok
 
 
+def _actuator_inputs(topic: str, data: Mapping[str, np.ndarray], keep: np.ndarray, maps: tuple[ActuatorMap, ...],
+                     warnings: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Target input -> (values [SI], samples that are commands) of one actuator topic through ``maps``.
+
+    Several channels on one target (twin thrusters) add up to the generalised force; a sample
+    counts only when every channel on its target holds a command.
+    """
+    source, pattern, rule = ACTUATOR_TOPICS[topic]
+    sums: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for a in maps:
+        field_name = pattern.format(a.channel - 1)
+        if field_name not in data:
+            warnings.append(f"actuator map {source} channel {a.channel} ({a.target}): {topic} has no "
+                            f"{field_name}; not read")
+            continue
+        raw = data[field_name].astype(float)
+        ok = keep & ((raw > 0) if rule == "pwm > 0" else np.isfinite(raw))
+        value = a.to_input(np.where(ok, raw, 0.0))
+        if a.target in sums:
+            sums[a.target] = (sums[a.target][0] + value, sums[a.target][1] & ok)
+        else:
+            sums[a.target] = (value, ok)
+    return sums
+
+
 def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
     """Read a PX4 ULog into canonical channels on the autopilot's boot clock.
 
@@ -117,7 +152,9 @@ def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
     path : str or Path
         The ``.ulg`` file (opened read-only).
     vessel : Vessel, optional
-        Its ``[[actuators]]`` with source ``servo`` map ``actuator_outputs`` channels to inputs.
+        Its ``[[actuators]]`` map actuator channels to inputs: source ``servo`` reads
+        ``actuator_outputs`` (PWM), ``motor`` reads ``actuator_motors`` and ``servo_control`` reads
+        ``actuator_servos`` (both normalised to [-1, 1]).
 
     Returns
     -------
@@ -150,8 +187,8 @@ def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
     chans: dict[str, Channel] = {}
     topics = {(d.name, d.multi_id): d for d in ulog.data_list}
     has_rates = any(name == "vehicle_angular_velocity" for name, _ in topics)
-    maps = tuple(a for a in vessel.actuators if a.source == "servo") if vessel is not None else ()
-    inputs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    actuators = vessel.actuators if vessel is not None else ()
+    inputs: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
 
     has_vgps = any(name == "vehicle_gps_position" for name, _ in topics)
 
@@ -241,27 +278,14 @@ def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
             used |= xy_ok | v_ok
             if (keep & ~(xy_ok | v_ok)).any():
                 skipped[f"{topic} invalid (xy_valid and v_xy_valid false)"] += int((keep & ~(xy_ok | v_ok)).sum())
-        elif topic == "actuator_outputs":
+        elif topic in ACTUATOR_TOPICS:
+            source = ACTUATOR_TOPICS[topic][0]
+            maps = tuple(a for a in actuators if a.source == source)
             if not maps:
-                skipped[f"{topic} (no actuator map with source 'servo')"] += int(keep.sum())
+                skipped[f"{topic} (no actuator map with source '{source}')"] += int(keep.sum())
                 continue
-            sums: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-            for a in maps:
-                field_name = f"output[{a.channel - 1}]"
-                if field_name not in data:
-                    warnings.append(f"actuator map servo channel {a.channel} ({a.target}): {topic} has no "
-                                    f"{field_name}; not read")
-                    continue
-                pwm = data[field_name].astype(float)
-                ok = keep & (pwm > 0)
-                value = a.to_input(pwm)
-                if a.target in sums:
-                    # Several outputs on one target (twin thrusters) add up to the generalised force.
-                    sums[a.target] = (sums[a.target][0] + value, sums[a.target][1] & ok)
-                else:
-                    sums[a.target] = (value, ok)
-            for target, (value, ok) in sums.items():
-                inputs[name_of(target, topic, inst)] = (t[ok], value[ok])
+            for target, (value, ok) in _actuator_inputs(topic, data, keep, maps, warnings).items():
+                inputs[name_of(target, topic, inst)] = (t[ok], value[ok], topic)
                 used |= ok
         else:
             skipped[topic] += n
@@ -270,8 +294,8 @@ def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
         left = keep & ~used
         if left.any() and topic not in _GPS_TOPICS and topic != "vehicle_local_position":
             skipped[f"{topic} unusable"] += int(left.sum())
-    for key, (t_in, v_in) in inputs.items():
-        chans[key] = Channel(key, t_in, v_in, source="ulog:actuator_outputs")
+    for key, (t_in, v_in, topic) in inputs.items():
+        chans[key] = Channel(key, t_in, v_in, source=f"ulog:{topic}")
 
     start_time = math.nan
     if gps_offsets:
