@@ -112,7 +112,8 @@ def test_unknown_actuator_key_names_key_and_allowed():
 
 @pytest.mark.parametrize("actuator, match", [
     ({"source": "servo", "channel": 1}, r"actuators\[0\]: missing key\(s\) \['target'\]"),
-    ({"source": "pwm", "channel": 1, "target": "delta"}, r"actuators\[0\].source: expected one of 'servo', 'rc', found 'pwm'"),
+    ({"source": "pwm", "channel": 1, "target": "delta"},
+     r"actuators\[0\].source: expected one of 'servo', 'rc', 'motor', 'servo_control', found 'pwm'"),
     ({"source": "rc", "channel": 1, "target": "rudder"}, r"target: expected one of .*'delta'.*found 'rudder'"),
     ({"source": "rc", "channel": 1, "target": "delta", "pwm_span": 0}, r"pwm_span: expected a positive number, found 0"),
     ({"source": "rc", "channel": 1, "target": "delta", "full_scale": "big"}, r"full_scale: expected a finite number, found 'big'"),
