@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from fuzz import fuzz_reader
 from pymavlink.DFReader import DFReader_binary
 
 from pipeline.errors import IngestError, SimError
@@ -289,28 +290,7 @@ def test_only_definitions_is_no_usable_message(binfile, tmp_path):
 
 def test_fuzz_truncation_and_byte_flips(binfile, vessel, tmp_path):
     data = binfile.read_bytes()
-    rng = np.random.default_rng(20240505)
-    outcomes = {"read": 0, "IngestError": 0}
-    for case in range(50):
-        b = bytearray(data)
-        if case % 3 != 1:
-            b = b[:int(rng.integers(0, len(b)))]
-        if case % 3 != 0:
-            for _ in range(int(rng.integers(1, 64))):
-                if b:
-                    b[int(rng.integers(0, len(b)))] = int(rng.integers(0, 256))
-        p = tmp_path / f"fuzz{case}.bin"
-        p.write_bytes(bytes(b))
-        try:
-            out = read_dataflash(p, vessel)
-        except IngestError:
-            outcomes["IngestError"] += 1
-            continue
-        outcomes["read"] += 1
-        for c in out.channels.values():
-            assert len(c.t) == len(c.values) and len(c.t) > 0
-            assert np.all(np.diff(c.t) > 0), (case, c.name)
-        assert p.read_bytes() == bytes(b)
+    outcomes = fuzz_reader(data, lambda p: read_dataflash(p, vessel), tmp_path, ".bin", seed=20240505)
     assert outcomes["read"] >= 25
     print(f"\nDataFlash fuzz: {outcomes}")
 
