@@ -144,6 +144,206 @@ def _actuator_inputs(topic: str, data: Mapping[str, np.ndarray], keep: np.ndarra
     return sums
 
 
+class _Topics:
+    """What :func:`read_ulog` accumulates over the topics: counts, notes, channels, inputs, GPS clock offsets."""
+
+    def __init__(self, names: set[str], actuators: tuple[ActuatorMap, ...]) -> None:
+        self.read: Counter = Counter()
+        self.skipped: Counter = Counter()
+        self.warnings: list[str] = []
+        self.chans: dict[str, Channel] = {}
+        self.inputs: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
+        self.gps_offsets: list[np.ndarray] = []
+        self.has_rates = "vehicle_angular_velocity" in names
+        self.has_vgps = "vehicle_gps_position" in names
+        self.actuators = actuators
+
+    def name_of(self, base: str, topic: str, inst: int) -> str:
+        """Channel name of ``base`` from instance ``inst`` of ``topic`` (``p``, ``p@imu1``, ``lat@sensor_gps0``)."""
+        if topic == "sensor_gps" and self.has_vgps:
+            # The receiver itself, next to PX4's selected/blended vehicle_gps_position.
+            return f"{base}@sensor_gps{inst}"
+        if inst == 0:
+            return base
+        if "@" in base:
+            return f"{base}{inst}"
+        return f"{base}@{_SHORT.get(topic, topic)}{inst}"
+
+    def add(self, base: str, topic: str, inst: int, t: np.ndarray, v: np.ndarray, src: str) -> None:
+        """A channel from finite samples ``v`` at ``t`` [s]."""
+        ok = np.isfinite(v)
+        name = self.name_of(base, topic, inst)
+        self.chans[name] = Channel(name, t[ok], np.asarray(v[ok], float), source=f"ulog:{src}")
+
+    def take(self, topic: str, inst: int, data: Mapping[str, np.ndarray]) -> None:
+        """Read one topic instance, counting every sample as read or skipped with its reason."""
+        n = len(data["timestamp"])
+        handler = _HANDLERS.get(topic)
+        if handler is None or (topic == "sensor_combined" and self.has_rates and "accelerometer_m_s2[0]" not in data):
+            self.skipped[topic] += n
+            return
+        t_us = data["timestamp"].astype(np.int64)
+        keep = _strict(t_us) & (t_us > 0)
+        if (~keep).any():
+            self.skipped[f"{topic} repeated, out-of-order or zero timestamp"] += int((~keep).sum())
+        used = handler(self, topic, inst, data, t_us, keep)
+        if used is None:   # the handler counted the topic as skipped
+            return
+        self.read[topic] += int(used.sum())
+        left = keep & ~used
+        if left.any() and topic not in _GPS_TOPICS and topic != "vehicle_local_position":
+            self.skipped[f"{topic} unusable"] += int(left.sum())
+
+
+# ----------------------------------------------------------------------------- one handler per topic
+# Each takes (reader, topic, instance, data, timestamps [us], samples with a good timestamp) and
+# returns the samples it used, or None when it counted the whole topic as skipped.
+
+def _attitude(r: _Topics, topic: str, inst: int, data, t_us: np.ndarray, keep: np.ndarray) -> np.ndarray | None:
+    """vehicle_attitude: the quaternion -> phi, theta, psi."""
+    if "q[0]" not in data:
+        r.skipped[topic] += len(t_us)
+        return None
+    t = t_us * 1e-6
+    q = np.column_stack([data[f"q[{i}]"] for i in range(4)])
+    good = keep & (np.linalg.norm(q, axis=1) > 0.5)
+    phi, theta, psi = quaternion_to_euler(q[good])
+    for base, v in (("phi", phi), ("theta", theta), ("psi", psi)):
+        r.add(base, topic, inst, t[good], v, f"{topic}.q")
+    return good
+
+
+def _rates(r: _Topics, topic: str, inst: int, data, t_us: np.ndarray, keep: np.ndarray) -> np.ndarray | None:
+    """vehicle_angular_velocity: xyz -> p, q, r."""
+    if "xyz[0]" not in data:
+        r.skipped[topic] += len(t_us)
+        return None
+    t = t_us * 1e-6
+    for i, base in enumerate(("p", "q", "r")):
+        r.add(base, topic, inst, t[keep], data[f"xyz[{i}]"][keep], f"{topic}.xyz[{i}]")
+    return keep.copy()
+
+
+def _imu(r: _Topics, topic: str, inst: int, data, t_us: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """sensor_combined: gyro (when the log has no vehicle_angular_velocity) and accelerometer."""
+    t = t_us * 1e-6
+    used = np.zeros(len(t_us), bool)
+    if not r.has_rates and "gyro_rad[0]" in data:
+        for i, base in enumerate(("p", "q", "r")):
+            r.add(base, topic, inst, t[keep], data[f"gyro_rad[{i}]"][keep], f"{topic}.gyro_rad[{i}]")
+        used |= keep
+    if "accelerometer_m_s2[0]" in data:
+        for i, base in enumerate(("ax", "ay", "az")):
+            field_name = f"accelerometer_m_s2[{i}]"
+            r.add(base, topic, inst, t[keep], data[field_name][keep], f"{topic}.{field_name}")
+        used |= keep
+    return used
+
+
+def _gps(r: _Topics, topic: str, inst: int, data, t_us: np.ndarray, keep: np.ndarray) -> np.ndarray | None:
+    """vehicle_gps_position / sensor_gps: position, speed and course with a fix; UTC for the boot clock."""
+    n = len(t_us)
+    if "latitude_deg" in data:
+        lat, lon = data["latitude_deg"].astype(float), data["longitude_deg"].astype(float)
+    elif "lat" in data:
+        lat, lon = data["lat"] * 1e-7, data["lon"] * 1e-7
+    else:
+        r.skipped[topic] += n
+        return None
+    t = t_us * 1e-6
+    fix = data["fix_type"] if "fix_type" in data else np.full(n, 3)
+    good = keep & (fix >= 2) & (np.abs(lat) <= 90) & (np.abs(lon) <= 180) & ((lat != 0) | (lon != 0))
+    if (keep & ~good).any():
+        r.skipped[f"{topic} no fix"] += int((keep & ~good).sum())
+    r.add("lat", topic, inst, t[good], lat[good], f"{topic}.lat")
+    r.add("lon", topic, inst, t[good], lon[good], f"{topic}.lon")
+    if "vel_m_s" in data:
+        r.add("sog", topic, inst, t[good], data["vel_m_s"][good], f"{topic}.vel_m_s")
+    if "cog_rad" in data:
+        r.add("cog", topic, inst, t[good], wrap_pi(data["cog_rad"][good]), f"{topic}.cog_rad")
+    if "time_utc_usec" in data:
+        utc = data["time_utc_usec"].astype(np.int64)
+        ok = good & (utc > 0)
+        if ok.any():
+            r.gps_offsets.append((utc[ok] - t_us[ok]) * 1e-6)
+    return good
+
+
+def _local_position(r: _Topics, topic: str, inst: int, data, t_us: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """vehicle_local_position: x, y (when xy_valid); speed and course from vx, vy (when v_xy_valid)."""
+    t = t_us * 1e-6
+    xy_ok = keep & (data["xy_valid"].astype(bool) if "xy_valid" in data else True)
+    v_ok = keep & (data["v_xy_valid"].astype(bool) if "v_xy_valid" in data else True)
+    if xy_ok.any():
+        r.add("x_n", topic, inst, t[xy_ok], data["x"][xy_ok], f"{topic}.x")
+        r.add("y_e", topic, inst, t[xy_ok], data["y"][xy_ok], f"{topic}.y")
+    if v_ok.any():
+        vx, vy = data["vx"][v_ok].astype(float), data["vy"][v_ok].astype(float)
+        r.add("sog@ekf", topic, inst, t[v_ok], np.hypot(vx, vy), f"{topic}.vx,vy")
+        r.add("cog@ekf", topic, inst, t[v_ok], wrap_pi(np.arctan2(vy, vx)), f"{topic}.vx,vy")
+    if (keep & ~(xy_ok | v_ok)).any():
+        r.skipped[f"{topic} invalid (xy_valid and v_xy_valid false)"] += int((keep & ~(xy_ok | v_ok)).sum())
+    return xy_ok | v_ok
+
+
+def _actuators(r: _Topics, topic: str, inst: int, data, t_us: np.ndarray, keep: np.ndarray) -> np.ndarray | None:
+    """actuator_outputs / actuator_motors / actuator_servos through the vessel's ``[[actuators]]``."""
+    source = ACTUATOR_TOPICS[topic][0]
+    maps = tuple(a for a in r.actuators if a.source == source)
+    if not maps:
+        r.skipped[f"{topic} (no actuator map with source '{source}')"] += int(keep.sum())
+        return None
+    t = t_us * 1e-6
+    used = np.zeros(len(t_us), bool)
+    for target, (value, ok) in _actuator_inputs(topic, data, keep, maps, r.warnings).items():
+        r.inputs[r.name_of(target, topic, inst)] = (t[ok], value[ok], topic)
+        used |= ok
+    return used
+
+
+_HANDLERS = {"vehicle_attitude": _attitude, "vehicle_angular_velocity": _rates, "sensor_combined": _imu,
+             "vehicle_gps_position": _gps, "sensor_gps": _gps, "vehicle_local_position": _local_position,
+             **{topic: _actuators for topic in ACTUATOR_TOPICS}}
+
+
+def _open_ulog(p: Path):
+    """pyulog's ``ULog`` of a file whose header is checked first; IngestError on anything else."""
+    with open(p, "rb") as fh:
+        head = fh.read(16)
+    if not head.startswith(b"ULog\x01\x12\x35"):
+        raise IngestError(f"{p}: expected a PX4 ULog (magic 'ULog' 01 12 35), found {head[:8]!r}")
+    if len(head) < 16:
+        raise IngestError(f"{p}: expected a PX4 ULog header of 16 bytes, found {len(head)} (truncated)")
+    from pyulog import ULog
+
+    try:
+        return ULog(str(p))
+    except Exception as exc:  # pyulog raises bare exceptions of many kinds on a corrupt file
+        raise IngestError(f"{p}: expected a readable PX4 ULog, found a file pyulog cannot parse "
+                          f"({describe_failure(exc)})") from None
+
+
+def _log_notes(ulog, gps_offsets: list[np.ndarray], warnings: list[str]) -> float:
+    """Boot time [s, Unix] from the GPS samples with UTC (NaN without); parameters, messages, dropouts noted."""
+    start_time = math.nan
+    if gps_offsets:
+        off = np.concatenate(gps_offsets)
+        start_time = float(np.median(off))
+        warnings.append(f"boot time from {len(off)} GPS sample(s) with UTC: t = 0 at Unix {start_time:.3f} s")
+    params = ulog.initial_parameters
+    changed = getattr(ulog, "changed_parameters", [])
+    warnings.append(f"parameters: {len(params)} logged at start, {len(changed)} change(s) during the log")
+    n_bad_msgs = sum(1 for m in ulog.logged_messages if int(getattr(m, "log_level", 7)) <= 4)
+    if n_bad_msgs:
+        warnings.append(f"{n_bad_msgs} logged message(s) of level warning or worse")
+    if ulog.dropouts:
+        total_ms = sum(int(d.duration) for d in ulog.dropouts)
+        warnings.append(f"logger dropouts: {len(ulog.dropouts)} totalling {total_ms} ms (samples lost there)")
+    if getattr(ulog, "file_corruption", False):
+        warnings.append("pyulog reports file corruption: the parts it could not parse are not read")
+    return start_time
+
+
 def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
     """Read a PX4 ULog into canonical channels on the autopilot's boot clock.
 
@@ -167,158 +367,20 @@ def read_ulog(path: str | Path, vessel: Vessel | None = None) -> RawLog:
         Missing, empty, truncated-header or unreadable file; no topic that gives a channel.
     """
     p = check_file(path, "PX4 ULog")
-    with open(p, "rb") as fh:
-        head = fh.read(16)
-    if not head.startswith(b"ULog\x01\x12\x35"):
-        raise IngestError(f"{p}: expected a PX4 ULog (magic 'ULog' 01 12 35), found {head[:8]!r}")
-    if len(head) < 16:
-        raise IngestError(f"{p}: expected a PX4 ULog header of 16 bytes, found {len(head)} (truncated)")
-    from pyulog import ULog
-
-    try:
-        ulog = ULog(str(p))
-    except Exception as exc:  # pyulog raises bare exceptions of many kinds on a corrupt file
-        raise IngestError(f"{p}: expected a readable PX4 ULog, found a file pyulog cannot parse "
-                          f"({describe_failure(exc)})") from None
-
-    read: Counter = Counter()
-    skipped: Counter = Counter()
-    warnings: list[str] = []
-    chans: dict[str, Channel] = {}
+    ulog = _open_ulog(p)
     topics = {(d.name, d.multi_id): d for d in ulog.data_list}
-    has_rates = any(name == "vehicle_angular_velocity" for name, _ in topics)
-    actuators = vessel.actuators if vessel is not None else ()
-    inputs: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
-
-    has_vgps = any(name == "vehicle_gps_position" for name, _ in topics)
-
-    def name_of(base: str, topic: str, inst: int) -> str:
-        if topic == "sensor_gps" and has_vgps:
-            # The receiver itself, next to PX4's selected/blended vehicle_gps_position.
-            return f"{base}@sensor_gps{inst}"
-        if inst == 0:
-            return base
-        if "@" in base:
-            return f"{base}{inst}"
-        return f"{base}@{_SHORT.get(topic, topic)}{inst}"
-
-    def add(base: str, topic: str, inst: int, t: np.ndarray, v: np.ndarray, src: str) -> None:
-        ok = np.isfinite(v)
-        chans[name_of(base, topic, inst)] = Channel(name_of(base, topic, inst), t[ok], np.asarray(v[ok], float),
-                                                    source=f"ulog:{src}")
-
-    gps_offsets: list[np.ndarray] = []
+    r = _Topics({name for name, _ in topics}, vessel.actuators if vessel is not None else ())
     for (topic, inst), d in sorted(topics.items()):
-        data = d.data
-        n = len(data["timestamp"])
-        if topic not in _USED or (topic == "sensor_combined" and has_rates and "accelerometer_m_s2[0]" not in data):
-            skipped[topic] += n
-            continue
-        t_us = data["timestamp"].astype(np.int64)
-        keep = _strict(t_us) & (t_us > 0)
-        if (~keep).any():
-            skipped[f"{topic} repeated, out-of-order or zero timestamp"] += int((~keep).sum())
-        t = t_us * 1e-6
-        used = np.zeros(n, bool)
-        if topic == "vehicle_attitude" and "q[0]" in data:
-            q = np.column_stack([data[f"q[{i}]"] for i in range(4)])
-            good = keep & (np.linalg.norm(q, axis=1) > 0.5)
-            phi, theta, psi = quaternion_to_euler(q[good])
-            for base, v in (("phi", phi), ("theta", theta), ("psi", psi)):
-                add(base, topic, inst, t[good], v, f"{topic}.q")
-            used |= good
-        elif topic == "vehicle_angular_velocity" and "xyz[0]" in data:
-            for i, base in enumerate(("p", "q", "r")):
-                add(base, topic, inst, t[keep], data[f"xyz[{i}]"][keep], f"{topic}.xyz[{i}]")
-            used |= keep
-        elif topic == "sensor_combined":
-            if not has_rates and "gyro_rad[0]" in data:
-                for i, base in enumerate(("p", "q", "r")):
-                    add(base, topic, inst, t[keep], data[f"gyro_rad[{i}]"][keep], f"{topic}.gyro_rad[{i}]")
-                used |= keep
-            if "accelerometer_m_s2[0]" in data:
-                for i, base in enumerate(("ax", "ay", "az")):
-                    add(base, topic, inst, t[keep], data[f"accelerometer_m_s2[{i}]"][keep],
-                        f"{topic}.accelerometer_m_s2[{i}]")
-                used |= keep
-        elif topic in _GPS_TOPICS:
-            if "latitude_deg" in data:
-                lat, lon = data["latitude_deg"].astype(float), data["longitude_deg"].astype(float)
-            elif "lat" in data:
-                lat, lon = data["lat"] * 1e-7, data["lon"] * 1e-7
-            else:
-                skipped[topic] += n
-                continue
-            fix = data["fix_type"] if "fix_type" in data else np.full(n, 3)
-            good = keep & (fix >= 2) & (np.abs(lat) <= 90) & (np.abs(lon) <= 180) & ((lat != 0) | (lon != 0))
-            if (keep & ~good).any():
-                skipped[f"{topic} no fix"] += int((keep & ~good).sum())
-            add("lat", topic, inst, t[good], lat[good], f"{topic}.lat")
-            add("lon", topic, inst, t[good], lon[good], f"{topic}.lon")
-            if "vel_m_s" in data:
-                add("sog", topic, inst, t[good], data["vel_m_s"][good], f"{topic}.vel_m_s")
-            if "cog_rad" in data:
-                add("cog", topic, inst, t[good], wrap_pi(data["cog_rad"][good]), f"{topic}.cog_rad")
-            if "time_utc_usec" in data:
-                utc = data["time_utc_usec"].astype(np.int64)
-                ok = good & (utc > 0)
-                if ok.any():
-                    gps_offsets.append((utc[ok] - t_us[ok]) * 1e-6)
-            used |= good
-        elif topic == "vehicle_local_position":
-            xy_ok = keep & (data["xy_valid"].astype(bool) if "xy_valid" in data else True)
-            v_ok = keep & (data["v_xy_valid"].astype(bool) if "v_xy_valid" in data else True)
-            if xy_ok.any():
-                add("x_n", topic, inst, t[xy_ok], data["x"][xy_ok], f"{topic}.x")
-                add("y_e", topic, inst, t[xy_ok], data["y"][xy_ok], f"{topic}.y")
-            if v_ok.any():
-                vx, vy = data["vx"][v_ok].astype(float), data["vy"][v_ok].astype(float)
-                add("sog@ekf", topic, inst, t[v_ok], np.hypot(vx, vy), f"{topic}.vx,vy")
-                add("cog@ekf", topic, inst, t[v_ok], wrap_pi(np.arctan2(vy, vx)), f"{topic}.vx,vy")
-            used |= xy_ok | v_ok
-            if (keep & ~(xy_ok | v_ok)).any():
-                skipped[f"{topic} invalid (xy_valid and v_xy_valid false)"] += int((keep & ~(xy_ok | v_ok)).sum())
-        elif topic in ACTUATOR_TOPICS:
-            source = ACTUATOR_TOPICS[topic][0]
-            maps = tuple(a for a in actuators if a.source == source)
-            if not maps:
-                skipped[f"{topic} (no actuator map with source '{source}')"] += int(keep.sum())
-                continue
-            for target, (value, ok) in _actuator_inputs(topic, data, keep, maps, warnings).items():
-                inputs[name_of(target, topic, inst)] = (t[ok], value[ok], topic)
-                used |= ok
-        else:
-            skipped[topic] += n
-            continue
-        read[topic] += int(used.sum())
-        left = keep & ~used
-        if left.any() and topic not in _GPS_TOPICS and topic != "vehicle_local_position":
-            skipped[f"{topic} unusable"] += int(left.sum())
-    for key, (t_in, v_in, topic) in inputs.items():
-        chans[key] = Channel(key, t_in, v_in, source=f"ulog:{topic}")
-
-    start_time = math.nan
-    if gps_offsets:
-        off = np.concatenate(gps_offsets)
-        start_time = float(np.median(off))
-        warnings.append(f"boot time from {len(off)} GPS sample(s) with UTC: t = 0 at Unix {start_time:.3f} s")
-    params = ulog.initial_parameters
-    changed = getattr(ulog, "changed_parameters", [])
-    warnings.append(f"parameters: {len(params)} logged at start, {len(changed)} change(s) during the log")
-    n_bad_msgs = sum(1 for m in ulog.logged_messages if int(getattr(m, "log_level", 7)) <= 4)
-    if n_bad_msgs:
-        warnings.append(f"{n_bad_msgs} logged message(s) of level warning or worse")
-    if ulog.dropouts:
-        total_ms = sum(int(d.duration) for d in ulog.dropouts)
-        warnings.append(f"logger dropouts: {len(ulog.dropouts)} totalling {total_ms} ms (samples lost there)")
-    if getattr(ulog, "file_corruption", False):
-        warnings.append("pyulog reports file corruption: the parts it could not parse are not read")
-    chans = {k: c for k, c in chans.items() if len(c.t)}
+        r.take(topic, inst, d.data)
+    for key, (t_in, v_in, topic) in r.inputs.items():
+        r.chans[key] = Channel(key, t_in, v_in, source=f"ulog:{topic}")
+    start_time = _log_notes(ulog, r.gps_offsets, r.warnings)
+    chans = {k: c for k, c in r.chans.items() if len(c.t)}
     if not chans:
-        found = ", ".join(f"{k} {v}" for k, v in sorted((read + skipped).items())) or "no topics"
+        found = ", ".join(f"{k} {v}" for k, v in sorted((r.read + r.skipped).items())) or "no topics"
         raise IngestError(f"{p}: expected ULog topics that give channels ({', '.join(_USED)}), found none "
                           f"usable ({found})")
-    summary = IngestSummary(path=str(p), format="ulog", read={k: v for k, v in read.items() if v},
-                            skipped={k: v for k, v in skipped.items() if v}, warnings=tuple(warnings))
+    summary = IngestSummary(path=str(p), format="ulog", read={k: v for k, v in r.read.items() if v},
+                            skipped={k: v for k, v in r.skipped.items() if v}, warnings=tuple(r.warnings))
     return RawLog(source=str(p), format="ulog", channels=chans, summary=summary, time_reference="boot",
                   start_time=start_time)
