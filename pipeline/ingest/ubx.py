@@ -262,6 +262,82 @@ def _increasing(t: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- reader
+def _frames_or_error(p: Path, data: bytes, buf: np.ndarray) -> dict:
+    """The UBX frames of a file (:func:`_frames`); IngestError naming the first bytes when there is none."""
+    fr = _frames(buf)
+    if not len(fr["starts"]):
+        cut = " (truncated: the file ends inside its first frame)" if fr["truncated"] else ""
+        raise IngestError(f"{p}: expected a u-blox UBX log (frames B5 62 <class> <id> <length> <payload> with a "
+                          f"valid checksum), found no valid UBX frame in {len(data)} bytes{cut}; starts with "
+                          f"{data[:16]!r}")
+    return fr
+
+
+def _message_kinds(fr: dict, skipped: Counter, warnings: list[str]) -> dict[str, np.ndarray]:
+    """Frame masks by kind (``pvt`` long enough, ``rel``, ``esf``, ``meas``, ``parsed``); the rest counted by name."""
+    cls, mid = fr["cls"], fr["id"]
+    plen = fr["ends"] - fr["starts"] - 8
+    is_pvt = (cls == NAV_PVT[0]) & (mid == NAV_PVT[1])
+    pvt_ok_len = is_pvt & (plen >= NAV_PVT_DTYPE.itemsize)
+    if (is_pvt & ~pvt_ok_len).any():
+        warnings.append(f"NAV-PVT: {int((is_pvt & ~pvt_ok_len).sum())} message(s) shorter than "
+                        f"{NAV_PVT_DTYPE.itemsize} bytes not used")
+        skipped["NAV-PVT"] += int((is_pvt & ~pvt_ok_len).sum())
+    is_rel = (cls == NAV_RELPOSNED[0]) & (mid == NAV_RELPOSNED[1])
+    is_esf = (cls == ESF_RAW[0]) & (mid == ESF_RAW[1])
+    is_meas = (cls == ESF_MEAS[0]) & (mid == ESF_MEAS[1])
+    is_parsed = np.zeros(len(cls), bool)
+    for c_, i_ in _PARSED:
+        is_parsed |= (cls == c_) & (mid == i_)
+    known = is_pvt | is_rel | is_esf | is_meas | is_parsed
+    for (c_, i_), count in Counter(zip(cls[~known].tolist(), mid[~known].tolist())).items():
+        skipped[UBX_MSGIDS.get(bytes((c_, i_)), f"UBX-0x{c_:02X}-0x{i_:02X}")] += count
+    return {"pvt": pvt_ok_len, "rel": is_rel, "esf": is_esf, "meas": is_meas, "parsed": is_parsed}
+
+
+def _relposned_and_esf(p: Path, data: bytes, buf: np.ndarray, fr: dict, rel_idx: np.ndarray, esf_idx: np.ndarray,
+                       progress: bool | None) -> tuple[list, np.ndarray, np.ndarray]:
+    """NAV-RELPOSNED messages (None where undecodable) and ESF-RAW rows with their validity.
+
+    NAV-RELPOSNED version 1 and ESF-RAW are decoded vectorised (one gather each): through pyubx2 an
+    hour of 100 Hz ESF-RAW took ~25 s, as long as the plain pyubx2 loop. Other RELPOSNED versions
+    (rare) still go through pyubx2, one message at a time, behind the progress bar.
+    """
+    starts = fr["starts"]
+    bar = None
+    if want_progress(progress):
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(starts), unit="msg", unit_scale=True, desc=p.name, file=sys.stderr,
+                   leave=False, delay=0.0 if progress else _PROGRESS_DELAY_S)
+        bar.update(len(starts) - len(rel_idx) - len(esf_idx))
+    try:
+        rel, rel_slow = _relposned_vectorised(buf, starts, fr["ends"], rel_idx)
+        if bar is not None:
+            bar.update(len(rel_idx) - len(rel_slow))
+        esf_rows, esf_ok = _esf_rows(buf, starts, fr["ends"], esf_idx)
+        if bar is not None:
+            bar.update(len(esf_idx))
+        for j, m in zip(rel_slow.tolist(), _parse_many(data, starts, fr["ends"], rel_idx[rel_slow], bar)):
+            rel[j] = m
+    finally:
+        if bar is not None:
+            bar.close()
+    return rel, esf_rows, esf_ok
+
+
+def _esf_meas(buf: np.ndarray, fr: dict, meas_idx: np.ndarray, anchor_idx: np.ndarray, anchor_ms: np.ndarray,
+              suffix: str, src_note: str, chans: dict, read: Counter, skipped: Counter, warnings: list[str]) -> None:
+    """ESF-MEAS frames -> IMU channels (as ESF-RAW), their time tags through the anchor epochs."""
+    if not len(meas_idx):
+        return
+    meas_rows, meas_ok = _esf_meas_rows(buf, fr["starts"], fr["ends"], meas_idx)
+    if (~meas_ok).any():
+        skipped["ESF-MEAS undecodable"] += int((~meas_ok).sum())
+    _esf_channels(meas_rows, meas_ok, meas_idx, anchor_idx, anchor_ms, suffix, src_note, chans, read, skipped,
+                  warnings, msg="ESF-MEAS")
+
+
 def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -> RawLog:
     """Read a u-blox UBX log into canonical channels on GPS time of week.
 
@@ -302,38 +378,18 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
     p = check_file(path, "UBX log")
     data = p.read_bytes()
     buf = np.frombuffer(data, np.uint8)
-    fr = _frames(buf)
+    fr = _frames_or_error(p, data, buf)
     starts = fr["starts"]
-    if not len(starts):
-        cut = " (truncated: the file ends inside its first frame)" if fr["truncated"] else ""
-        raise IngestError(f"{p}: expected a u-blox UBX log (frames B5 62 <class> <id> <length> <payload> with a "
-                          f"valid checksum), found no valid UBX frame in {len(data)} bytes{cut}; starts with "
-                          f"{data[:16]!r}")
-    cls, mid = fr["cls"], fr["id"]
-    plen = fr["ends"] - starts - 8
     warnings: list[str] = []
     read: Counter = Counter()
     skipped: Counter = Counter()
     suffix = f"@{sensor}" if sensor else ""
 
-    is_pvt = (cls == NAV_PVT[0]) & (mid == NAV_PVT[1])
-    pvt_ok_len = is_pvt & (plen >= NAV_PVT_DTYPE.itemsize)
-    if (is_pvt & ~pvt_ok_len).any():
-        warnings.append(f"NAV-PVT: {int((is_pvt & ~pvt_ok_len).sum())} message(s) shorter than "
-                        f"{NAV_PVT_DTYPE.itemsize} bytes not used")
-        skipped["NAV-PVT"] += int((is_pvt & ~pvt_ok_len).sum())
-    is_rel = (cls == NAV_RELPOSNED[0]) & (mid == NAV_RELPOSNED[1])
-    is_esf = (cls == ESF_RAW[0]) & (mid == ESF_RAW[1])
-    is_meas = (cls == ESF_MEAS[0]) & (mid == ESF_MEAS[1])
-    is_parsed = np.zeros(len(cls), bool)
-    for c_, i_ in _PARSED:
-        is_parsed |= (cls == c_) & (mid == i_)
-    known = is_pvt | is_rel | is_esf | is_meas | is_parsed
-    for (c_, i_), count in Counter(zip(cls[~known].tolist(), mid[~known].tolist())).items():
-        skipped[UBX_MSGIDS.get(bytes((c_, i_)), f"UBX-0x{c_:02X}-0x{i_:02X}")] += count
+    kind = _message_kinds(fr, skipped, warnings)
+    pvt_ok_len, is_rel, is_esf, is_meas, is_parsed = (kind[k] for k in ("pvt", "rel", "esf", "meas", "parsed"))
     parsed_idx = np.flatnonzero(is_parsed)
     parsed = _parse_many(data, starts, fr["ends"], parsed_idx, None)
-    parsed_name = [_PARSED[(int(cls[i]), int(mid[i]))] for i in parsed_idx.tolist()]
+    parsed_name = [_PARSED[(int(fr["cls"][i]), int(fr["id"][i]))] for i in parsed_idx.tolist()]
     for name, m in zip(parsed_name, parsed):
         if m is None:
             skipped[f"{name} undecodable"] += 1
@@ -343,28 +399,7 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
     pvt = _nav_pvt(buf, starts[pvt_idx]) if len(pvt_idx) else np.zeros(0, NAV_PVT_DTYPE)
     rel_idx = np.flatnonzero(is_rel)
     esf_idx = np.flatnonzero(is_esf)
-    # NAV-RELPOSNED version 1 and ESF-RAW are decoded vectorised (one gather each): through
-    # pyubx2 an hour of 100 Hz ESF-RAW took ~25 s, as long as the plain pyubx2 loop. Other
-    # RELPOSNED versions (rare) still go through pyubx2, one message at a time.
-    bar = None
-    if want_progress(progress):
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(starts), unit="msg", unit_scale=True, desc=p.name, file=sys.stderr,
-                   leave=False, delay=0.0 if progress else _PROGRESS_DELAY_S)
-        bar.update(len(starts) - len(rel_idx) - len(esf_idx))
-    try:
-        rel, rel_slow = _relposned_vectorised(buf, starts, fr["ends"], rel_idx)
-        if bar is not None:
-            bar.update(len(rel_idx) - len(rel_slow))
-        esf_rows, esf_ok = _esf_rows(buf, starts, fr["ends"], esf_idx)
-        if bar is not None:
-            bar.update(len(esf_idx))
-        for j, m in zip(rel_slow.tolist(), _parse_many(data, starts, fr["ends"], rel_idx[rel_slow], bar)):
-            rel[j] = m
-    finally:
-        if bar is not None:
-            bar.close()
+    rel, esf_rows, esf_ok = _relposned_and_esf(p, data, buf, fr, rel_idx, esf_idx, progress)
     undecodable = sum(1 for m in rel if m is None) + int((~esf_ok).sum())
     if undecodable:
         warnings.append(f"{undecodable} NAV-RELPOSNED/ESF-RAW message(s) that could not be decoded skipped")
@@ -396,14 +431,9 @@ def read_ubx(path: str | Path, sensor: str = "", progress: bool | None = None) -
     if len(esf_idx):
         _esf_channels(esf_rows, esf_ok, esf_idx, anchor_idx, anchor_ms, esf_suffix, src_note, chans, read,
                       skipped, warnings)
-    meas_idx = np.flatnonzero(is_meas)
-    if len(meas_idx):
-        meas_rows, meas_ok = _esf_meas_rows(buf, starts, fr["ends"], meas_idx)
-        if (~meas_ok).any():
-            skipped["ESF-MEAS undecodable"] += int((~meas_ok).sum())
-        _esf_channels(meas_rows, meas_ok, meas_idx, anchor_idx, anchor_ms,
-                      esf_suffix.replace("@esf", "@esfmeas") if len(esf_idx) else esf_suffix, src_note, chans,
-                      read, skipped, warnings, msg="ESF-MEAS")
+    _esf_meas(buf, fr, np.flatnonzero(is_meas), anchor_idx, anchor_ms,
+              esf_suffix.replace("@esf", "@esfmeas") if len(esf_idx) else esf_suffix, src_note, chans, read,
+              skipped, warnings)
 
     start_time = _between_frames(data, fr, chans, read, skipped, warnings, start_time, suffix)
 
