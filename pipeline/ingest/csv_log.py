@@ -140,6 +140,111 @@ def _parse_time(p: Path, col: pd.Series, raw: str, unit: str | None) -> tuple[np
     return (stamps - first).dt.total_seconds().to_numpy(float), float(first.timestamp()), notes
 
 
+def _check_options(p: Path, units: Mapping[str, str], input_kinds: Mapping[str, str]) -> None:
+    """IngestError on a unit or input kind this reader does not know."""
+    for raw, unit in units.items():
+        if unit not in UNIT_FACTORS:
+            raise IngestError(f"{p}: unit of column {raw!r}: expected one of {sorted(UNIT_FACTORS)}, found {unit!r}")
+    for raw, kind in input_kinds.items():
+        if kind not in INPUT_KINDS:
+            raise IngestError(f"{p}: input kind of {raw!r}: expected one of {list(INPUT_KINDS)}, found {kind!r}")
+
+
+def _read_frame(p: Path) -> tuple[pd.DataFrame, str, str]:
+    """The table (column names stripped), its separator and decimal mark; IngestError when unparsable."""
+    try:
+        sep, decimal = _sniff_format(p)
+        df = pd.read_csv(p, skipinitialspace=True, sep=sep, decimal=decimal)
+    except pd.errors.EmptyDataError:
+        raise IngestError(f"{p}: expected a header row and data rows, found no columns") from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise IngestError(f"{p}: expected comma-separated values, found unparsable content ({exc})") from None
+    df.columns = [str(c).strip() for c in df.columns]
+    return df, sep, decimal
+
+
+def _time_axis(p: Path, df: pd.DataFrame, columns: Mapping[str, str], units: Mapping[str, str], time_column: str,
+               notes: list[str]) -> tuple[np.ndarray, float, str]:
+    """Sample times [s], the Unix start time (NaN when relative) and the raw name of the time column.
+
+    Raises IngestError without a time column, without data rows, for an unknown time unit or a
+    time that does not increase strictly.
+    """
+    time_raw = _time_column(df, columns, time_column)
+    if time_raw is None:
+        raise IngestError(f"{p}: expected a time column {time_column!r} (or a column map entry naming one, "
+                          f"e.g. [columns] t_s = \"t\"), found columns {list(df.columns)}")
+    if len(df) == 0:
+        raise IngestError(f"{p}: expected data rows after the header, found none")
+    if time_raw != "t":
+        notes.append(f"time: column {time_raw!r} is the time column")
+    time_unit = units.get(time_raw)
+    if time_unit is None:
+        split = _split_suffix(time_raw, TIME_SUFFIX_UNITS)
+        time_unit = split[1] if split else None
+        if split and split[1] != "s":
+            notes.append(f"unit from suffix: {time_raw!r} in {split[1]}")
+    if time_unit is not None and time_unit not in ("s", "ms", "us", "ns"):
+        raise IngestError(f"{p}: unit of time column {time_raw!r}: expected one of ['s', 'ms', 'us', 'ns'], found "
+                          f"{time_unit!r}")
+    t, start_time, time_notes = _parse_time(p, df[time_raw], time_raw, time_unit)
+    notes += time_notes
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if len(back):
+        i = int(back[0])
+        raise IngestError(f"{p}: expected strictly increasing time in {time_raw!r}, found "
+                          f"{str(df[time_raw].iloc[i + 1])} after {str(df[time_raw].iloc[i])} on data row {i + 2} "
+                          f"({len(back)} such rows)")
+    return t, start_time, time_raw
+
+
+def _name_and_unit(raw: str, columns: Mapping[str, str], units: Mapping[str, str],
+                   notes: list[str]) -> tuple[str, str | None]:
+    """Canonical name and unit of a raw column: the column map and units first, then a unit suffix."""
+    name = columns.get(raw, raw)
+    unit = units.get(raw)
+    split = _split_suffix(raw, SUFFIX_UNITS)
+    if split and raw not in columns and _base(name) not in CHANNEL_UNITS and _base(split[0]) in CHANNEL_UNITS:
+        name = split[0]
+        if unit is None:
+            unit = split[1]
+        notes.append(f"unit from suffix: {raw!r} read as {name} in {unit}")
+    elif split and raw in columns and unit is None:
+        unit = split[1]
+        notes.append(f"unit from suffix: {raw!r} read as {name} in {unit}")
+    return name, unit
+
+
+def _numbers(p: Path, cells: pd.Series, raw: str) -> np.ndarray:
+    """A column as floats (empty cells NaN); IngestError naming the first cell that is not a number."""
+    if pd.api.types.is_float_dtype(cells.dtype) or pd.api.types.is_integer_dtype(cells.dtype):
+        # Already numeric (the usual case): the text checks below would only cost time.
+        return cells.to_numpy(float)
+    col = pd.to_numeric(cells, errors="coerce")
+    nonnum = int((col.isna() & cells.notna()).sum())
+    if nonnum:
+        first = cells[col.isna() & cells.notna()].iloc[0]
+        raise IngestError(f"{p}: expected numbers in column {raw!r}, found {first!r} ({nonnum} non-numeric cells)")
+    return col.to_numpy(float)
+
+
+def _channel(p: Path, raw: str, name: str, t: np.ndarray, v: np.ndarray, input_kinds: Mapping[str, str]) -> Channel:
+    """The channel of one column's finite SI values: plausible for its unit, angles wrapped, input kind checked."""
+    limit = _PLAUSIBLE.get(_base(name))
+    peak = float(max(v.max(), -v.min()))
+    if limit is not None and peak > limit:
+        raise IngestError(f"{p}: column {raw!r} ({_base(name)}) expected in {CHANNEL_UNITS[_base(name)]} "
+                          f"(|value| <= {limit}), found {peak:.4g}; degrees or another unit? Declare it "
+                          f"with a unit in the manifest's column map")
+    if _base(name) in ANGLE_CHANNELS and not ((v > -np.pi) & (v <= np.pi)).all():
+        v = np.angle(np.exp(1j * v))
+    kind = input_kinds.get(raw, input_kinds.get(name, input_kinds.get(_base(name), "")))
+    if kind and _base(name) not in INPUT_UNITS:
+        raise IngestError(f"{p}: input kind given for {raw!r} ({name}), but it is a state; expected one of "
+                          f"{sorted(INPUT_UNITS)}")
+    return Channel(name, t, v, source=f"csv:{raw}", input_kind=kind)
+
+
 def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
                  units: Mapping[str, str] | None = None, time_column: str = "t",
                  input_kinds: Mapping[str, str] | None = None) -> RawLog:
@@ -177,49 +282,11 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
         input kind.
     """
     p = check_file(path, "CSV log")
-    columns = dict(columns or {})
-    units = dict(units or {})
-    for raw, unit in units.items():
-        if unit not in UNIT_FACTORS:
-            raise IngestError(f"{p}: unit of column {raw!r}: expected one of {sorted(UNIT_FACTORS)}, found {unit!r}")
-    input_kinds = dict(input_kinds or {})
-    for raw, kind in input_kinds.items():
-        if kind not in INPUT_KINDS:
-            raise IngestError(f"{p}: input kind of {raw!r}: expected one of {list(INPUT_KINDS)}, found {kind!r}")
-    try:
-        sep, decimal = _sniff_format(p)
-        df = pd.read_csv(p, skipinitialspace=True, sep=sep, decimal=decimal)
-    except pd.errors.EmptyDataError:
-        raise IngestError(f"{p}: expected a header row and data rows, found no columns") from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise IngestError(f"{p}: expected comma-separated values, found unparsable content ({exc})") from None
-    df.columns = [str(c).strip() for c in df.columns]
-    time_raw = _time_column(df, columns, time_column)
-    if time_raw is None:
-        raise IngestError(f"{p}: expected a time column {time_column!r} (or a column map entry naming one, "
-                          f"e.g. [columns] t_s = \"t\"), found columns {list(df.columns)}")
-    if len(df) == 0:
-        raise IngestError(f"{p}: expected data rows after the header, found none")
+    columns, units, input_kinds = dict(columns or {}), dict(units or {}), dict(input_kinds or {})
+    _check_options(p, units, input_kinds)
+    df, sep, decimal = _read_frame(p)
     notes: list[str] = [] if sep == "," else [f"format: separator {sep!r}, decimal {decimal!r}"]
-    if time_raw != "t":
-        notes.append(f"time: column {time_raw!r} is the time column")
-    time_unit = units.get(time_raw)
-    if time_unit is None:
-        split = _split_suffix(time_raw, TIME_SUFFIX_UNITS)
-        time_unit = split[1] if split else None
-        if split and split[1] != "s":
-            notes.append(f"unit from suffix: {time_raw!r} in {split[1]}")
-    if time_unit is not None and time_unit not in ("s", "ms", "us", "ns"):
-        raise IngestError(f"{p}: unit of time column {time_raw!r}: expected one of ['s', 'ms', 'us', 'ns'], found "
-                          f"{time_unit!r}")
-    t, start_time, time_notes = _parse_time(p, df[time_raw], time_raw, time_unit)
-    notes += time_notes
-    time_column = time_raw
-    back = np.flatnonzero(np.diff(t) <= 0)
-    if len(back):
-        i = int(back[0])
-        raise IngestError(f"{p}: expected strictly increasing time in {time_column!r}, found {str(df[time_column].iloc[i + 1])} "
-                          f"after {str(df[time_column].iloc[i])} on data row {i + 2} ({len(back)} such rows)")
+    t, start_time, time_column = _time_axis(p, df, columns, units, time_column, notes)
     chans: dict[str, Channel] = {}
     read: dict[str, int] = {}
     skipped: dict[str, int] = {}
@@ -227,34 +294,13 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
     for raw in df.columns:
         if raw == time_column:
             continue
-        name = columns.get(raw, raw)
-        unit = units.get(raw)
-        split = _split_suffix(raw, SUFFIX_UNITS)
-        if split and raw not in columns and _base(name) not in CHANNEL_UNITS and _base(split[0]) in CHANNEL_UNITS:
-            name = split[0]
-            if unit is None:
-                unit = split[1]
-            notes.append(f"unit from suffix: {raw!r} read as {name} in {unit}")
-        elif split and raw in columns and unit is None:
-            unit = split[1]
-            notes.append(f"unit from suffix: {raw!r} read as {name} in {unit}")
+        name, unit = _name_and_unit(raw, columns, units, notes)
         if _base(name) not in CHANNEL_UNITS:
             skipped[raw] = int(df[raw].notna().sum())
             warnings.append(f"column {raw!r} is not a canonical channel and has no column map entry; "
                             f"{skipped[raw]} values not used")
             continue
-        if pd.api.types.is_float_dtype(df[raw].dtype) or pd.api.types.is_integer_dtype(df[raw].dtype):
-            # Already numeric (the usual case): the text checks below would only cost time.
-            col = df[raw]
-        else:
-            col = pd.to_numeric(df[raw], errors="coerce")
-            nonnum = int((col.isna() & df[raw].notna()).sum())
-            if nonnum:
-                first = df[raw][col.isna() & df[raw].notna()].iloc[0]
-                raise IngestError(f"{p}: expected numbers in column {raw!r}, found {first!r} ({nonnum} non-numeric "
-                                  f"cells)")
-        factor = UNIT_FACTORS[unit or ""]
-        values = col.to_numpy(float) * factor if factor != 1.0 else col.to_numpy(float)
+        values = _numbers(p, df[raw], raw) * UNIT_FACTORS[unit or ""]
         ok = np.isfinite(values)
         n_inf = int(np.isinf(values).sum())
         if n_inf:
@@ -267,24 +313,12 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
             continue
         # t was checked strictly increasing above, so every column's sample times already are.
         idx = np.flatnonzero(ok)
-        tc, vc = t.take(idx), values.take(idx)
-        limit = _PLAUSIBLE.get(_base(name))
-        peak = float(max(vc.max(), -vc.min()))
-        if limit is not None and peak > limit:
-            raise IngestError(f"{p}: column {raw!r} ({_base(name)}) expected in {CHANNEL_UNITS[_base(name)]} "
-                              f"(|value| <= {limit}), found {peak:.4g}; degrees or another unit? Declare it "
-                              f"with a unit in the manifest's column map")
-        if _base(name) in ANGLE_CHANNELS and not ((vc > -np.pi) & (vc <= np.pi)).all():
-            vc = np.angle(np.exp(1j * vc))
-        kind = input_kinds.get(raw, input_kinds.get(name, input_kinds.get(_base(name), "")))
-        if kind and _base(name) not in INPUT_UNITS:
-            raise IngestError(f"{p}: input kind given for {raw!r} ({name}), but it is a state; expected one of "
-                              f"{sorted(INPUT_UNITS)}")
+        channel = _channel(p, raw, name, t.take(idx), values.take(idx), input_kinds)
         if name in chans:
             raise IngestError(f"{p}: two columns give channel {name!r} (one of them {raw!r}); expected one column "
                               f"per channel, or a second sensor as {name}@sensor")
-        chans[name] = Channel(name, tc, vc, source=f"csv:{raw}", input_kind=kind)
-        read[raw] = len(tc)
+        chans[name] = channel
+        read[raw] = len(idx)
     if not chans:
         raise IngestError(f"{p}: expected at least one canonical channel ({', '.join(CHANNEL_UNITS)}), "
                           f"found only {list(df.columns)}")
