@@ -714,23 +714,25 @@ def parse_nmea(lines, path_text: str = "NMEA") -> NmeaParse:
         Samples per channel (absolute UTC seconds; ``merged`` may be empty) and the counts.
     """
     st = _ParseState()
+    seen, skipped, decoders, timed = st.seen, st.skipped, _DECODERS, frozenset(TIMED)
     for line in lines:
         st.n_lines += 1
         for sid, f in _sentences(line, st):
-            st.seen[sid] += 1
-            if sid not in SENTENCES:
-                st.skipped[sid] += 1
+            seen[sid] += 1
+            decode = decoders.get(sid)
+            if decode is None:
+                skipped[sid] += 1
                 continue
-            if sid not in TIMED and st.epoch is None:
-                st.skipped[f"{sid} before the first time-bearing sentence"] += 1
+            if st.epoch is None and sid not in timed:
+                skipped[f"{sid} before the first time-bearing sentence"] += 1
                 continue
             try:
-                t_own, puts = _DECODERS[sid](sid, f, st)
+                t_own, puts = decode(sid, f, st)
             except _Skip as why:
-                st.skipped[str(why)] += 1
+                skipped[str(why)] += 1
                 continue
             except (ValueError, IndexError):
-                st.skipped[f"{sid} malformed"] += 1
+                skipped[f"{sid} malformed"] += 1
                 continue
             if puts is None:   # the clock only (ZDA)
                 st.read[sid] += 1
