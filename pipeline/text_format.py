@@ -2,9 +2,9 @@
 
 The report page, the autopilot and diagnosis sections, the catalogue pages and the catalogue's
 terminal tables all print numbers through :func:`number` and :func:`plus_minus` and escape text
-through :func:`esc`. It imports nothing from the package, so every stage can use it. (The
-coefficient tables, which round a value to the precision of its error bar, use
-:func:`pipeline.report.rows.format_uncertain`.)
+through :func:`esc`; :func:`finite_or_none` is the one "a finite number or nothing" rule. It
+imports nothing from the package, so every stage can use it. (The coefficient tables, which round
+a value to the precision of its error bar, use :func:`pipeline.report.rows.format_uncertain`.)
 """
 
 from __future__ import annotations
@@ -30,7 +30,19 @@ def esc(text: Any) -> str:
     return html.escape(str(text), quote=True)
 
 
-def _as_float(x: Any) -> float | None:
+def finite_or_none(x: Any) -> float | None:
+    """``float(x)`` when it is a finite number, else None (None, NaN, inf, text that is not a number).
+
+    Parameters
+    ----------
+    x : object
+        A number, a numeric string, None, ...
+
+    Returns
+    -------
+    float or None
+        The finite value, or None (what JSON and DuckDB store for "no number").
+    """
     try:
         v = float(x)
     except (TypeError, ValueError):
@@ -59,7 +71,7 @@ def number(x: Any, fmt: str = ".3g", missing: str = "n/a", unit: str = "", zero:
     str
         The formatted number.
     """
-    v = _as_float(x)
+    v = finite_or_none(x)
     if v is None:
         return missing
     if abs(v) < zero:
@@ -92,8 +104,8 @@ def plus_minus(value: Any, stderr: Any, fmt: str = ".4g", stderr_fmt: str = ".2g
         The formatted estimate.
     """
     tail = f" {unit}" if unit else ""
-    if _as_float(value) is None:
+    if finite_or_none(value) is None:
         return missing
-    if _as_float(stderr) is None:
+    if finite_or_none(stderr) is None:
         return number(value, fmt, missing) + tail + no_stderr
     return f"{number(value, fmt, missing)}{sign}{number(stderr, stderr_fmt, missing)}{tail}"

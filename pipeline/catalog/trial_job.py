@@ -24,6 +24,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import VesselidError
+from ..text_format import finite_or_none
 
 #: Characters kept in a report folder name; everything else becomes ``_``.
 _SAFE = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_.")
@@ -185,14 +186,6 @@ def report_folder(reports: str | Path, identity: TrialIdentity) -> Path:
     return Path(reports).resolve() / f"{safe}-{identity.trial_id[:8]}"
 
 
-def _num(x: Any) -> float | None:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
-
-
 def model_structure(method: str) -> str:
     """The model named at the start of a coefficient's ``method`` text.
 
@@ -217,11 +210,11 @@ def _coefficient_rows(doc: Mapping[str, Any]) -> tuple[dict, ...]:
     for name, c in doc.get("coefficients", {}).items():
         ci = c.get("ci95") or [None, None]
         method = str(c.get("method") or "")
-        rows.append({"name": name, "value": _num(c.get("value")), "stderr": _num(c.get("stderr")),
-                     "ci_low": _num(ci[0]), "ci_high": _num(ci[1]), "unit": c.get("unit") or "",
+        rows.append({"name": name, "value": finite_or_none(c.get("value")), "stderr": finite_or_none(c.get("stderr")),
+                     "ci_low": finite_or_none(ci[0]), "ci_high": finite_or_none(ci[1]), "unit": c.get("unit") or "",
                      "n_segments": int(c.get("n_segments") or 0), "structure": model_structure(method),
                      "method": method, "success": bool(c.get("success")), "message": str(c.get("message") or ""),
-                     "consistency_p": _num(c.get("consistency_p"))})
+                     "consistency_p": finite_or_none(c.get("consistency_p"))})
     return tuple(rows)
 
 
@@ -238,11 +231,12 @@ def _diagnosis_rows(doc: Mapping[str, Any] | None, quick: bool) -> tuple[dict, t
                 "gap_after": None, "shrink": None, "message": why}, ()
     verdict = doc.get("verdict") or {}
     effect = verdict.get("effect")
+    num = finite_or_none
     row = {"status": "effect found" if effect else "no effect found", "effect": effect, "dof": verdict.get("dof"),
-           "gap_before": _num(doc.get("gap_before")), "gap_after": _num(doc.get("gap_after")),
-           "shrink": _num(doc.get("shrink")), "message": "; ".join(str(n) for n in doc.get("notes", []))[:2000]}
-    gaps = tuple({"dof": d.get("dof"), "gap": _num(d.get("gap")), "noise_floor": _num(d.get("noise_floor")),
-                  "replay_gap": _num(d.get("replay_gap"))} for d in doc.get("dofs", []))
+           "gap_before": num(doc.get("gap_before")), "gap_after": num(doc.get("gap_after")),
+           "shrink": num(doc.get("shrink")), "message": "; ".join(str(n) for n in doc.get("notes", []))[:2000]}
+    gaps = tuple({"dof": d.get("dof"), "gap": num(d.get("gap")), "noise_floor": num(d.get("noise_floor")),
+                  "replay_gap": num(d.get("replay_gap"))} for d in doc.get("dofs", []))
     return row, gaps
 
 
@@ -256,8 +250,8 @@ def _when_and_where(logs, trial) -> dict:
         out["started_utc"] = float(t0)
         out["date_source"] = f"log clock ({fmt})"
     if trial.has("lat") and trial.has("lon"):
-        out["lat"] = _num(np.nanmedian(trial.data["lat"].to_numpy()))
-        out["lon"] = _num(np.nanmedian(trial.data["lon"].to_numpy()))
+        out["lat"] = finite_or_none(np.nanmedian(trial.data["lat"].to_numpy()))
+        out["lon"] = finite_or_none(np.nanmedian(trial.data["lon"].to_numpy()))
         out["place_source"] = "median position of the aligned trial (lat, lon)"
     return out
 
