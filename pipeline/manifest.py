@@ -151,13 +151,13 @@ def _holds_nmea(p: Path) -> bool:
 def load_manifest(path: str | Path) -> Manifest:
     """Read and check a trial manifest.
 
+    Every table is checked first by the one schema (:data:`pipeline.config_schema.MANIFEST_SCHEMA`);
+    what remains here is what a schema cannot say: logs that exist, and runs that hold every log once.
+
     Parameters
     ----------
     path : str or Path
         The TOML manifest; ``vessel`` and ``logs`` in it are relative to its folder.
-
-    Every table is checked first by the one schema (:data:`pipeline.config_schema.MANIFEST_SCHEMA`);
-    what remains here is what a schema cannot say: logs that exist, and runs that hold every log once.
 
     Raises
     ------
