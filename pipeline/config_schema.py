@@ -178,7 +178,7 @@ def _check(where: str, value: Any, spec, errors: list[str]) -> None:
         keys, required = spec[1], spec[2]
         unknown = sorted(set(value) - set(keys))
         if unknown:
-            errors.append(f"{where}: unknown key(s) {unknown}; expected some of {list(keys)}")
+            errors.append(f"{where}: unknown key(s) {unknown}; allowed: {list(keys)}")
         missing = [k for k in required if k not in value]
         if missing:
             errors.append(f"{where}: missing key(s) {missing}; found {sorted(value)}")

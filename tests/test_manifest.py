@@ -157,7 +157,7 @@ def test_runs_and_inputs(folder):
 
 @pytest.mark.parametrize("body, message", [
     ('[[runs]]\nlogs = []\n', r"runs\[0\].logs: expected a list of one or more strings, found \[\]"),
-    ('[[runs]]\nlogs = ["logs/a.csv"]\nfs = 3\n', r"runs\[0\]: unknown key\(s\) \['fs'\]; expected some of \['name', 'logs'\]"),
+    ('[[runs]]\nlogs = ["logs/a.csv"]\nfs = 3\n', r"runs\[0\]: unknown key\(s\) \['fs'\]; allowed: \['name', 'logs'\]"),
     ('runs = 3\n', r"runs: expected an array of tables \[\[...\]\], found 3"),
     ('[[runs]]\nlogs = ["logs/a.csv"]\n[[runs]]\nlogs = ["logs/a.csv"]\n',
      r"expected distinct run names, found \['a'\] more than once"),
