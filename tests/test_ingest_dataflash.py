@@ -20,7 +20,7 @@ from pipeline.sim import chain, default_sensors, free_decay, rudder_step, simula
 from pipeline.sim.sensors import SensorSpec
 from pipeline.sim.writers.dataflash import (DEFINITIONS, IMU2_ACCEL_BIAS, IMU2_GYRO_BIAS, record_dtype,
                                             write_dataflash)
-from pipeline.vessel import ActuatorMap, load_vessel
+from pipeline.vessel import ActuatorMap
 
 BOOT = 5.0
 CDEG = np.radians(0.01)

@@ -20,7 +20,6 @@ from pipeline.records import Channel, IngestSummary, RawLog
 from pipeline.sim import chain, default_sensors, free_decay, rudder_step, simulate, step_and_coast
 from pipeline.sim.sensors import SensorSpec
 from pipeline.sim.writers.ubx import GPS_LEAP_S, write_ubx, write_ubx_base
-from pipeline.vessel import load_vessel
 
 START = datetime(2024, 5, 5, 10, 0, tzinfo=timezone.utc)
 GPS_EPOCH = datetime(1980, 1, 6, tzinfo=timezone.utc)

@@ -6,7 +6,6 @@ as it ships.
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
