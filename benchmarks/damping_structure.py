@@ -297,6 +297,11 @@ def markdown(summary: dict, otter: list, cmd: str, seconds: float, results: dict
     return "\n".join(lines) + "\n"
 
 
+def _jsonable(o):
+    """numpy scalars for json.dumps."""
+    return bool(o) if isinstance(o, np.bool_) else float(o)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=30, help="seeds per vessel with quadratic truth")
@@ -306,6 +311,8 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="worker processes (at most 2 on the shared machine)")
     ap.add_argument("--json", help="write raw results here")
     ap.add_argument("--markdown", help="write the RESULTS.md section here")
+    ap.add_argument("--partial", help="append each finished trial here (JSON lines) and skip the trials it "
+                                      "already holds, so that a long run can be resumed in chunks")
     args = ap.parse_args(argv)
     t0 = time.time()
     allv = vessels()
@@ -313,12 +320,30 @@ def main(argv=None) -> int:
              for truth, n in (("quadratic", args.seeds), ("linear", args.linear_seeds)) for seed in range(n)]
     results = {(v, t): [] for v, t, _ in tasks}
     tasks += [("otter", "pvs", seed) for seed in range(args.otter_seeds)]
+    partial = Path(args.partial) if args.partial else None
+    saved = {}
+    if partial and partial.exists():
+        for line in partial.read_text().splitlines():
+            rec = json.loads(line)
+            saved[tuple(rec["task"])] = rec["result"]
+    todo = [t for t in tasks if tuple(t) not in saved]
+
+    def keep(task, run):
+        saved[tuple(task)] = run
+        if partial:
+            with partial.open("a") as fh:
+                fh.write(json.dumps({"task": list(task), "result": run}, default=_jsonable) + "\n")
+
     if args.workers > 1:
-        from concurrent.futures import ProcessPoolExecutor
+        from concurrent.futures import ProcessPoolExecutor, as_completed
         with ProcessPoolExecutor(max_workers=args.workers) as ex:
-            done = list(ex.map(_task, tasks))
+            futures = {ex.submit(_task, t): t for t in todo}
+            for fut in as_completed(futures):
+                keep(futures[fut], fut.result())
     else:
-        done = [_task(t) for t in tasks]
+        for t in todo:
+            keep(t, _task(t))
+    done = [saved[tuple(t)] for t in tasks]
     otter = [] if args.otter_seeds else None
     for (vname, truth, seed), run in zip(tasks, done):
         if vname == "otter":
@@ -337,8 +362,7 @@ def main(argv=None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps({"summary": summary, "otter": otter,
                                                "raw": {f"{k[0]}|{k[1]}": v for k, v in results.items()}},
-                                              default=lambda o: bool(o) if isinstance(o, np.bool_) else float(o),
-                                              indent=1))
+                                              default=_jsonable, indent=1))
     return 0
 
 
