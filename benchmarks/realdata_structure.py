@@ -37,7 +37,7 @@ from realdata_fits import AAUSHIP, DEFAULT_REALDATA, PUBLISHED, series  # noqa: 
 from pipeline.fit.data import noise_sigma  # noqa: E402
 from pipeline.fit.decay_analysis import extinction_curve, extrema  # noqa: E402
 from pipeline.fit.quadratic import TERM_NAMES, DofRecord, SteadyPoint, dof_records  # noqa: E402
-from pipeline.fit.current import current_note, over_ground  # noqa: E402
+from pipeline.fit.current import check_current  # noqa: E402
 from pipeline.fit.structure import select_structure  # noqa: E402
 
 
@@ -228,7 +228,7 @@ def ce6(folder: Path) -> list[dict]:
             per_file.append((path.name, None, None, str(exc)))
             continue
         # What the fit stage itself says (select_structures adds this note on speed over ground).
-        said = current_note(ch, chd) if over_ground(trial, recs[0].channel) else ""
+        said = check_current(trial, recs, "surge", 1 / trial.fs, math.nan, ch, lambda *a, **k: chd)
         per_file.append((path.name, ch, chd, said))
     ok = [(c, d) for _, c, d, _ in per_file if c is not None and math.isfinite(c.heldout_rmse.get("linear", math.nan))
           and math.isfinite(d.heldout_rmse.get("linear", math.nan))]

@@ -17,6 +17,7 @@ import math
 from typing import Callable, Sequence
 
 from ..records import StructureChoice, Trial
+from .quadratic import decimate_records, fit_dof
 
 #: Held-out error reduction by the offsets above which the fit names the current [-].
 CURRENT_SHRINK = 0.05
@@ -95,6 +96,13 @@ def check_current(trial: Trial, records: Sequence, dof: str, dt: float, mass: fl
     if dof not in CURRENT_DOFS or not records or not over_ground(trial, records[0].channel):
         return ""
     if not math.isfinite(choice.heldout_rmse.get("quadratic", math.nan)):
+        return ""
+    # Cheap gate before the held-out scoring: offsets that do not lower the in-sample error of the
+    # linear fit by CURRENT_SHRINK will not lower its held-out error by that much either.
+    recs, dt_fit, _ = decimate_records(records, dt, dof)
+    lin = choice.fits["linear"]
+    with_offsets = fit_dof(recs, dof, dt_fit, mass, "linear", steady, drift=True)
+    if not (lin.rmse > 0 and 1.0 - with_offsets.rmse / lin.rmse >= CURRENT_SHRINK):
         return ""
     drifted = select(records, dof, dt, mass, "auto", steady, drift=True)
     return current_note(choice, drifted)
