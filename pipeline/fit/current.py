@@ -63,7 +63,7 @@ def current_note(choice: StructureChoice, drifted: StructureChoice) -> str:
         return ""
     return (f"unsure: the {choice.dof} speed is over ground, and a constant current along the track per segment "
             f"lowers the held-out error by {by_current:.0%} ({lin:.3g} -> {best:.3g}, {drifted.selected} structure) "
-            f"against {by_structure:+.0%} for the {choice.selected} structure without it: the larger misfit is "
+            f"against {max(by_structure, 0.0):.0%} by the {choice.selected} structure without it: the larger misfit is "
             f"the current, which the damping model has no term for (log the speed through the water, or run "
             f"the coast-downs both ways along the current); with the offsets the "
             f"{drifted.selected} structure is chosen")
