@@ -20,7 +20,13 @@ the one-DOF model has no term for). Truth: ``X_u = -D[0,0]``; ``N_r = -D[5,5]``,
 Usage::
 
     .venv/bin/python benchmarks/damping_structure.py [--seeds 30] [--linear-seeds 10] [--otter-seeds 10]
-        [--workers 2] [--json OUT] [--markdown OUT]
+        [--workers 2] [--json OUT] [--markdown OUT] [--partial RUNS.jsonl]
+
+``--partial`` appends every finished trial to a JSON-lines file and skips those it already holds, so a
+long run can be stopped and resumed, or extended (more seeds, the Otter rows) without redoing the rest.
+The Otter rows are also compared with the best one-DOF description of PVS's motion (the same model fitted
+to the noise-free records), and a noise-free attribution (PVS at a 10x finer Euler step, the DOF's
+mass-matrix coupling removed, both) says where that description parts from the Otter's nominal terms.
 
 Standard errors are the joint fit's Newey-West (HAC) sandwich (:mod:`pipeline.fit.robust_covariance`);
 CI coverage uses the t quantile with the fit's residual degrees of freedom. Pooled coverage over all
