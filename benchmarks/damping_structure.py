@@ -20,7 +20,13 @@ the one-DOF model has no term for). Truth: ``X_u = -D[0,0]``; ``N_r = -D[5,5]``,
 Usage::
 
     .venv/bin/python benchmarks/damping_structure.py [--seeds 30] [--linear-seeds 10] [--otter-seeds 10]
-        [--workers 2] [--json OUT] [--markdown OUT]
+        [--workers 2] [--json OUT] [--markdown OUT] [--partial RUNS.jsonl]
+
+``--partial`` appends every finished trial to a JSON-lines file and skips those it already holds, so a
+long run can be stopped and resumed, or extended (more seeds, the Otter rows) without redoing the rest.
+The Otter rows are also compared with the best one-DOF description of PVS's motion (the same model fitted
+to the noise-free records), and a noise-free attribution (PVS at a 10x finer Euler step, the DOF's
+mass-matrix coupling removed, both) says where that description parts from the Otter's nominal terms.
 
 Standard errors are the joint fit's Newey-West (HAC) sandwich (:mod:`pipeline.fit.robust_covariance`);
 CI coverage uses the t quantile with the fit's residual degrees of freedom. Pooled coverage over all
@@ -47,10 +53,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pipeline.align.align import align  # noqa: E402
-from pipeline.fit.quadratic import TERM_NAMES, dof_records  # noqa: E402
-from pipeline.fit.structure import select_structure  # noqa: E402
+from pipeline.fit.quadratic import TERM_NAMES, DofRecord, dof_records, fit_dof  # noqa: E402
+from pipeline.fit.structure import select_structure, select_structures  # noqa: E402
 from pipeline.records import Segment, Trial  # noqa: E402
 from pipeline.sim import simulate  # noqa: E402
+from pipeline.sim.simulate import resample  # noqa: E402
 from pipeline.sim.manoeuvres import chain, free_decay, step_and_coast  # noqa: E402
 from pipeline.vessel import load_vessel, parse_vessel  # noqa: E402
 
@@ -95,8 +102,21 @@ def schedule(v, name: str):
     return chain(*items, rest_s=rest)
 
 
+#: Simulated truth per (vessel, quadratic damping), reused across seeds in one process.
+_TRUTH: dict = {}
+
+
+def simulated(v, name: str, seed: int):
+    """``simulate(v, schedule(v, name), seed=seed)``; the truth is integrated once per vessel and
+    re-sampled with each seed's sensor noise (identical to a fresh simulation without waves)."""
+    key = (name, tuple(np.asarray(v.quadratic_damping if v.quadratic_damping is not None else np.zeros(5), float)))
+    if key not in _TRUTH:
+        _TRUTH[key] = simulate(v, schedule(v, name), seed=seed, dt=0.01)
+    return resample(_TRUTH[key], seed)
+
+
 def fit_case(v, name: str, seed: int) -> dict:
-    res = simulate(v, schedule(v, name), seed=seed, dt=0.01)
+    res = simulated(v, name, seed)
     trial = align([res.log], vessel=v)
     out = {}
     for dof in DOFS:
@@ -139,8 +159,79 @@ def _pvs_run(boat, nu_set: np.ndarray, dt: float, settle_s: float, run_s: float)
     return out - drift
 
 
+def otter_vessel(boat):
+    """A vesselid config of the PVS Otter (mass, inertia about the CG, CG, added mass, damping
+    diagonal), as a user would write it from the boat's data sheet; products of inertia are left
+    out, as the config has none."""
+    S = boat.S_rg
+    ma = np.diag(boat.MA)
+    d = np.diag(boat.D)
+    return parse_vessel({
+        "name": "otter_pvs", "rigid_body": {"mass": float(boat.m_total), "inertia": [float(boat.Ig[i, i]) for i in range(3)],
+                                            "cg": [float(S[2, 1]), float(S[0, 2]), float(S[1, 0])]},
+        "added_mass": {"surge": float(ma[0]), "sway": float(ma[1]), "roll": float(ma[3]), "pitch": float(ma[4]),
+                       "yaw": float(ma[5])},
+        "restoring": {"roll": float(boat.G[3, 3]), "pitch": float(boat.G[4, 4])},
+        "damping": {"diagonal": [float(d[i]) for i in (0, 1, 3, 4, 5)]}})
+
+
+#: Otter coast-downs: DOF -> (index in PVS's nu, start speeds, white noise sd, channel).
+OTTER_RUNS = {"surge": (0, (1.0, 2.0), 0.01, "u"), "yaw": (5, (0.3, 0.6), 0.002, "r")}
+
+
+def otter_coasts(dof: str, dt: float = 0.01, fs_log: float = 20.0, uncoupled: bool = False) -> list[np.ndarray]:
+    """Noise-free PVS Otter coast-downs of ``dof`` sampled at ``fs_log`` (one array per start speed);
+    ``uncoupled`` zeroes the mass matrix entries that couple the DOF with the others."""
+    from python_vehicle_simulator.vehicles.otter import otter
+
+    nu_i, starts, _, _ = OTTER_RUNS[dof]
+    out = []
+    for x0 in starts:
+        boat = otter("stepInput", 0.0, 0.0, 0.0, 0.0)
+        if uncoupled:
+            keep = boat.M[nu_i, nu_i]
+            boat.M[nu_i, :] = 0.0
+            boat.M[:, nu_i] = 0.0
+            boat.M[nu_i, nu_i] = keep
+            boat.Minv = np.linalg.inv(boat.M)
+        nu_set = np.zeros(6)
+        nu_set[nu_i] = x0
+        nu = _pvs_run(boat, nu_set, dt, 30.0, 30.0)
+        keep_i = np.arange(0, nu.shape[0], int(round(1 / (dt * fs_log))))
+        out.append(nu[keep_i, nu_i])
+    return out
+
+
+def _otter_fit(dof: str, ys: list[np.ndarray], fs_log: float, sigma: float):
+    """One-DOF quadratic fit of noise-free Otter records (the best one-DOF description of them)."""
+    from python_vehicle_simulator.vehicles.otter import otter
+
+    boat = otter("stepInput", 0.0, 0.0, 0.0, 0.0)
+    nu_i, _, _, ch = OTTER_RUNS[dof]
+    recs = [DofRecord(f"coast {i}", "coast_down", y, {}, sigma, "rate", ch) for i, y in enumerate(ys)]
+    fit = fit_dof(recs, dof, 1 / fs_log, float(boat.M[nu_i, nu_i]), "quadratic")
+    return {n: v[0] for n, v in fit.terms.items()}
+
+
+def otter_attribution() -> dict | None:
+    """Noise-free one-DOF fits of the Otter's coast-downs with PVS as it is, with a 10x finer Euler
+    step, with the DOF's mass-matrix coupling removed, and both: where the one-DOF model's terms
+    part from the Otter's nominal ones."""
+    if not (PVS / "python_vehicle_simulator").is_dir():
+        return None
+    sys.path.insert(0, str(PVS))
+    out = {}
+    for dof in OTTER_RUNS:
+        sd = OTTER_RUNS[dof][2]
+        out[dof] = {label: _otter_fit(dof, otter_coasts(dof, dt, uncoupled=unc), 20.0, sd)
+                    for label, dt, unc in (("PVS as is (Euler 100 Hz)", 0.01, False), ("Euler 1 kHz", 0.001, False),
+                                           ("coupling removed", 0.01, True), ("both", 0.001, True))}
+    return out
+
+
 def otter_case(seed: int) -> dict | None:
-    """PVS Otter coast-downs in surge and yaw, noise added, fitted as a user's log would be."""
+    """PVS Otter coast-downs in surge and yaw, noise added, fitted as a user's log would be (trial,
+    segments and a vessel config of the Otter through ``select_structures``)."""
     if not (PVS / "python_vehicle_simulator").is_dir():
         return None
     sys.path.insert(0, str(PVS))
@@ -148,38 +239,37 @@ def otter_case(seed: int) -> dict | None:
     from python_vehicle_simulator.vehicles.otter import otter
 
     rng = np.random.default_rng(seed)
-    dt, fs_log = 0.01, 20.0
+    fs_log = 20.0
+    boat = otter("stepInput", 0.0, 0.0, 0.0, 0.0)
+    vessel = otter_vessel(boat)
     out = {}
-    for dof, nu_i, starts, noise in (("surge", 0, (1.0, 2.0), 0.01), ("yaw", 5, (0.3, 0.6), 0.002)):
+    for dof, (nu_i, starts, noise, ch) in OTTER_RUNS.items():
+        clean = otter_coasts(dof, 0.01, fs_log)
         rows, segs, t0 = [], [], 0.0
-        for x0 in starts:
-            boat = otter("stepInput", 0.0, 0.0, 0.0, 0.0)
-            nu_set = np.zeros(6)
-            nu_set[nu_i] = x0
-            nu = _pvs_run(boat, nu_set, dt, 30.0, 30.0)
-            keep = np.arange(0, nu.shape[0], int(round(1 / (dt * fs_log))))
-            y = nu[keep, nu_i] + rng.normal(0, noise, keep.size)
-            tt = t0 + keep * dt
-            ch = "u" if dof == "surge" else "r"
-            rows.append(pd.DataFrame({"t": tt, ch: y}))
+        for y0 in clean:
+            tt = t0 + np.arange(y0.size) / fs_log
+            rows.append(pd.DataFrame({"t": tt, ch: y0 + rng.normal(0, noise, y0.size)}))
             segs.append(Segment("coast_down", dof, tt[0], tt[-1]))
             t0 = tt[-1] + 1 / fs_log
         trial = Trial(f"otter_{dof}", pd.concat(rows, ignore_index=True), fs_log)
-        boat = otter("stepInput", 0.0, 0.0, 0.0, 0.0)
-        m = float(boat.M[0, 0] if dof == "surge" else boat.M[5, 5])
-        d = float(boat.D[0, 0] if dof == "surge" else boat.D[5, 5])
+        d = float(boat.D[nu_i, nu_i])
         n_cf = float(crossFlowDrag(boat.L, boat.B_pont, boat.T, np.array([0, 0, 0, 0, 0, 1.0]))[5])
         quad_truth = 0.0 if dof == "surge" else -10 * d + n_cf
-        ch = select_structure(dof_records(trial, segs, dof), dof, 1 / fs_log, m)
-        q = ch.fits["quadratic"]
+        choice = select_structures(trial, segs, vessel)[dof]
+        pseudo = _otter_fit(dof, clean, fs_log, noise)
+        q = choice.fits["quadratic"]
         lin, quad = TERM_NAMES[dof]
         terms = {}
         for n, truth in ((lin, -d), (quad, quad_truth)):
             val, se, _ = q.terms[n]
+            half = stats.t.ppf(0.975, q.dof_resid) * se
             terms[n] = {"value": val, "stderr": se, "truth": truth, "within3": abs(val - truth) < 3 * se,
-                        "covered": abs(val - truth) <= stats.t.ppf(0.975, q.dof_resid) * se}
-        out[dof] = {"selected": ch.selected, "heldout": ch.heldout_rmse, "terms": terms,
-                    "truth_structure": "linear" if dof == "surge" else "quadratic"}
+                        "covered": abs(val - truth) <= half, "pseudo_truth": pseudo[n],
+                        "covered_pseudo": abs(val - pseudo[n]) <= half, "within3_pseudo": abs(val - pseudo[n]) < 3 * se}
+        out[dof] = {"selected": choice.selected, "heldout": dict(choice.heldout_rmse), "terms": terms,
+                    "truth_structure": "linear" if dof == "surge" else "quadratic",
+                    "unsure": "unsure:" in choice.message,
+                    "note": next((m.strip() for m in choice.message.split(";") if "unsure:" in m), "")}
     return out
 
 
@@ -259,7 +349,8 @@ def pooled(results: dict) -> list[str]:
     return lines
 
 
-def markdown(summary: dict, otter: list, cmd: str, seconds: float, results: dict | None = None) -> str:
+def markdown(summary: dict, otter: list, cmd: str, seconds: float, results: dict | None = None,
+             attribution: dict | None = None) -> str:
     lines = ["## Damping structure (linear vs linear + quadratic)", "",
              f"Command: `{cmd}` ({seconds / 60:.1f} min). Simulated by vesselid's 5-DOF simulator through its sensor "
              "models; fitted on the schedule's segments by `select_structure` (held-out choice with the diagnosis's "
@@ -277,24 +368,48 @@ def markdown(summary: dict, otter: list, cmd: str, seconds: float, results: dict
     if otter:
         lines += ["", "Independent truth: PythonVehicleSimulator Otter coast-downs (PVS's own dynamics and "
                   "kinematics stepped as its main loop does, 100 Hz Euler, after 30 s at rest; logged at 20 Hz + "
-                  "white noise, relative to the drift the payload trim causes); truth from the Otter's own D, its "
-                  "10 D_r |r| r term and `crossFlowDrag` at r = 1.", "",
-                  "| DOF | truth structure | n | quadratic selected | term | median value | truth | within 3 SE | "
-                  "CI95 coverage |", "|---|---|---|---|---|---|---|---|---|"]
+                  "white noise, relative to the drift the payload trim causes), fitted through `select_structures` "
+                  "with a vesselid config of the Otter (mass, inertia, CG, added mass, restoring, damping diagonal). "
+                  "Nominal truth: the Otter's own D, its 10 D_r |r| r term and `crossFlowDrag` at r = 1. One-DOF "
+                  "truth: the same one-DOF model fitted to the noise-free PVS records (the best one-DOF description "
+                  "of PVS's motion). 'unsure' = the fit's message says `unsure:` (inertia coupling, "
+                  "`pipeline/fit/coupling.py`).", "",
+                  "| DOF | truth structure | n | quadratic selected | unsure | term | median value | nominal truth | "
+                  "within 3 SE / CI95 (nominal) | one-DOF truth | within 3 SE / CI95 (one-DOF) |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for dof in ("surge", "yaw"):
             rows = [o[dof] for o in otter]
             sel = np.mean([r["selected"] == "quadratic" for r in rows])
+            uns = np.mean([r.get("unsure", False) for r in rows])
             for n in TERM_NAMES[dof]:
-                vals = [r["terms"][n]["value"] for r in rows]
-                lines.append(f"| {dof} | {rows[0]['truth_structure']} | {len(rows)} | {sel:.0%} | `{n}` | "
-                             f"{np.median(vals):.4g} | {rows[0]['terms'][n]['truth']:.4g} | "
-                             f"{np.mean([r['terms'][n]['within3'] for r in rows]):.0%} | "
-                             f"{np.mean([r['terms'][n]['covered'] for r in rows]):.0%} |")
+                tt = [r["terms"][n] for r in rows]
+                lines.append(f"| {dof} | {rows[0]['truth_structure']} | {len(rows)} | {sel:.0%} | {uns:.0%} | `{n}` | "
+                             f"{np.median([t['value'] for t in tt]):.4g} | {tt[0]['truth']:.4g} | "
+                             f"{np.mean([t['within3'] for t in tt]):.0%} / {np.mean([t['covered'] for t in tt]):.0%} | "
+                             f"{tt[0]['pseudo_truth']:.4g} | {np.mean([t['within3_pseudo'] for t in tt]):.0%} / "
+                             f"{np.mean([t['covered_pseudo'] for t in tt]):.0%} |")
+        notes = sorted({o[d]["note"] for o in otter for d in ("surge", "yaw") if o[d].get("note")})
+        if notes:
+            lines += ["", "What the tool said (yaw): " + notes[0]]
+    if attribution:
+        lines += ["", "Where the one-DOF terms part from the Otter's nominal ones (noise-free fits of the same "
+                  "coast-downs, PVS changed at run time only):", "",
+                  "| DOF | PVS run | " + " | ".join(f"`{n}`" for n in ("linear term", "quadratic term")) + " |",
+                  "|---|---|---|---|"]
+        for dof, runs in attribution.items():
+            for label, terms in runs.items():
+                vals = list(terms.values())
+                lines.append(f"| {dof} | {label} | {vals[0]:.4g} | {vals[1]:.4g} |")
     elif otter is not None:
         lines += ["", "PythonVehicleSimulator not found (PVS_PATH): independent-truth rows skipped."]
     if results:
         lines += ["", "Pooled over vessels and DOFs (vesselid's simulator):", ""] + pooled(results)
     return "\n".join(lines) + "\n"
+
+
+def _jsonable(o):
+    """numpy scalars for json.dumps."""
+    return bool(o) if isinstance(o, np.bool_) else float(o)
 
 
 def main(argv=None) -> int:
@@ -306,6 +421,8 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="worker processes (at most 2 on the shared machine)")
     ap.add_argument("--json", help="write raw results here")
     ap.add_argument("--markdown", help="write the RESULTS.md section here")
+    ap.add_argument("--partial", help="append each finished trial here (JSON lines) and skip the trials it "
+                                      "already holds, so that a long run can be resumed in chunks")
     args = ap.parse_args(argv)
     t0 = time.time()
     allv = vessels()
@@ -313,12 +430,30 @@ def main(argv=None) -> int:
              for truth, n in (("quadratic", args.seeds), ("linear", args.linear_seeds)) for seed in range(n)]
     results = {(v, t): [] for v, t, _ in tasks}
     tasks += [("otter", "pvs", seed) for seed in range(args.otter_seeds)]
+    partial = Path(args.partial) if args.partial else None
+    saved = {}
+    if partial and partial.exists():
+        for line in partial.read_text().splitlines():
+            rec = json.loads(line)
+            saved[tuple(rec["task"])] = rec["result"]
+    todo = [t for t in tasks if tuple(t) not in saved]
+
+    def keep(task, run):
+        saved[tuple(task)] = run
+        if partial:
+            with partial.open("a") as fh:
+                fh.write(json.dumps({"task": list(task), "result": run}, default=_jsonable) + "\n")
+
     if args.workers > 1:
-        from concurrent.futures import ProcessPoolExecutor
+        from concurrent.futures import ProcessPoolExecutor, as_completed
         with ProcessPoolExecutor(max_workers=args.workers) as ex:
-            done = list(ex.map(_task, tasks))
+            futures = {ex.submit(_task, t): t for t in todo}
+            for fut in as_completed(futures):
+                keep(futures[fut], fut.result())
     else:
-        done = [_task(t) for t in tasks]
+        for t in todo:
+            keep(t, _task(t))
+    done = [saved[tuple(t)] for t in tasks]
     otter = [] if args.otter_seeds else None
     for (vname, truth, seed), run in zip(tasks, done):
         if vname == "otter":
@@ -330,15 +465,15 @@ def main(argv=None) -> int:
             results[(vname, truth)].append(run)
     summary = summarise(results)
     cmd = "python benchmarks/damping_structure.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    text = markdown(summary, otter, cmd.strip(), time.time() - t0, results)
+    attribution = otter_attribution() if args.otter_seeds else None
+    text = markdown(summary, otter, cmd.strip(), time.time() - t0, results, attribution)
     print(text)
     if args.markdown:
         Path(args.markdown).write_text(text)
     if args.json:
-        Path(args.json).write_text(json.dumps({"summary": summary, "otter": otter,
+        Path(args.json).write_text(json.dumps({"summary": summary, "otter": otter, "otter_attribution": attribution,
                                                "raw": {f"{k[0]}|{k[1]}": v for k, v in results.items()}},
-                                              default=lambda o: bool(o) if isinstance(o, np.bool_) else float(o),
-                                              indent=1))
+                                              default=_jsonable, indent=1))
     return 0
 
 

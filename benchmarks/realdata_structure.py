@@ -37,6 +37,7 @@ from realdata_fits import AAUSHIP, DEFAULT_REALDATA, PUBLISHED, series  # noqa: 
 from pipeline.fit.data import noise_sigma  # noqa: E402
 from pipeline.fit.decay_analysis import extinction_curve, extrema  # noqa: E402
 from pipeline.fit.quadratic import TERM_NAMES, DofRecord, SteadyPoint, dof_records  # noqa: E402
+from pipeline.fit.current import check_current  # noqa: E402
 from pipeline.fit.structure import select_structure  # noqa: E402
 
 
@@ -226,7 +227,9 @@ def ce6(folder: Path) -> list[dict]:
         except Exception as exc:  # counted in the note, not hidden
             per_file.append((path.name, None, None, str(exc)))
             continue
-        per_file.append((path.name, ch, chd, ""))
+        # What the fit stage itself says (select_structures adds this note on speed over ground).
+        said = check_current(trial, recs, "surge", 1 / trial.fs, math.nan, ch, lambda *a, **k: chd)
+        per_file.append((path.name, ch, chd, said))
     ok = [(c, d) for _, c, d, _ in per_file if c is not None and math.isfinite(c.heldout_rmse.get("linear", math.nan))
           and math.isfinite(d.heldout_rmse.get("linear", math.nan))]
     if not ok:
@@ -248,6 +251,9 @@ def ce6(folder: Path) -> list[dict]:
                      "note": "per-file fits, RMS over files; change = selected against linear without drift; no mass "
                              "(a = D/M, b = D2/M)",
                      "p": math.nan, "shrink": math.nan})
+    said = [e for _, c, _, e in per_file if c is not None and e]
+    rows[-1]["note"] += (f"; the fit says 'unsure: ... current along the track' in {len(said)} of {len(ok)} files"
+                         + (f" (e.g. \"{said[0]}\")" if said else ""))
     failed = [(n, e) for n, c, _, e in per_file if c is None]
     if failed:
         rows[-1]["note"] += f"; {len(failed)} file(s) failed: " + ", ".join(f"{n} ({e})" for n, e in failed[:3])

@@ -48,8 +48,11 @@ def ros2_parameters(model: ExportModel, coefficients: Mapping[str, Any], node: s
     for name, e in coefficients.get("coefficients", {}).items():
         if e.get("success") and e.get("value") is not None:
             key = name.replace("|", "")
-            coef[key] = {"value": float(e["value"]), "stderr": float(e["stderr"]) if e.get("stderr") is not None
-                         else float("nan"), "unit": str(e.get("unit", ""))}
+            coef[key] = {"value": float(e["value"]), "unit": str(e.get("unit", ""))}
+            # A standard error that was not computed is left out: ROS 2's YAML parameter parser
+            # (rcl_yaml_param_parser) reads doubles with strtod, and .nan is not a value it is sure to take.
+            if e.get("stderr") is not None and math.isfinite(float(e["stderr"])):
+                coef[key]["stderr"] = float(e["stderr"])
         else:
             missing.append(name)
     p["coefficients"] = coef

@@ -22,6 +22,8 @@ import numpy as np
 from ..errors import FitError
 from ..records import DOF_NAMES, DOFS, DampingFit, DecayAnalysis, Estimate, Fits, Segment, StructureChoice, Trial
 from ..vessel import Vessel
+from .coupling import coupling_note
+from .current import check_current
 from .decay_analysis import analyse_decays
 from .heldout_test import channel_score, is_significant
 from .least_squares import confidence_interval
@@ -206,6 +208,14 @@ def select_structures(trial: Trial, segments: Sequence[Segment], vessel: Vessel,
             out[dof] = select_structure(recs, dof, dt, mass, model, (steady or {}).get(dof, ()))
         except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
             continue
+        notes = [coupling_note(vessel, dof, out[dof].fits[out[dof].selected])]
+        try:
+            notes.append(check_current(trial, recs, dof, dt, mass, out[dof], select_structure,
+                                       (steady or {}).get(dof, ())))
+        except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+            pass
+        if any(notes):
+            out[dof] = replace(out[dof], message="; ".join([out[dof].message] + [n for n in notes if n]))
     return out
 
 

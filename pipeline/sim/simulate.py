@@ -328,3 +328,42 @@ def _sample_sensors(truth: pd.DataFrame, sensors: tuple[SensorSpec, ...], inputs
     summary = IngestSummary(path=f"sim:{vessel.name}:seed{seed}", format="sim", read=counts,
                             warnings=tuple(f"effect on: {e}" for e in effects.active()))
     return RawLog(source=summary.path, format="sim", channels=chans, summary=summary, time_reference="trial")
+
+
+def resample(result: SimResult, seed: int, origin: tuple[float, float] = (57.05, 9.92),
+             actuator_rate: float = 50.0) -> SimResult:
+    """The same simulated truth sampled again with the sensor noise of another seed.
+
+    Without waves the truth does not depend on the seed, so this equals :func:`simulate` with
+    ``seed`` (same default sensors, ``origin`` and ``actuator_rate``) without integrating the
+    plant again: Monte Carlo runs over sensor noise then cost one simulation.
+
+    Parameters
+    ----------
+    result : SimResult
+        A simulation with the default sensors and no waves.
+    seed : int
+        Seed of the sensor noise.
+    origin : tuple[float, float]
+        Latitude and longitude of the trial origin [deg], as given to :func:`simulate`.
+    actuator_rate : float
+        Rate at which commands are logged [Hz], as given to :func:`simulate`.
+
+    Returns
+    -------
+    SimResult
+
+    Raises
+    ------
+    SimError
+        The simulation had waves (their realisation depends on the seed).
+    """
+    if result.effects.waves is not None:
+        raise SimError("resample: expected a simulation without waves (the waves depend on the seed); "
+                       "found waves: simulate again with the new seed")
+    truth = result.truth
+    channels = tuple(c[4:] for c in truth.columns if c.startswith("cmd_"))
+    sensors = _simulated_only(default_sensors(), set(truth.columns))
+    log = _sample_sensors(truth, sensors, channels, np.random.default_rng(seed), origin, actuator_rate,
+                          result.vessel, result.effects, seed)
+    return replace(result, log=log, seed=seed)
