@@ -103,6 +103,9 @@ class DofProblem:
         angle and heading (unwrapped), regressors.
     noise : Mapping[str, float]
         White-noise standard deviation of each output channel at the trial rate [SI].
+    derived_from : str or None
+        For a body velocity that was not logged but derived from GNSS speed and course and the
+        heading (:func:`derived_velocity`): the channels it came from; None for a measured one.
     """
 
     dof: str
@@ -118,6 +121,7 @@ class DofProblem:
     t_guess: float
     raw: Mapping[str, np.ndarray] = field(repr=False)
     noise: Mapping[str, float] = field(default_factory=dict)
+    derived_from: str | None = None
 
     @property
     def outputs(self) -> tuple[str, ...]:
@@ -637,6 +641,34 @@ def build_problems(trial: Trial, segments: Segments, vessel: Vessel | None = Non
     return problems
 
 
+def derived_velocity(trial: Trial, channel: str) -> str | None:
+    """The channels a body velocity ``u`` or ``v`` was derived from, or None when it was logged.
+
+    Align derives ``u = sog cos(cog - psi)`` and ``v = sog sin(cog - psi)`` where no body velocity
+    is logged (:mod:`pipeline.align`); such a channel carries the heading's motion (waves on the
+    heading appear in it multiplied by the speed) and the GNSS noise. Recognised from the data:
+    the channel equals that expression to rounding.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    channel : str
+        ``u`` or ``v``.
+    """
+    if channel not in ("u", "v") or not all(trial.has(c) for c in ("sog", "cog", "psi")):
+        return None
+    x = trial.data[channel].to_numpy(float)
+    sog, cog, psi = (trial.data[c].to_numpy(float) for c in ("sog", "cog", "psi"))
+    beta = cog - psi
+    y = sog * (np.cos(beta) if channel == "u" else np.sin(beta))
+    ok = np.isfinite(x) & np.isfinite(y)
+    if ok.sum() < 10:
+        return None
+    scale = max(float(np.max(np.abs(x[ok]))), 1e-9)
+    return "sog, cog and psi" if float(np.max(np.abs(x[ok] - y[ok]))) < 1e-6 * scale else None
+
+
 def _moves(y: np.ndarray, w: Window, noise: float) -> bool:
     """True when the response in ``w`` leaves the noise band (worth replaying for a bystander DOF)."""
     seg = y[w.i0:w.i1]
@@ -736,4 +768,5 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         raw[c] = x
         regs.append(c)
     return DofProblem(dof=dof, channel=ch, angle=angle, heading=heading, inputs=inputs, regressors=tuple(regs),
-                      fs=fs, m=m, dt=m / fs, windows=tuple(windows), t_guess=float(t_const), raw=raw, noise=noises)
+                      fs=fs, m=m, dt=m / fs, windows=tuple(windows), t_guess=float(t_const), raw=raw, noise=noises,
+                      derived_from=derived_velocity(trial, ch))

@@ -226,7 +226,9 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             gaps = [float(np.sqrt(np.nanmean(x**2))) for x in rr.values() if np.isfinite(x).any()]
             summaries[i] = _with_replay(summaries[i], float(np.sqrt(np.mean(np.square(gaps)))) if gaps else math.nan)
     places = rank_places(raw_places)
-    unexplained = sel.unexplained(states, places, trial, lambda p: {"y": p.channel, "angle": p.angle})
+    heading_waves = any(e.effect == "waves" and getattr(states[e.dof].problem, "angle", None) == "psi" for e in effects)
+    unexplained = sel.unexplained(states, places, trial, lambda p: {"y": p.channel, "angle": p.angle},
+                                  heading_waves=heading_waves)
     for e in effects:
         if e.why:
             notes.append(f"{e.label} in {e.dof}: {e.why}")
