@@ -26,6 +26,7 @@ from .problem import DofProblem, build_problems
 from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
 from .replay import default_band, rank_places, replay, traces, where
 from .segments import diagnose_segments
+from .timing import input_timing
 
 
 def _unit(name: str, p: DofProblem, run: CandidateRun) -> str:
@@ -108,6 +109,13 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
                             f"{[c for c in trial.data.columns if c != 't']}")
     t_consts = _refine_time_constants(trial, segs, vessel)
     problems = build_problems(trial, segs, vessel, time_constants=t_consts)
+    timed = [input_timing(p) for p in problems]
+    problems = [p for p, _ in timed]
+    for p, adv in timed:
+        if adv > 0:
+            notes.append(f"{p.dof}: inputs taken {adv:.3g} s earlier than logged (the log's timing of the commands: "
+                         f"a command sampled by the log is recorded up to one sample after it switched); the "
+                         f"baseline and every candidate use that timing")
     osc_problems = [q for q in (osc.build_oscillatory(trial, segs, dof) for dof in ("roll", "pitch")) if q is not None]
     if not problems and not osc_problems:
         raise DiagnoseError(f"{trial.name}: expected a DOF whose response (u, v or r, or sog) is measured and "
