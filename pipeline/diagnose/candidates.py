@@ -625,6 +625,10 @@ class Coupling(Candidate):
         return predict_linear(self.data.rows(idx), spec, fitted.params["T"], theta)
 
 
+#: The rate's and the heading's wave peaks count as one sea within this frequency ratio.
+WAVE_RATE_MATCH = 1.5
+
+
 class Waves(Candidate):
     """A wave-band disturbance on the outputs (Fossen 2021, sec. 10.2.4): the second-order wave
     spectrum is fitted to the baseline's training residuals, and the held-out wave-frequency
@@ -633,7 +637,8 @@ class Waves(Candidate):
 
     Every scored channel gets its own spectrum: waves move the heading and, as its derivative, the
     rate the gyro measures (``r_w = d psi_w / dt``, the wave band amplified by ``omega``), so a
-    wave-filtering model of a DOF scored on both smooths both. The reported ``omega0``, ``lambda``
+    wave-filtering model of a DOF scored on both smooths both, the rate only where the heading shows
+    a wave at about the same frequency (``WAVE_RATE_MATCH``). The reported ``omega0``, ``lambda``
     and ``sigma_w`` are the heading's (the angle channel's) when there is one, else the rate's.
     """
 
@@ -679,9 +684,14 @@ class Waves(Candidate):
             resid = np.where(d.mask, self._meas(d, key) - pred[key], np.nan)
             specs[key] = wave_model.fit_wave_spectrum(resid, d.dt, self._band())
         spec = specs[self.key]
-        if not spec.sigma > 0:
-            # No wave in the primary channel: report the other channel's, if it has one.
-            spec = next((v for v in specs.values() if v.sigma > 0), spec)
+        if self.key == "angle" and "y" in specs:
+            # The rate's wave is the heading's wave differentiated: smoothed only when the heading
+            # shows a wave at about the same frequency (a peak in the rate alone is no sea).
+            ry = specs["y"]
+            same = (spec.sigma > 0 and ry.sigma > 0 and np.isfinite(spec.omega0) and np.isfinite(ry.omega0)
+                    and abs(np.log(ry.omega0 / spec.omega0)) < np.log(WAVE_RATE_MATCH))
+            if not same:
+                specs["y"] = wave_model.fit_wave_spectrum(np.zeros((0, 1)), d.dt, self._band())
         params = {**base.params, "omega0": spec.omega0, "lambda": spec.lam, "sigma_w": spec.sigma}
         return Fitted(params, self.param_names, base.sse, (base, specs))
 
