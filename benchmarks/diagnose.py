@@ -692,7 +692,9 @@ def _library_effect(rng: np.random.Generator, vessel_kind: str, vessel, exclude=
     if vessel_kind == "twin":
         opts = [e for e in ("actuator_delay", "sensor_delay", "nonlinear_damping") if e not in exclude]
         e = str(rng.choice(opts))
-        return e, {"actuator_delay": "surge", "sensor_delay": "surge", "nonlinear_damping": "yaw"}[e], {}, mag
+        # The thrusters' delay reaches surge and yaw alike (either DOF is right); the GNSS lag is in
+        # surge speed only, the quadratic damping in yaw only.
+        return e, {"actuator_delay": "", "sensor_delay": "surge", "nonlinear_damping": "yaw"}[e], {}, mag
     opts = [e for e in (applicable("aauship") if vessel_kind == "aauship" else applicable("nomoto"))
             if e not in exclude]
     return str(rng.choice(opts)), "", {}, mag

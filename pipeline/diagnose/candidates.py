@@ -625,11 +625,21 @@ class Coupling(Candidate):
         return predict_linear(self.data.rows(idx), spec, fitted.params["T"], theta)
 
 
+#: The rate's and the heading's wave peaks count as one sea within this frequency ratio.
+WAVE_RATE_MATCH = 1.5
+
+
 class Waves(Candidate):
-    """A wave-band disturbance on the output (Fossen 2021, sec. 10.2.4): the second-order wave
+    """A wave-band disturbance on the outputs (Fossen 2021, sec. 10.2.4): the second-order wave
     spectrum is fitted to the baseline's training residuals, and the held-out wave-frequency
     motion is separated by the Wiener smoother it implies (wave filtering). What remains is the gap
     a wave-filtering autopilot would still see. See :mod:`pipeline.diagnose.waves`.
+
+    Every scored channel gets its own spectrum: waves move the heading and, as its derivative, the
+    rate the gyro measures (``r_w = d psi_w / dt``, the wave band amplified by ``omega``), so a
+    wave-filtering model of a DOF scored on both smooths both, the rate only where the heading shows
+    a wave at about the same frequency (``WAVE_RATE_MATCH``). The reported ``omega0``, ``lambda``
+    and ``sigma_w`` are the heading's (the angle channel's) when there is one, else the rate's.
     """
 
     effect = "waves"
@@ -639,17 +649,22 @@ class Waves(Candidate):
     def __init__(self, problem: DofProblem, data: GridData) -> None:
         super().__init__(problem, data)
         self.key = "angle" if data.angle is not None else "y"
+        self.keys = ("angle", "y") if data.angle is not None else ("y",)
 
     def _band(self) -> tuple[float, float]:
         return wave_model.search_band(self.problem.t_guess, self.problem.dt)
 
     def applicable(self) -> bool:
-        """See :meth:`Candidate.applicable`."""
+        """See :meth:`Candidate.applicable`. Not offered on a body velocity derived from GNSS and
+        the heading: its wave band is the heading's wave motion times the speed (and the GNSS
+        course's), which the yaw DOF scores on the heading itself."""
+        if self.problem.derived_from is not None:
+            return False
         lo, hi = self._band()
         return hi > 1.5 * lo
 
-    def _meas(self, d: GridData) -> np.ndarray:
-        return d.angle if self.key == "angle" else d.y
+    def _meas(self, d: GridData, key: str | None = None) -> np.ndarray:
+        return d.angle if (key or self.key) == "angle" else d.y
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
         """Refit on windows ``train``; see :meth:`Candidate.fit`.
@@ -664,10 +679,21 @@ class Waves(Candidate):
         base = start if start is not None and start.effect_params == () else Candidate.fit(self, train)
         d = self.data.rows(train)
         pred = Candidate.simulate(self, base, train)
-        resid = np.where(d.mask, self._meas(d) - pred[self.key], np.nan)
-        spec = wave_model.fit_wave_spectrum(resid, d.dt, self._band())
+        specs = {}
+        for key in self.keys:
+            resid = np.where(d.mask, self._meas(d, key) - pred[key], np.nan)
+            specs[key] = wave_model.fit_wave_spectrum(resid, d.dt, self._band())
+        spec = specs[self.key]
+        if self.key == "angle" and "y" in specs:
+            # The rate's wave is the heading's wave differentiated: smoothed only when the heading
+            # shows a wave at about the same frequency (a peak in the rate alone is no sea).
+            ry = specs["y"]
+            same = (spec.sigma > 0 and ry.sigma > 0 and np.isfinite(spec.omega0) and np.isfinite(ry.omega0)
+                    and abs(np.log(ry.omega0 / spec.omega0)) < np.log(WAVE_RATE_MATCH))
+            if not same:
+                specs["y"] = wave_model.fit_wave_spectrum(np.zeros((0, 1)), d.dt, self._band())
         params = {**base.params, "omega0": spec.omega0, "lambda": spec.lam, "sigma_w": spec.sigma}
-        return Fitted(params, self.param_names, base.sse, (base, spec))
+        return Fitted(params, self.param_names, base.sse, (base, specs))
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Open-loop outputs on windows ``idx``; see :meth:`Candidate.simulate`.
@@ -679,13 +705,14 @@ class Waves(Candidate):
         idx : numpy.ndarray
             Window indices.
         """
-        base, spec = fitted.state
+        base, specs = fitted.state
         d = self.data.rows(idx)
         pred = Candidate.simulate(self, base, idx)
-        resid = np.where(d.mask, self._meas(d) - pred[self.key], np.nan)
-        wave = wave_model.smooth_waves(resid, d.dt, spec)
         out = dict(pred)
-        out[self.key] = pred[self.key] + np.nan_to_num(wave)
+        for key, spec in specs.items():
+            resid = np.where(d.mask, self._meas(d, key) - pred[key], np.nan)
+            wave = wave_model.smooth_waves(resid, d.dt, spec)
+            out[key] = pred[key] + np.nan_to_num(wave)
         return out
 
 

@@ -103,6 +103,9 @@ class DofProblem:
         angle and heading (unwrapped), regressors.
     noise : Mapping[str, float]
         White-noise standard deviation of each output channel at the trial rate [SI].
+    derived_from : str or None
+        For a body velocity that was not logged but derived from GNSS speed and course and the
+        heading (:func:`derived_velocity`): the channels it came from; None for a measured one.
     """
 
     dof: str
@@ -118,6 +121,7 @@ class DofProblem:
     t_guess: float
     raw: Mapping[str, np.ndarray] = field(repr=False)
     noise: Mapping[str, float] = field(default_factory=dict)
+    derived_from: str | None = None
 
     @property
     def outputs(self) -> tuple[str, ...]:
@@ -227,16 +231,110 @@ def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) ->
     return out
 
 
+def _contrasts(x: np.ndarray, windows: tuple[Window, ...], q: int, mb: int | None = None) -> np.ndarray:
+    """Contrasts ``q1 - q2 - q3 + q4`` of the means of four consecutive ``q``-sample quarters, one
+    per block of ``mb >= 4 q`` samples (default ``4 q``) of each window."""
+    mb = 4 * q if mb is None else mb
+    cs = []
+    for w in windows:
+        nb = (w.i1 - w.i0) // mb
+        if nb == 0:
+            continue
+        blk = x[w.i0:w.i0 + nb * mb].reshape(nb, mb)[:, :4 * q].reshape(nb, 4, q).mean(axis=2)
+        cs.append(blk[:, 0] - blk[:, 1] - blk[:, 2] + blk[:, 3])
+    c = np.concatenate(cs) if cs else np.zeros(0)
+    return c[np.isfinite(c)]
+
+
+def _third_differences(x: np.ndarray, windows: tuple[Window, ...], q: int) -> np.ndarray:
+    """Third differences ``b1 - 3 b2 + 3 b3 - b4`` of four consecutive ``q``-sample means: they cancel
+    any quadratic within the block, so a manoeuvre leaks in only through its third derivative.
+    For independent means of variance ``v`` they have variance ``20 v``."""
+    mb = 4 * q
+    cs = []
+    for w in windows:
+        nb = (w.i1 - w.i0) // mb
+        if nb == 0:
+            continue
+        blk = x[w.i0:w.i0 + nb * mb].reshape(nb, 4, q).mean(axis=2)
+        cs.append(blk[:, 0] - 3 * blk[:, 1] + 3 * blk[:, 2] - blk[:, 3])
+    c = np.concatenate(cs) if cs else np.zeros(0)
+    return c[np.isfinite(c)]
+
+
+def _robust_sd(c: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(c - np.median(c))))
+
+
+#: Ratio of the per-sample-equivalent noise at quarter size ``2q`` to that at ``q`` below which the
+#: noise counts as white at that scale (white noise: 1; noise correlated over ``L`` samples rises
+#: steeply until ``q`` is about ``L``; a smooth signal leaking in rises by about 2^2.5 per doubling).
+WHITE_RATIO = 1.4
+#: Longest quarter [trial samples] searched for the correlation scale of the noise.
+MAX_QUARTER = 512
+
+
+def noise_scale(x: np.ndarray, windows: tuple[Window, ...]) -> tuple[float, int]:
+    """Long-run noise level and correlation scale of a channel whose noise is correlated over
+    several trial samples (a 5 Hz GNSS speed interpolated to 50 Hz, a held sensor).
+
+    The quarter contrast of :func:`block_noise` is measured at quarter sizes ``q = 1, 2, 4, ...``
+    and expressed as the white noise per sample that would give it, ``s(q) = sd(contrast) sqrt(q) / 2``.
+    White noise gives the same ``s`` at every ``q``. Noise that is smooth over ``L`` samples
+    (interpolated or held between the sensor's own samples) gives a contrast near zero at ``q << L``
+    (a straight piece cancels) and reaches a plateau ``s_inf`` (its long-run standard deviation,
+    ``sqrt`` of the spectral density at zero) once ``q`` is about ``L`` to ``2 L``; a smooth signal
+    leaking into the contrast keeps rising instead. The noise counts as correlated when ``s(2)``
+    exceeds ``s(1)`` by ``WHITE_RATIO`` and a plateau (a doubling of ``q`` that raises ``s`` by less
+    than ``WHITE_RATIO``) follows.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Trial-rate signal.
+    windows : tuple[Window, ...]
+        Windows to measure it in.
+
+    Returns
+    -------
+    (s_inf, q_star) : (float, int)
+        Long-run noise standard deviation per sample [unit of x] and the quarter size [samples] at
+        which the plateau begins; ``(nan, 1)`` when the noise is white at the trial rate or no
+        plateau is found (a noise-free signal).
+    """
+    def s_of(q: int) -> float:
+        c = _third_differences(x, windows, q)
+        return _robust_sd(c) * np.sqrt(q / 20.0) if len(c) >= 16 else float("nan")
+
+    s1, s2 = s_of(1), s_of(2)
+    if not (np.isfinite(s1) and np.isfinite(s2)) or (s1 > 0 and s2 <= WHITE_RATIO * s1):
+        return float("nan"), 1
+    q, s_q = 2, s2
+    while 2 * q <= MAX_QUARTER:
+        s_next = s_of(2 * q)
+        if not np.isfinite(s_next):
+            break
+        if s_q > 0 and s_next < WHITE_RATIO * s_q:
+            return float(max(s_q, s_next)), q
+        q, s_q = 2 * q, s_next
+    return float("nan"), 1
+
+
 def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: bool = False) -> float:
     """White-noise standard deviation of an ``m``-sample block mean of ``x`` [SI].
 
     Blocks of ``mb = max(m, 8)`` samples are split in quarters and the contrast
     ``q1 - q2 - q3 + q4`` of the quarter means is taken: it cancels any level and slope within the
     block, and for noise of variance ``s^2`` per sample it has variance ``16 s^2 / mb``, sixteen
-    times that of the block mean. Noise correlated over a few samples (a sensor interpolated to
-    the trial rate, where plain differences of neighbours vanish) is measured at the block's own
-    scale. Robust (median absolute deviation), so manoeuvres and outliers do not inflate it; scaled
-    from ``mb`` to ``m`` samples as white noise.
+    times that of the block mean. Robust (median absolute deviation), so manoeuvres and outliers
+    do not inflate it; scaled from the ``4 q`` samples the contrast spans to ``m`` as white noise.
+
+    Noise correlated over several trial samples (a sensor interpolated or held to the trial rate:
+    body velocities derived from a 5 Hz GNSS in a 50 Hz trial) has almost no contrast at the
+    block's own scale; it is measured at its own correlation scale instead (:func:`noise_scale`):
+    the block mean's standard deviation is ``s_inf / sqrt(max(m, 0.75 q_star))``, the long-run
+    level spread over ``m`` samples, or over the noise's own correlation length (about
+    ``q_star / 2`` to ``q_star``) when the block is shorter than that.
 
     Parameters
     ----------
@@ -249,24 +347,22 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: b
     trapezoid : bool
         The block means are trapezoidal (:func:`block_average` with ``trapezoid=True``): weights
         ``1/2, 1, ..., 1, 1/2`` over ``m + 1`` samples, variance ``(m - 1/2) s^2 / m^2`` instead
-        of ``s^2 / m`` (half a sample's at ``m = 1``).
+        of ``s^2 / m`` (half a sample's at ``m = 1``) for white noise.
     """
     mb = max(m, 8)
     q = mb // 4
-    cs = []
-    for w in windows:
-        nb = (w.i1 - w.i0) // mb
-        if nb == 0:
-            continue
-        blk = x[w.i0:w.i0 + nb * mb].reshape(nb, mb)[:, :4 * q].reshape(nb, 4, q).mean(axis=2)
-        cs.append(blk[:, 0] - blk[:, 1] - blk[:, 2] + blk[:, 3])
-    c = np.concatenate(cs) if cs else np.zeros(0)
-    c = c[np.isfinite(c)]
+    c = _contrasts(x, windows, q, mb)
     if len(c) < 8:
         return float("nan")
-    s_mb = 1.4826 * np.median(np.abs(c - np.median(c))) / 4.0
-    s_m = s_mb * np.sqrt(mb / m)
-    return float(s_m * np.sqrt((m - 0.5) / m) if trapezoid else s_m)
+    # The contrast uses the first 4 q of the mb samples: it measures a 4q-sample block mean.
+    s_mb = _robust_sd(c) / 4.0
+    s_m = s_mb * np.sqrt(4 * q / m)
+    white = float(s_m * np.sqrt((m - 0.5) / m) if trapezoid else s_m)
+    s_inf, q_star = noise_scale(x, windows)
+    if np.isfinite(s_inf):
+        coloured = float(s_inf / np.sqrt(max(m, 0.75 * q_star)))
+        return max(white, coloured)
+    return white
 
 
 def initial_values(x: np.ndarray, windows: tuple[Window, ...], half: int) -> np.ndarray:
@@ -545,6 +641,34 @@ def build_problems(trial: Trial, segments: Segments, vessel: Vessel | None = Non
     return problems
 
 
+def derived_velocity(trial: Trial, channel: str) -> str | None:
+    """The channels a body velocity ``u`` or ``v`` was derived from, or None when it was logged.
+
+    Align derives ``u = sog cos(cog - psi)`` and ``v = sog sin(cog - psi)`` where no body velocity
+    is logged (:mod:`pipeline.align`); such a channel carries the heading's motion (waves on the
+    heading appear in it multiplied by the speed) and the GNSS noise. Recognised from the data:
+    the channel equals that expression to rounding.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    channel : str
+        ``u`` or ``v``.
+    """
+    if channel not in ("u", "v") or not all(trial.has(c) for c in ("sog", "cog", "psi")):
+        return None
+    x = trial.data[channel].to_numpy(float)
+    sog, cog, psi = (trial.data[c].to_numpy(float) for c in ("sog", "cog", "psi"))
+    beta = cog - psi
+    y = sog * (np.cos(beta) if channel == "u" else np.sin(beta))
+    ok = np.isfinite(x) & np.isfinite(y)
+    if ok.sum() < 10:
+        return None
+    scale = max(float(np.max(np.abs(x[ok]))), 1e-9)
+    return "sog, cog and psi" if float(np.max(np.abs(x[ok] - y[ok]))) < 1e-6 * scale else None
+
+
 def _moves(y: np.ndarray, w: Window, noise: float) -> bool:
     """True when the response in ``w`` leaves the noise band (worth replaying for a bystander DOF)."""
     seg = y[w.i0:w.i1]
@@ -644,4 +768,5 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         raw[c] = x
         regs.append(c)
     return DofProblem(dof=dof, channel=ch, angle=angle, heading=heading, inputs=inputs, regressors=tuple(regs),
-                      fs=fs, m=m, dt=m / fs, windows=tuple(windows), t_guess=float(t_const), raw=raw, noise=noises)
+                      fs=fs, m=m, dt=m / fs, windows=tuple(windows), t_guess=float(t_const), raw=raw, noise=noises,
+                      derived_from=derived_velocity(trial, ch))

@@ -367,7 +367,8 @@ def residual_character(p: DofProblem, resid: np.ndarray, trial: Trial) -> tuple[
 
 
 def unexplained(states: Mapping[str, DofState], places: tuple[Place, ...], trial: Trial,
-                names_of: Callable[[DofProblem], Mapping[str, str]]) -> tuple[Unexplained, ...]:
+                names_of: Callable[[DofProblem], Mapping[str, str]],
+                heading_waves: bool = False) -> tuple[Unexplained, ...]:
     """Channels whose gap stays above the noise after the selected effects (see module docstring).
 
     Parameters
@@ -380,6 +381,9 @@ def unexplained(states: Mapping[str, DofState], places: tuple[Place, ...], trial
         The trial.
     names_of : callable
         Output key -> channel name of a DOF problem.
+    heading_waves : bool
+        Waves were selected on the heading: the wave-band residual of a body velocity derived from
+        the heading (``DofProblem.derived_from``) is those waves times the speed, explained.
     """
     rows = []
     for dof, s in states.items():
@@ -400,6 +404,8 @@ def unexplained(states: Mapping[str, DofState], places: tuple[Place, ...], trial
             r = resid.get(key)
             r = r / units[key] if r is not None and math.isfinite(units.get(key, math.nan)) else r
             band, peak, corr, looks = residual_character(s.problem, r, trial) if r is not None else ("", math.nan, {}, "")
+            if heading_waves and getattr(s.problem, "derived_from", None) and band == "in wave band":
+                continue
             place = next((f"{pl.category} {pl.name}" for pl in places
                           if pl.dof == dof and pl.category not in ("channel", "frequency band") and pl.share > 0), "")
             rows.append([dof, ch, g, pv, place, band, peak, corr, looks])

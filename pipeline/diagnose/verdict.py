@@ -26,6 +26,7 @@ from .problem import DofProblem, build_problems
 from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
 from .replay import default_band, rank_places, replay, traces, where
 from .segments import diagnose_segments
+from .timing import input_timing
 
 
 def _unit(name: str, p: DofProblem, run: CandidateRun) -> str:
@@ -108,6 +109,13 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
                             f"{[c for c in trial.data.columns if c != 't']}")
     t_consts = _refine_time_constants(trial, segs, vessel)
     problems = build_problems(trial, segs, vessel, time_constants=t_consts)
+    timed = [input_timing(p) for p in problems]
+    problems = [p for p, _ in timed]
+    for p, adv in timed:
+        if adv > 0:
+            notes.append(f"{p.dof}: inputs taken {adv:.3g} s earlier than logged (the log's timing of the commands: "
+                         f"a command sampled by the log is recorded up to one sample after it switched); the "
+                         f"baseline and every candidate use that timing")
     osc_problems = [q for q in (osc.build_oscillatory(trial, segs, dof) for dof in ("roll", "pitch")) if q is not None]
     if not problems and not osc_problems:
         raise DiagnoseError(f"{trial.name}: expected a DOF whose response (u, v or r, or sog) is measured and "
@@ -226,7 +234,9 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             gaps = [float(np.sqrt(np.nanmean(x**2))) for x in rr.values() if np.isfinite(x).any()]
             summaries[i] = _with_replay(summaries[i], float(np.sqrt(np.mean(np.square(gaps)))) if gaps else math.nan)
     places = rank_places(raw_places)
-    unexplained = sel.unexplained(states, places, trial, lambda p: {"y": p.channel, "angle": p.angle})
+    heading_waves = any(e.effect == "waves" and getattr(states[e.dof].problem, "angle", None) == "psi" for e in effects)
+    unexplained = sel.unexplained(states, places, trial, lambda p: {"y": p.channel, "angle": p.angle},
+                                  heading_waves=heading_waves)
     for e in effects:
         if e.why:
             notes.append(f"{e.label} in {e.dof}: {e.why}")
