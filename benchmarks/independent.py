@@ -353,13 +353,16 @@ def main(argv=None) -> int:
     ap.add_argument("--manoeuvres", default="steps,zigzag,sinusoid")
     ap.add_argument("--rudder", default="measured,commanded")
     ap.add_argument("--waves", default="no,yes")
+    ap.add_argument("--rows", default="",
+                    help="only these rows, comma-separated ship:manoeuvre:rudder:waves (instead of the product)")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--no-write", action="store_true", help="print only; do not touch RESULTS.md")
     ap.add_argument("--json", default="", help="also write every task's raw result to this JSON-lines file")
     ap.add_argument("--deadline-min", type=float, default=0.0,
                     help="stop after this many minutes and summarise the tasks done (0: no deadline)")
     ap.add_argument("--from-jsonl", default="",
-                    help="only summarise the tasks recorded in this JSON-lines file (from --json) and write them")
+                    help="only summarise the tasks recorded in these JSON-lines files (comma-separated, from --json) "
+                         "and write them")
     args = ap.parse_args(argv)
     if args.from_jsonl:
         return summarise_jsonl(args)
@@ -370,18 +373,25 @@ def main(argv=None) -> int:
     chosen = [all_ships[s] for s in args.ships.split(",")]
     rows_spec = []
     t0 = time.time()
+    wanted = {tuple(r.split(":")) for r in args.rows.split(",") if r}
+    if wanted:
+        chosen = [all_ships[s] for s in dict.fromkeys(w[0] for w in sorted(wanted))]
     for ship in chosen:
         vehicle = ship.make()
         truth = linearise(vehicle, settle(vehicle))
         print(f"{ship.name}: truth K = {truth['K']:.5g} 1/s, T = {truth['T']:.5g} s "
               f"({'second order' if truth['order'] == 2 else 'first order'})", flush=True)
         for man in args.manoeuvres.split(","):
+            if wanted and not any(w[:2] == (ship.name, man) for w in wanted):
+                continue
             kinds = ["sinusoid_slow", "sinusoid_fast"] if man == "sinusoid" else [man]
             sims = {kind: simulate(ship, kind, truth) for kind in kinds}
             best = [attainable(sims[kind], truth) for kind in kinds]
             truth = dict(truth, attainable=[[rel(k, truth["K"]), rel(tt, truth["T"])] for k, tt in best])
             for rudder in args.rudder.split(","):
                 for waves in args.waves.split(","):
+                    if wanted and (ship.name, man, rudder, waves) not in wanted:
+                        continue
                     rows_spec.append((ship.name, man, rudder, waves, truth,
                                       [(ship.name, kinds, sims, rudder, waves, seed, truth) for seed in range(args.seeds)]))
     # Seed-major order: a run stopped at its deadline still has every row, with fewer seeds.
@@ -436,13 +446,17 @@ def main(argv=None) -> int:
 def summarise_jsonl(args) -> int:
     """Rows from the JSON lines of finished tasks (a run stopped before its end), rendered and written."""
     groups: dict[tuple, dict] = {}
-    with open(args.from_jsonl) as fh:
-        for line in fh:
-            d = json.loads(line)
-            key = (d["ship"], d["man"], d["rudder"], d["waves"])
-            g = groups.setdefault(key, {"ship": d["ship"], "man": d["man"], "rudder": d["rudder"], "waves": d["waves"],
-                                        "truth": d["truth"], "runs": []})
-            g["runs"].extend(d["runs"])
+    seen = set()
+    lines = [line for path in args.from_jsonl.split(",") for line in open(path)]
+    for line in lines:
+        d = json.loads(line)
+        key = (d["ship"], d["man"], d["rudder"], d["waves"])
+        if key + (d["seed"],) in seen:
+            continue  # the same task recorded by two runs (files given together)
+        seen.add(key + (d["seed"],))
+        g = groups.setdefault(key, {"ship": d["ship"], "man": d["man"], "rudder": d["rudder"], "waves": d["waves"],
+                                    "truth": d["truth"], "runs": []})
+        g["runs"].extend(d["runs"])
     rows = [summarise(g) for g in groups.values()]
     for r in rows:
         print(format_row(r), flush=True)
@@ -546,6 +560,7 @@ HEADER = ("| ship | manoeuvre | rudder log | waves | K / T marked success | K er
 def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
     cmd = (f"benchmarks/independent.py --seeds {args.seeds} --ships {args.ships} --manoeuvres {args.manoeuvres} "
            f"--rudder {args.rudder} --waves {args.waves} --workers {args.workers}"
+           + (f" --rows {args.rows}" if args.rows else "")
            + (f" --deadline-min {args.deadline_min:g}" if args.deadline_min > 0 else ""))
     truth_lines = []
     for name, tr in truths.items():
