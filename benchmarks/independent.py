@@ -349,6 +349,7 @@ def run_one(task) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--seed-start", type=int, default=0, help="first seed (to add seeds to an earlier run's --json)")
     ap.add_argument("--ships", default="frigate,clarke83,tanker20,tanker25")
     ap.add_argument("--manoeuvres", default="steps,zigzag,sinusoid")
     ap.add_argument("--rudder", default="measured,commanded")
@@ -393,10 +394,11 @@ def main(argv=None) -> int:
                     if wanted and (ship.name, man, rudder, waves) not in wanted:
                         continue
                     rows_spec.append((ship.name, man, rudder, waves, truth,
-                                      [(ship.name, kinds, sims, rudder, waves, seed, truth) for seed in range(args.seeds)]))
+                                      [(ship.name, kinds, sims, rudder, waves, seed, truth)
+                                       for seed in range(args.seed_start, args.seed_start + args.seeds)]))
     # Seed-major order: a run stopped at its deadline still has every row, with fewer seeds.
-    order = [(r, seed) for seed in range(args.seeds) for r in range(len(rows_spec))]
-    tasks = [rows_spec[r][5][seed] for r, seed in order]
+    order = [(r, args.seed_start + k) for k in range(args.seeds) for r in range(len(rows_spec))]
+    tasks = [rows_spec[r][5][seed - args.seed_start] for r, seed in order]
     results: dict[int, list] = {r: [] for r in range(len(rows_spec))}
     jsonl = open(args.json, "w") if args.json else None
     deadline = t0 + 60.0 * args.deadline_min if args.deadline_min > 0 else math.inf
@@ -558,9 +560,11 @@ HEADER = ("| ship | manoeuvre | rudder log | waves | K / T marked success | K er
 
 
 def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
-    cmd = (f"benchmarks/independent.py --seeds {args.seeds} --ships {args.ships} --manoeuvres {args.manoeuvres} "
-           f"--rudder {args.rudder} --waves {args.waves} --workers {args.workers}"
-           + (f" --rows {args.rows}" if args.rows else "")
+    rows_given = f"--rows {args.rows}" if args.rows else (
+        f"--ships {args.ships} --manoeuvres {args.manoeuvres} --rudder {args.rudder} --waves {args.waves}")
+    cmd = (f"benchmarks/independent.py --seeds {args.seeds}"
+           + (f" --seed-start {args.seed_start}" if args.seed_start else "")
+           + f" {rows_given} --workers {args.workers}"
            + (f" --deadline-min {args.deadline_min:g}" if args.deadline_min > 0 else ""))
     truth_lines = []
     for name, tr in truths.items():
