@@ -288,6 +288,38 @@ def scipy_oe(log: dict) -> tuple[float, float]:
     return float(res.x[0]), float(res.x[1])
 
 
+def attainable(sim: dict, truth: dict) -> tuple[float, float]:
+    """The best a linear model of the right structure can do on this manoeuvre: K, T (equivalent).
+
+    The simulator's noise-free yaw rate is fitted, by output error from its own noise-free servo
+    angle and a rudder bias, with the linear structure of the truth (first order for a first-order
+    ship; ``K (T3 s + 1)/(T1 T2 s^2 + (T1 + T2) s + 1)`` otherwise), started at the truth. What is
+    left between this and the linearisation is the ship's nonlinearity at the manoeuvre's amplitude
+    (rudder lift, speed change in turns), which no linear identification removes.
+    """
+    t, r, d = sim["t"], sim["r"], sim["delta"]
+    if truth["order"] == 1:
+        num = lambda p: [p[0]]  # noqa: E731
+        den = lambda p: [p[1], 1.0]  # noqa: E731
+        p0 = [truth["K"], truth["T"], 0.0]
+    else:
+        num = lambda p: [p[0] * p[3], p[0]]  # noqa: E731
+        den = lambda p: [p[2], p[1], 1.0]  # noqa: E731
+        p0 = [truth["K"], truth["T1pT2"], truth["T1T2"], truth["T3"], 0.0]
+
+    def resid(p):
+        ss = scipy.signal.lti(num(p), den(p)).to_ss()
+        x0 = -np.linalg.solve(ss.A, ss.B[:, 0] * (d[0] - p[-1]))
+        _, y, _ = scipy.signal.lsim(ss, d - p[-1], t, X0=x0, interp=True)
+        return (y - r) / np.std(r)
+
+    try:
+        p = scipy.optimize.least_squares(resid, p0, x_scale=np.abs(p0) + 1e-3).x
+    except (ValueError, np.linalg.LinAlgError):
+        return math.nan, math.nan
+    return float(p[0]), float(p[1] if truth["order"] == 1 else p[1] - p[3])
+
+
 # --------------------------------------------------------------------------- the benchmark
 def rel(v, truth):
     return (v - truth) / abs(truth) if v is not None and math.isfinite(v) else math.nan
@@ -317,17 +349,21 @@ def run_one(task) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--seed-start", type=int, default=0, help="first seed (to add seeds to an earlier run's --json)")
     ap.add_argument("--ships", default="frigate,clarke83,tanker20,tanker25")
     ap.add_argument("--manoeuvres", default="steps,zigzag,sinusoid")
     ap.add_argument("--rudder", default="measured,commanded")
     ap.add_argument("--waves", default="no,yes")
+    ap.add_argument("--rows", default="",
+                    help="only these rows, comma-separated ship:manoeuvre:rudder:waves (instead of the product)")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--no-write", action="store_true", help="print only; do not touch RESULTS.md")
     ap.add_argument("--json", default="", help="also write every task's raw result to this JSON-lines file")
     ap.add_argument("--deadline-min", type=float, default=0.0,
                     help="stop after this many minutes and summarise the tasks done (0: no deadline)")
     ap.add_argument("--from-jsonl", default="",
-                    help="only summarise the tasks recorded in this JSON-lines file (from --json) and write them")
+                    help="only summarise the tasks recorded in these JSON-lines files (comma-separated, from --json) "
+                         "and write them")
     args = ap.parse_args(argv)
     if args.from_jsonl:
         return summarise_jsonl(args)
@@ -338,21 +374,31 @@ def main(argv=None) -> int:
     chosen = [all_ships[s] for s in args.ships.split(",")]
     rows_spec = []
     t0 = time.time()
+    wanted = {tuple(r.split(":")) for r in args.rows.split(",") if r}
+    if wanted:
+        chosen = [all_ships[s] for s in dict.fromkeys(w[0] for w in sorted(wanted))]
     for ship in chosen:
         vehicle = ship.make()
         truth = linearise(vehicle, settle(vehicle))
         print(f"{ship.name}: truth K = {truth['K']:.5g} 1/s, T = {truth['T']:.5g} s "
               f"({'second order' if truth['order'] == 2 else 'first order'})", flush=True)
         for man in args.manoeuvres.split(","):
+            if wanted and not any(w[:2] == (ship.name, man) for w in wanted):
+                continue
             kinds = ["sinusoid_slow", "sinusoid_fast"] if man == "sinusoid" else [man]
             sims = {kind: simulate(ship, kind, truth) for kind in kinds}
+            best = [attainable(sims[kind], truth) for kind in kinds]
+            truth = dict(truth, attainable=[[rel(k, truth["K"]), rel(tt, truth["T"])] for k, tt in best])
             for rudder in args.rudder.split(","):
                 for waves in args.waves.split(","):
+                    if wanted and (ship.name, man, rudder, waves) not in wanted:
+                        continue
                     rows_spec.append((ship.name, man, rudder, waves, truth,
-                                      [(ship.name, kinds, sims, rudder, waves, seed, truth) for seed in range(args.seeds)]))
+                                      [(ship.name, kinds, sims, rudder, waves, seed, truth)
+                                       for seed in range(args.seed_start, args.seed_start + args.seeds)]))
     # Seed-major order: a run stopped at its deadline still has every row, with fewer seeds.
-    order = [(r, seed) for seed in range(args.seeds) for r in range(len(rows_spec))]
-    tasks = [rows_spec[r][5][seed] for r, seed in order]
+    order = [(r, args.seed_start + k) for k in range(args.seeds) for r in range(len(rows_spec))]
+    tasks = [rows_spec[r][5][seed - args.seed_start] for r, seed in order]
     results: dict[int, list] = {r: [] for r in range(len(rows_spec))}
     jsonl = open(args.json, "w") if args.json else None
     deadline = t0 + 60.0 * args.deadline_min if args.deadline_min > 0 else math.inf
@@ -402,13 +448,17 @@ def main(argv=None) -> int:
 def summarise_jsonl(args) -> int:
     """Rows from the JSON lines of finished tasks (a run stopped before its end), rendered and written."""
     groups: dict[tuple, dict] = {}
-    with open(args.from_jsonl) as fh:
-        for line in fh:
-            d = json.loads(line)
-            key = (d["ship"], d["man"], d["rudder"], d["waves"])
-            g = groups.setdefault(key, {"ship": d["ship"], "man": d["man"], "rudder": d["rudder"], "waves": d["waves"],
-                                        "truth": d["truth"], "runs": []})
-            g["runs"].extend(d["runs"])
+    seen = set()
+    lines = [line for path in args.from_jsonl.split(",") for line in open(path)]
+    for line in lines:
+        d = json.loads(line)
+        key = (d["ship"], d["man"], d["rudder"], d["waves"])
+        if key + (d["seed"],) in seen:
+            continue  # the same task recorded by two runs (files given together)
+        seen.add(key + (d["seed"],))
+        g = groups.setdefault(key, {"ship": d["ship"], "man": d["man"], "rudder": d["rudder"], "waves": d["waves"],
+                                    "truth": d["truth"], "runs": []})
+        g["runs"].extend(d["runs"])
     rows = [summarise(g) for g in groups.values()]
     for r in rows:
         print(format_row(r), flush=True)
@@ -480,7 +530,8 @@ def summarise(res: dict) -> dict:
             "cov_T": float(np.mean(cover["T"])) if cover["T"] else math.nan,
             "wrong_success": wrong_success, "oe_K": med(oe_err["K"]), "oe_T": med(oe_err["T"]),
             "amp_K": med(amp_err["K"]), "amp_T": med(amp_err["T"]), "fails": fails[:2],
-            "unsure_n": len(unsure["K"]) + len(unsure["T"]), "unsure_K": med(unsure["K"]), "unsure_T": med(unsure["T"])}
+            "unsure_n": len(unsure["K"]) + len(unsure["T"]), "unsure_K": med(unsure["K"]), "unsure_T": med(unsure["T"]),
+            "best": truth.get("attainable", [])}
 
 
 def pct(x):
@@ -492,19 +543,28 @@ def format_row(r: dict) -> str:
             f"{pct(r['K_bias'])} / {pct(r['K_med'])} / {pct(r['K_max'])} | "
             f"{pct(r['T_bias'])} / {pct(r['T_med'])} / {pct(r['T_max'])} | {pct(r['cov_K'])} / {pct(r['cov_T'])} | "
             f"{r['wrong_success']} | {r['unsure_n']}: {pct(r['unsure_K'])} / {pct(r['unsure_T'])} | "
-            f"{pct(r['oe_K'])} / {pct(r['oe_T'])} | {pct(r['amp_K'])} / {pct(r['amp_T'])} |")
+            f"{pct(r['oe_K'])} / {pct(r['oe_T'])} | {pct(r['amp_K'])} / {pct(r['amp_T'])} | "
+            + ("; ".join(f"{signed(k)} / {signed(t)}" for k, t in r["best"]) or "-") + " |")
+
+
+def signed(x):
+    return "-" if x is None or not math.isfinite(x) else f"{100 * x:+.1f}"
 
 
 HEADER = ("| ship | manoeuvre | rudder log | waves | K / T marked success | K err % (median signed / median abs / worst) | "
           "T err % (median signed / median abs / worst) | 95% CI coverage K / T % | >20 % off marked success | "
           "not success but a value (unsure): count, median abs err K / T % | "
-          "scipy OE peer median abs err K / T % | amplitude method K / T % |\n"
-          "|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "scipy OE peer median abs err K / T % | amplitude method K / T % | "
+          "best linear fit to the noise-free record K / T % |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
-    cmd = (f"benchmarks/independent.py --seeds {args.seeds} --ships {args.ships} --manoeuvres {args.manoeuvres} "
-           f"--rudder {args.rudder} --waves {args.waves} --workers {args.workers}"
+    rows_given = f"--rows {args.rows}" if args.rows else (
+        f"--ships {args.ships} --manoeuvres {args.manoeuvres} --rudder {args.rudder} --waves {args.waves}")
+    cmd = (f"benchmarks/independent.py --seeds {args.seeds}"
+           + (f" --seed-start {args.seed_start}" if args.seed_start else "")
+           + f" {rows_given} --workers {args.workers}"
            + (f" --deadline-min {args.deadline_min:g}" if args.deadline_min > 0 else ""))
     truth_lines = []
     for name, tr in truths.items():

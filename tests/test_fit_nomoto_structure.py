@@ -18,7 +18,7 @@ from pipeline.model.nomoto import (ORDER2_SUM_PRODUCT, Nomoto2Params, NomotoPara
                                    nomoto_rhs, pole_time_constants, servo_response)
 from pipeline.records import Segment, Trial
 from pipeline.segment import detect_segments
-from pipeline.segment.rudder import classify_changes, find_holds, is_command_like, zigzag_runs
+from pipeline.segment.rudder import classify_changes, find_holds, is_command_like, is_servo_command, zigzag_runs
 
 K_TRUE, T_TRUE = 0.15, 20.0
 H = 0.2
@@ -89,7 +89,7 @@ def test_servo_response_lag_and_rate_limit(rate):
 
 
 # --------------------------------------------------------------------------- ship records
-def _ship_log(delta_c, tau=1.0, rate=math.inf, measured=False, seed=0, order1=True):
+def _ship_log(delta_c, tau=1.0, rate=math.inf, measured=False, seed=0, order1=True, rudder_noise_deg=0.1):
     """Heading and yaw rate of a Nomoto ship behind a servo, simulated on a 20x finer grid."""
     sub = 20
     h = H / sub
@@ -109,7 +109,7 @@ def _ship_log(delta_c, tau=1.0, rate=math.inf, measured=False, seed=0, order1=Tr
     n = delta_c.size
     psi = xs[::sub, 0] + math.radians(0.1) * rng.standard_normal(n)
     r = xs[::sub, 1] + math.radians(0.03) * rng.standard_normal(n)
-    rudder = d[::sub] + math.radians(0.1) * rng.standard_normal(n) if measured else delta_c
+    rudder = d[::sub] + math.radians(rudder_noise_deg) * rng.standard_normal(n) if measured else delta_c
     t = np.arange(n) * H
     return Trial("ship", pd.DataFrame({"t": t, "psi": (psi + np.pi) % (2 * np.pi) - np.pi, "r": r, "delta": rudder}),
                  1 / H)
@@ -131,6 +131,26 @@ def test_measured_rudder_steps_sized_between_steady_holds():
         assert seg.input_after == pytest.approx(math.radians(b), abs=math.radians(0.1))
         # The window runs to the next rudder change, not to a settle-time guess.
         assert seg.duration > 55.0
+
+
+def test_noise_free_measured_rudder_is_a_servo_angle_not_a_command():
+    # A simulator's servo state logged without sensor noise: exact holds, ramps and exponential tails
+    # between them. It was read as a held command (most samples repeat exactly), its ramps as
+    # one-period "sinusoids" that were then rejected, and its fit added a second servo on top.
+    trial = _ship_log(_steps([0, 20, 0, -20, 0], 60.0), tau=1.0, rate=math.radians(5.0), measured=True,
+                      rudder_noise_deg=0.0)
+    u = trial.data["delta"].to_numpy()
+    assert not is_command_like(u) and not is_servo_command(u, 1 / H)
+    segs = detect_segments(trial)
+    assert not segs.of("sinusoid") and len(segs.of("rudder_step")) == 4
+    sf = fit_nomoto_window(trial, segs.of("rudder_step")[0], 0.0, segs.of("rudder_step")[0].t_end)
+    assert "t_servo" not in sf.params and "measured angle" in sf.message
+    assert sf.success or sf.message.startswith("unsure:")
+    assert sf.params["K"] == pytest.approx(K_TRUE, rel=0.01) and sf.params["T"] == pytest.approx(T_TRUE, rel=0.02)
+    # The same steps logged as the command are a servo command; a computed sine too.
+    assert is_servo_command(_steps([0, 20, 0, -20, 0], 60.0), 1 / H)
+    t = np.arange(0, 600, H)
+    assert is_servo_command(math.radians(10) * np.sin(2 * math.pi * t / 300.0), 1 / H)
 
 
 def test_measured_zigzag_and_sinusoid_are_recognised():

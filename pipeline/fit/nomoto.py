@@ -27,8 +27,8 @@ from dataclasses import replace
 from ..errors import FitError
 from ..records import Segment, SegmentFit, Trial
 from ..segment.rudder import is_command_like
-from .data import (gain_formulation, input_levels, noise_sigma, pick_channel, segment_label, segment_samples,
-                   steady_before)
+from .data import (SETTLED_TOLERANCE, gain_formulation, input_levels, noise_sigma, pick_channel, segment_label,
+                   segment_samples, steady_before)
 from .first_order import (MIN_SAMPLES, STEP_PARAMS, check_first_order_length, guess_step, step_jacobian, step_response,
                           time_constant_bounds)
 from .least_squares import fit_least_squares
@@ -245,12 +245,23 @@ def fit_rudder_step_response(trial: Trial, segment: Segment) -> SegmentFit:
         check_first_order_length(segment, t, math.nan, math.nan, math.nan)
     g = guess_step(t, r)
     steady, steady_note = steady_before(trial, segment, channel, g["T"], g["y_ss"] - g["y0"])
+    if steady is not False:
+        held, held_note = rudder_hold_settled(trial, segment, g["T"])
+        if held is False or steady is None:
+            steady, steady_note = held, (held_note if held is False else f"{steady_note}; {held_note}")
     form = gain_formulation(steady, after)
+    if steady is None and form == "change":
+        # A return to zero read in change form needs the turn before it steady; when neither the yaw
+        # rate nor the rudder's history can show that, K is not claimed (a turn still settling would
+        # be read as a smaller K: 0.32 for 1.71 after a zig-zag).
+        form = "none"
+        steady_note = f"steadiness before the step could not be shown ({steady_note})"
     notes = check_first_order_length(segment, t, g["T"], g["y_ss"] - g["y0"], noise_sigma(r))
     notes += [n for n in (level_note, f"{dropped} non-finite samples dropped" if dropped else "") if n]
     lo_T, hi_T = time_constant_bounds(t)
     if form == "none":
-        notes.insert(0, f"{steady_note} and the rudder returns to zero: K not identified, T only")
+        notes.insert(0, f"K not identified, T only (unsure whether the turn before the step was steady: "
+                        f"{steady_note}; the rudder returns to zero)")
         res = fit_least_squares(lambda tt, p: step_response(tt, *p), lambda tt, p: step_jacobian(tt, *p), t, r,
                                 [g["y0"], g["y_ss"], g["T"]], STEP_PARAMS, [-np.inf, -np.inf, lo_T],
                                 [np.inf, np.inf, hi_T])
@@ -267,3 +278,58 @@ def fit_rudder_step_response(trial: Trial, segment: Segment) -> SegmentFit:
     res = fit_least_squares(lambda tt, p: model(tt, *p, arg), lambda tt, p: jac(tt, *p, arg),
                             t, r, [p0[n] for n in PARAMS], PARAMS, [-np.inf, -np.inf, lo_T], [np.inf, np.inf, hi_T])
     return build_segment_fit(segment, "nomoto_step", channel, t, r, res, ("K", "T"), notes)
+
+
+def rudder_hold_settled(trial: Trial, segment: Segment, T: float) -> tuple[bool | None, str]:
+    """Had the previous rudder change died out when this step began? (first-order yaw transient)
+
+    The rudder held at ``segment.input_before`` for ``H`` seconds after a change of ``d_prev``
+    leaves a transient of ``exp(-H/T) |d_prev|`` in rudder units in a first-order yaw rate
+    (Nomoto). Compared with this step's change ``|d|`` it is the unsettled fraction of the
+    response that a gain read from the change carries one-for-one; the vessel counts as settled
+    when the fraction is at most ``SETTLED_TOLERANCE``. This reads the rudder, not the noisy yaw
+    rate, so it decides where too few yaw-rate samples precede the step (a low logging rate or a
+    step right after a zig-zag).
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial, with the rudder ``delta`` [rad].
+    segment : Segment
+        A ``rudder_step``; ``input_before`` / ``input_after`` are the rudder levels [rad].
+    T : float
+        Time constant [s] (the step's own estimate).
+
+    Returns
+    -------
+    settled : bool or None
+        None when the hold reaches the start of the record or a gap (the change before it is not
+        in the log) or there is no rudder channel or time constant.
+    note : str
+        The evidence, for messages.
+    """
+    if not (trial.has("delta") and math.isfinite(T) and T > 0):
+        return None, "rudder hold before the step not checked"
+    t = trial.t
+    delta = trial.data["delta"].to_numpy(dtype=float)
+    i0 = int(np.searchsorted(t, segment.t_start))
+    change = abs(segment.input_after - segment.input_before)
+    lo = max(i0 - 50, 0)
+    noise = noise_sigma(delta[lo:i0]) if i0 - lo > 4 else 0.0
+    tol = max(4 * (noise if math.isfinite(noise) else 0.0), 0.05 * change, 1e-9)
+    k = i0 - 1
+    while k >= 0 and np.isfinite(delta[k]) and abs(delta[k] - segment.input_before) <= tol:
+        k -= 1
+    t_hold = float(t[min(k + 1, i0 - 1)]) if i0 > 0 else float(segment.t_start)
+    held = float(segment.t_start) - t_hold
+    in_gap = k >= 0 and any(g.t_start <= t[k] <= g.t_end for g in trial.gaps)
+    if k < 0 or not np.isfinite(delta[k]) or in_gap:
+        return None, f"rudder held {held:.3g} s before the step since the start of the record or a gap"
+    earlier = delta[(t >= t_hold - 3 * T) & (t < t_hold)]
+    earlier = earlier[np.isfinite(earlier)]
+    d_prev = float(np.max(np.abs(earlier - segment.input_before))) if earlier.size else abs(delta[k] - segment.input_before)
+    fraction = math.exp(-held / T) * d_prev / max(change, 1e-12)
+    settled = fraction <= SETTLED_TOLERANCE
+    return settled, (f"rudder held {held:.3g} s = {held / T:.2g} T before the step after a change of "
+                     f"{math.degrees(d_prev):.3g} deg: {'settled' if settled else 'not settled'} "
+                     f"(transient left {fraction:.2g} of the response, limit {SETTLED_TOLERANCE:g})")

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import FitError
 from ..records import Segment, SegmentFit, Trial
-from ..segment.rudder import is_command_like, is_noise_free
+from ..segment.rudder import is_servo_command
 from .data import noise_sigma, pick_channel, segment_label
 from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
 from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
@@ -119,7 +119,7 @@ def fit_nomoto_window(trial: Trial, segment: Segment, t0: float, t1: float) -> S
         raise FitError(f"{where}: expected at least {MIN_SAMPLES} samples, found {t.size}")
     if not np.all(np.isfinite(delta)):
         raise FitError(f"{where}: expected a logged rudder on every sample, found {int((~np.isfinite(delta)).sum())} gaps")
-    command = is_command_like(delta) or is_noise_free(delta)
+    command = is_servo_command(delta, 1.0 / float(np.median(np.diff(t))))
     notes = []
     if command:
         notes.append("rudder logged as a command (piecewise constant or free of sensor noise): servo estimated "

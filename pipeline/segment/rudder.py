@@ -72,8 +72,18 @@ class RudderChange:
         return self.after.value - self.before.value
 
 
+#: Consecutive moving samples from which a change is a ramp (a servo), not a jump (a held command).
+RAMP_SAMPLES = 3
+
+
 def is_command_like(u: np.ndarray) -> bool:
-    """True when a rudder record is piecewise constant (a held command), False for a measured angle.
+    """True when a rudder record is a held command: piecewise constant, changing by jumps.
+
+    A measured servo angle is noisy (it never holds a value exactly), or, when it carries no sensor
+    noise (a simulator's servo state), it holds exactly but moves between holds by ramps and
+    exponentials over several samples: most of its moving samples lie in runs of at least
+    ``RAMP_SAMPLES`` successive changes. A held command jumps (a change spans one or two samples,
+    two when the logger interpolated it).
 
     Parameters
     ----------
@@ -81,7 +91,12 @@ def is_command_like(u: np.ndarray) -> bool:
         Rudder record [rad]; non-finite samples ignored.
     """
     d = np.diff(u[np.isfinite(u)])
-    return bool(d.size) and float(np.mean(d == 0.0)) >= 0.5
+    if not d.size or float(np.mean(d == 0.0)) < 0.5:
+        return False
+    moving = np.concatenate([[0], (d != 0.0).astype(int), [0]])
+    edges = np.flatnonzero(np.diff(moving))
+    runs = edges[1::2] - edges[0::2]
+    return not (runs.size and runs[runs >= RAMP_SAMPLES].sum() > 0.5 * runs.sum())
 
 
 #: Sample-to-sample noise below which a varying rudder record is a computed command [rad] (0.01 deg):
@@ -107,6 +122,32 @@ def is_noise_free(u: np.ndarray) -> bool:
     d2 = np.diff(u, 2)
     sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
     return sigma < NOISE_FREE_RAD
+
+
+def is_servo_command(u: np.ndarray, fs: float) -> bool:
+    """True when a rudder record is what a servo is told, not the angle it reached.
+
+    A held command (:func:`is_command_like`) or a noise-free varying record (a computed command,
+    e.g. a logged sine: :func:`is_noise_free`). A noise-free record that spends most of its time
+    in holds (:func:`find_holds`) and moves between them by ramps and exponential tails is a
+    servo's angle logged without sensor noise (a simulator's rudder state): the servo is already
+    in it. (A sine's peaks are holds for a small fraction of its period only, whatever its
+    frequency.)
+
+    Parameters
+    ----------
+    u : numpy.ndarray
+        Rudder record [rad]; non-finite samples ignored.
+    fs : float
+        Sample rate [Hz].
+    """
+    u = np.asarray(u, float)
+    if is_command_like(u):
+        return True
+    if not is_noise_free(u):
+        return False
+    held = sum(h.i_end - h.i_start for h in find_holds(u, fs, 0.0))
+    return held < 0.5 * int(np.isfinite(u).sum())
 
 
 def find_holds(u: np.ndarray, fs: float, noise: float) -> list[Hold]:
