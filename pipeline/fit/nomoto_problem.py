@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
+import scipy.signal
 from scipy import optimize
 
 from ..errors import FitError
@@ -16,6 +17,7 @@ from ..model.nomoto import (NOMOTO_ORDER_PARAMS, nomoto2_coefficients, nomoto2_s
 from ..model.waves import WaveParams
 from .nomoto_pem import initial_state_response, innovation_filter, InnovationFilter, noise_from_ratio, whiten_profiled
 from .nomoto_records import NomotoFit, NomotoRecord
+from .nomoto_sensitivity import complex_step, propagate, zoh_derivatives
 from .nomoto_zoh import simulate_zoh, zoh_discretise
 from .residual_tests import residual_test
 
@@ -34,7 +36,11 @@ NUMERIC_MARGIN = 100.0
 UNIFORM_TOLERANCE = 1e-3
 # The residual is linear in these (initial states, and the bias through the input delta - b).
 _LINEAR_KINDS = frozenset({"b", "psi0", "r0", "rdot0"})
+# Parameters whose Jacobian columns are exact (sensitivity equations); the rest by finite differences.
+_EXACT_KINDS = frozenset({"K", "T", "T1", "T2", "T3", "T12", "T1T2"}) | _LINEAR_KINDS
 # Floors of the finite-difference steps per parameter kind (step = 1e-6 max(|x|, floor)).
+# Key of the full state trajectory (N, n) in the dict :meth:`Problem.simulate` returns.
+STATES_KEY = "states"
 _FD_FLOOR = {"K": 1e-3, "T": 1.0, "T12": 1.0, "T1T2": 1.0, "T1": 1.0, "T2": 1.0, "T3": 1.0, "b": 1e-2, "psi0": 1e-2, "r0": 1e-3,
              "rdot0": 1e-4, "log": 10.0}
 
@@ -118,7 +124,7 @@ def prepare(rec: NomotoRecord, i: int, channels: Sequence[str]) -> Prepared:
 
 # --------------------------------------------------------------------------- the problem
 class Problem:
-    """Residuals of the OE/PEM criterion over several records, with caches for the FD Jacobian."""
+    """Residuals of the OE/PEM criterion over several records and their Jacobian (exact sensitivities; finite differences for the noise and servo parameters, with caches)."""
 
     def __init__(self, recs: Sequence[Prepared], order: int, bias: bool, channels: tuple[str, ...],
                  noise: str, fixed_waves: WaveParams | None, fixed_noise_var: float | None,
@@ -297,11 +303,11 @@ class Problem:
                 # x2 from the initial yaw acceleration: x2 = r_dot + a1 r - b1 (delta - b).
                 x0[2] = icd["rdot0"] + a1 * icd["r0"] - b1 * (u[0] - b)
             states = simulate_zoh(ad, bd, x0, u - b)
-            out = {"psi": states[:, 0], "r": states[:, 1]}
+            out = {"psi": states[:, 0], "r": states[:, 1], STATES_KEY: states}
             if len(self._sim_cache) > 256:
                 self._sim_cache.clear()
             self._sim_cache[key] = out
-        return {"psi": out["psi"] + psi0, "r": out["r"]} if psi0 else out
+        return {"psi": out["psi"] + psi0, "r": out["r"], STATES_KEY: out[STATES_KEY]} if psi0 else out
 
     def channel_residuals(self, x: np.ndarray) -> list[dict[str, np.ndarray]]:
         """Unweighted residuals per record and channel (masked samples removed).
@@ -356,31 +362,142 @@ class Problem:
         return 1e-6 * np.maximum(np.abs(x), floor)
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """Central differences for K, T and the noise parameters; one-sided for the parameters the
-        residual is linear in (initial states, bias), where a forward difference is exact.
+        """Jacobian of :meth:`residual`: exact for K, T (T12, T1T2, T3), the bias and the initial
+        states (discrete sensitivity equations, :mod:`pipeline.fit.nomoto_sensitivity`), central
+        differences for the noise and servo parameters.
 
         Parameters
         ----------
         x : numpy.ndarray
             Solver vector.
         """
+        x = np.asarray(x, float)
+        jac = np.empty((self._n_residuals(), len(self.names)))
+        exact = [j for j, k in enumerate(self.kinds) if k in _EXACT_KINDS]
+        jac[:, exact] = self._sensitivity_columns(x, exact)
+        fd = [j for j in range(len(self.names)) if j not in set(exact)]
+        if fd:
+            jac[:, fd] = self.fd_jacobian(x, fd)
+        return jac
+
+    def _n_residuals(self) -> int:
+        return sum(int(rec.mask[ch].sum()) for rec in self.recs for ch in self.channels)
+
+    def fd_jacobian(self, x: np.ndarray, cols: Sequence[int] | None = None) -> np.ndarray:
+        """Finite-difference Jacobian columns: central for K, T and the noise and servo parameters;
+        one-sided for the parameters the residual is linear in (initial states, bias), where a
+        forward difference is exact (up to rounding).
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            Solver vector.
+        cols : sequence of int, optional
+            Columns to compute (all by default).
+        """
         steps = self.fd_steps(x)
+        cols = range(len(steps)) if cols is None else cols
         base = None
-        cols = []
-        for j, s in enumerate(steps):
+        out = []
+        for j in cols:
+            s = steps[j]
             xp = np.array(x, float)
             if self.kinds[j] in _LINEAR_KINDS:
                 if base is None:
                     base = self.residual(x)
                 s = 1e3 * s   # exact for a linear map: a larger step only lowers the rounding error
                 xp[j] += s
-                cols.append((self.residual(xp) - base) / s)
+                out.append((self.residual(xp) - base) / s)
                 continue
             xm = np.array(x, float)
             xp[j] += s
             xm[j] -= s
-            cols.append((self.residual(xp) - self.residual(xm)) / (2 * s))
-        return np.column_stack(cols)
+            out.append((self.residual(xp) - self.residual(xm)) / (2 * s))
+        return np.column_stack(out)
+
+    def _sensitivity_columns(self, z: np.ndarray, cols: Sequence[int]) -> np.ndarray:
+        """Exact Jacobian columns ``cols`` (dynamic parameters, bias, initial states) of the residual."""
+        x = self.natural(z)
+        dyn = [float(v) for v in x[: self.n_dyn]]
+        b = float(x[self.n_dyn]) if self.bias else 0.0
+        a, bm = nomoto_matrices(self.order, dyn)
+        dmats = complex_step(lambda d: np.hstack(nomoto_matrices(self.order, d)), dyn)
+        n = a.shape[0]
+        da = [m[:, :n] for m in dmats]
+        db = [m[:, n:] for m in dmats]
+        if self.order != 1:
+            coef = nomoto2_coefficients if self.order == 2 else nomoto2_sum_product
+            a1, _, b1, _ = coef(*dyn)
+            dcoef = complex_step(lambda d: np.array(coef(*d)), dyn)
+        # d natural / d solver: theta for the log parameters (0 where natural() holds them at the margin).
+        held = self.log_mask & ((z <= self._z_lo) | (z >= self._z_hi))
+        chain = np.where(self.log_mask, np.where(held, 0.0, x), 1.0)
+        blocks = []
+        for i, rec in enumerate(self.recs):
+            sim = self.simulate(z, i)
+            states = sim[STATES_KEY]
+            u = self.rudder(z, i) - b
+            nsamp = u.size
+            ad, bd, dad, dbd = zoh_derivatives(a, bm, da, db, rec.h)
+            ic = dict(zip(self.ic_names, self.ic_index[i]))
+            p = len(cols)
+            v = np.zeros((nsamp, n, p))
+            s0 = np.zeros((n, p))
+            for c, j in enumerate(cols):
+                kind = self.kinds[j]
+                if j < self.n_dyn:
+                    v[:, :, c] = states @ dad[j].T + np.outer(u, dbd[j][:, 0])
+                    if self.order != 1:
+                        r0 = float(x[ic["r0"]])
+                        s0[2, c] = dcoef[j][0] * r0 - dcoef[j][2] * u[0]
+                elif kind == "b":
+                    v[:, :, c] = -bd[:, 0]
+                    if self.order != 1:
+                        s0[2, c] = b1
+                elif j in self.ic_index[i]:
+                    if kind == "psi0":
+                        s0[0, c] = 1.0
+                    elif kind == "r0":
+                        s0[1, c] = 1.0
+                        if self.order != 1:
+                            s0[2, c] = a1
+                    elif kind == "rdot0":
+                        s0[2, c] = 1.0
+                # Another record's initial state: this record does not depend on it (zero column).
+            sens = propagate(ad, v, s0) * chain[list(cols)]
+            filt = self._filter(z, rec.h)
+            for ch in self.channels:
+                m = rec.mask[ch]
+                d = -sens[:, 0 if ch == "psi" else 1, :]
+                if ch == "psi" and filt is not None:
+                    if m.all():
+                        d = whiten_profiled_columns(filt, d, self._phi(filt, rec.h, nsamp))
+                    else:
+                        d = np.column_stack([whiten_with_gaps(filt, d[:, c], m) for c in range(p)])
+                blocks.append(d[m] * self.weights[ch])
+        return np.concatenate(blocks, axis=0)
+
+
+def whiten_profiled_columns(filt: InnovationFilter, w: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """:func:`pipeline.fit.nomoto_pem.whiten_profiled` of every column of ``w`` (it is linear in ``w``).
+
+    Parameters
+    ----------
+    filt : InnovationFilter
+        The innovations filter.
+    w : numpy.ndarray, shape (N, p)
+        Output errors (or their derivatives) per column.
+    phi : numpy.ndarray, shape (N, 2)
+        :func:`pipeline.fit.nomoto_pem.initial_state_response` for ``N`` samples.
+    """
+    e0 = scipy.signal.lfilter(filt.num, filt.den, w, axis=0)
+    g = phi.T @ phi
+    det = g[0, 0] * g[1, 1] - g[0, 1] * g[1, 0]
+    if not det > 1e-300:
+        return e0
+    rhs = phi.T @ e0
+    x0 = np.array([g[1, 1] * rhs[0] - g[0, 1] * rhs[1], g[0, 0] * rhs[1] - g[1, 0] * rhs[0]]) / det
+    return e0 - phi @ x0
 
 
 def whiten_with_gaps(filt: InnovationFilter, w: np.ndarray, mask: np.ndarray) -> np.ndarray:
