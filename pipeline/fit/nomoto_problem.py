@@ -13,6 +13,7 @@ from scipy import optimize
 
 from ..errors import FitError
 from ..model.nomoto import (NOMOTO_ORDER_PARAMS, nomoto2_coefficients, nomoto2_sum_product, nomoto_matrices,
+                            pole_time_constants,
                             servo_response)
 from ..model.waves import WaveParams
 from .nomoto_pem import initial_state_response, innovation_filter, InnovationFilter, noise_from_ratio, whiten_profiled
@@ -577,7 +578,47 @@ def solve(prob: Problem, z0: np.ndarray, max_nfev: int) -> optimize.OptimizeResu
                                   max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
 
 
-def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int) -> optimize.OptimizeResult:
+#: Weight of a second-order mode below which its zero counts as cancelling its pole [-]: the model
+#: is then the first-order one (see :func:`cancelled_mode`).
+COLLAPSE_WEIGHT = 0.02
+
+
+def cancelled_mode(order: int, dyn: Sequence[float]) -> float:
+    """Smallest weight of the two modes of a second-order Nomoto model's yaw-rate response [-].
+
+    ``K (1 + T3 s) / ((1 + T1 s)(1 + T2 s)) = K (A1 / (1 + T1 s) + A2 / (1 + T2 s))`` with
+    ``A1 = (T1 - T3) / (T1 - T2)`` and ``A2 = (T3 - T2) / (T1 - T2)`` (``A1 + A2 = 1``). A weight near
+    zero means the zero cancels that pole: the model is the first-order one with the other time
+    constant, whatever the cancelled pair's values (the solver then drifts along the pair without
+    converging).
+
+    Parameters
+    ----------
+    order : int
+        Model order (2 or 3; NaN for the first order).
+    dyn : sequence of float
+        Dynamic parameters (``K, T1, T2, T3`` or ``K, T12, T1T2, T3``).
+
+    Returns
+    -------
+    float
+        ``min(|A1|, |A2|)``; NaN for the first order, complex or equal poles.
+    """
+    if order == 1:
+        return math.nan
+    if order == 2:
+        _, t1, t2, t3 = dyn
+    else:
+        poles = pole_time_constants(dyn[1], dyn[2])
+        if poles is None:
+            return math.nan
+        (t1, t2), t3 = poles, dyn[3]
+    if not t1 != t2:
+        return math.nan
+    return float(min(abs((t1 - t3) / (t1 - t2)), abs((t3 - t2) / (t1 - t2))))
+
+
+def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int, stop=None) -> optimize.OptimizeResult:
     """Solve, re-estimating the per-channel variances (maximum likelihood for unknown variances).
 
     Parameters
@@ -588,6 +629,9 @@ def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int) -> optimize.O
         Start (solver vector).
     max_nfev : int
         Maximum function evaluations per solver call.
+    stop : callable, optional
+        ``stop(result) -> str``: a non-empty reason ends the re-weighting after a solve (the result
+        then carries it as ``result.stopped``).
     """
     def update_weights(x: np.ndarray) -> None:
         per = prob.channel_residuals(x)
@@ -598,13 +642,19 @@ def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int) -> optimize.O
 
     update_weights(x0)
     res = solve(prob, x0, max_nfev)
+    res.stopped = ""
     # One channel: the weight is only a scale, the solution does not depend on it.
     for _ in range(4 if len(prob.channels) > 1 else 0):
+        why = stop(res) if stop is not None else ""
+        if why:
+            res.stopped = why
+            break
         old = dict(prob.weights)
         update_weights(res.x)
         if all(abs(prob.weights[c] / old[c] - 1.0) < 1e-3 for c in prob.channels):
             break
         res = solve(prob, res.x, max_nfev)
+        res.stopped = ""
     update_weights(res.x)
     return res
 
