@@ -433,50 +433,63 @@ class Problem:
         # d natural / d solver: theta for the log parameters (0 where natural() holds them at the margin).
         held = self.log_mask & ((z <= self._z_lo) | (z >= self._z_hi))
         chain = np.where(self.log_mask, np.where(held, 0.0, x), 1.0)
-        blocks = []
+        cols = list(cols)
+        dyn_c = [c for c, j in enumerate(cols) if j < self.n_dyn]
+        dyn_j = [cols[c] for c in dyn_c]
+        b_c = [c for c, j in enumerate(cols) if self.kinds[j] == "b"]
+        out = np.zeros((self._n_residuals(), len(cols)))
+        row = 0
         for i, rec in enumerate(self.recs):
             sim = self.simulate(z, i)
             states = sim[STATES_KEY]
             u = self.rudder(z, i) - b
             nsamp = u.size
             ad, bd, dad, dbd = zoh_derivatives(a, bm, da, db, rec.h)
-            ic = dict(zip(self.ic_names, self.ic_index[i]))
-            p = len(cols)
-            v = np.zeros((nsamp, n, p))
-            s0 = np.zeros((n, p))
-            for c, j in enumerate(cols):
-                kind = self.kinds[j]
-                if j < self.n_dyn:
-                    v[:, :, c] = states @ dad[j].T + np.outer(u, dbd[j][:, 0])
+            own = set(self.ic_index[i])
+            # Columns this record depends on: the shared ones and its own initial states.
+            use = [c for c, j in enumerate(cols) if j < self.n_dyn or self.kinds[j] == "b" or j in own]
+            at = {c: k for k, c in enumerate(use)}
+            v = np.zeros((nsamp, n, len(use)))
+            s0 = np.zeros((n, len(use)))
+            if dyn_c:
+                # dA_d x[k] + dB_d (u[k] - b) for every dynamic parameter at once.
+                dad_s = np.stack([dad[j] for j in dyn_j])                       # (p_dyn, n, n)
+                dbd_s = np.stack([dbd[j][:, 0] for j in dyn_j])                 # (p_dyn, n)
+                drive = np.tensordot(states, dad_s, axes=([1], [2])) + u[:, None, None] * dbd_s[None]
+                v[:, :, [at[c] for c in dyn_c]] = drive.transpose(0, 2, 1)
+                if self.order != 1:
+                    r0 = float(x[self.ic_index[i][self.ic_names.index("r0")]])
+                    for c, j in zip(dyn_c, dyn_j):
+                        s0[2, at[c]] = dcoef[j][0] * r0 - dcoef[j][2] * u[0]
+            for c in b_c:
+                v[:, :, at[c]] = -bd[:, 0]
+                if self.order != 1:
+                    s0[2, at[c]] = b1
+            for c in use:
+                kind = self.kinds[cols[c]]
+                if kind == "psi0":
+                    s0[0, at[c]] = 1.0
+                elif kind == "r0":
+                    s0[1, at[c]] = 1.0
                     if self.order != 1:
-                        r0 = float(x[ic["r0"]])
-                        s0[2, c] = dcoef[j][0] * r0 - dcoef[j][2] * u[0]
-                elif kind == "b":
-                    v[:, :, c] = -bd[:, 0]
-                    if self.order != 1:
-                        s0[2, c] = b1
-                elif j in self.ic_index[i]:
-                    if kind == "psi0":
-                        s0[0, c] = 1.0
-                    elif kind == "r0":
-                        s0[1, c] = 1.0
-                        if self.order != 1:
-                            s0[2, c] = a1
-                    elif kind == "rdot0":
-                        s0[2, c] = 1.0
-                # Another record's initial state: this record does not depend on it (zero column).
-            sens = propagate(ad, v, s0) * chain[list(cols)]
+                        s0[2, at[c]] = a1
+                elif kind == "rdot0":
+                    s0[2, at[c]] = 1.0
+            sens = propagate(ad, v, s0)
+            sens *= chain[[cols[c] for c in use]]
             filt = self._filter(z, rec.h)
             for ch in self.channels:
                 m = rec.mask[ch]
-                d = -sens[:, 0 if ch == "psi" else 1, :]
+                d = sens[:, 0 if ch == "psi" else 1, :]
                 if ch == "psi" and filt is not None:
                     if m.all():
                         d = whiten_profiled_columns(filt, d, self._phi(filt, rec.h, nsamp))
                     else:
-                        d = np.column_stack([whiten_with_gaps(filt, d[:, c], m) for c in range(p)])
-                blocks.append(d[m] * self.weights[ch])
-        return np.concatenate(blocks, axis=0)
+                        d = np.column_stack([whiten_with_gaps(filt, d[:, c], m) for c in range(len(use))])
+                k = int(m.sum())
+                out[row:row + k, use] = (d if k == nsamp else d[m]) * (-self.weights[ch])
+                row += k
+        return out
 
 
 def whiten_profiled_columns(filt: InnovationFilter, w: np.ndarray, phi: np.ndarray) -> np.ndarray:
