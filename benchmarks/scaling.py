@@ -365,7 +365,7 @@ def plot(results: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 7))
     for name in STAGES + ("run",):
         label = "vesselid run" if name == "run" else name
         x, y = series(results, name, "cpu_s")
@@ -381,6 +381,10 @@ def plot(results: list[dict], path: Path) -> None:
         axes[1].plot(x, wall, "s--", label=f"run: {label}")
         if all(v == v for v in peak):
             axes[2].plot(x, peak, "s--", label=f"run: {label}")
+    # The run's memory sampled from outside (wait4 also counts the benchmark's own image at the fork).
+    tree = [(r["hours"], r["run"]["tree_peak_gb"]) for r in results if "tree_peak_gb" in r.get("run", {})]
+    if tree:
+        axes[2].plot(*zip(*tree), "k^-", label="vesselid run, sampled process tree")
     axes[1].axhline(60, color="k", ls=":", lw=1, label="run target at 2 h")
     axes[2].axhline(1.5, color="k", ls=":", lw=1, label="run target at 2 h")
     axes[0].set(xlabel="trial length [h]", ylabel="CPU time [s]", title="CPU time")
@@ -388,7 +392,8 @@ def plot(results: list[dict], path: Path) -> None:
     axes[2].set(xlabel="trial length [h]", ylabel="peak RSS [GB]", title="peak resident memory per stage")
     for ax in axes:
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        # Below the axes: inside, the legend of many stages hid the data.
+        ax.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=1)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
