@@ -1,6 +1,7 @@
 """Long trials in bounded memory and time: wall time and peak memory of every stage against trial length.
 
     python benchmarks/scaling.py [--minutes 10 30 60 120] [--out DIR] [--baseline-max 30] [--stages-max 60]
+                                 [--compare-root /path/to/other/checkout --compare-max 30]
 
 For each length, one continuous AAUSHIP sea trial is simulated (the identification programme of
 ``pipeline.sim.sea_trial`` repeated with varied amplitudes, zig-zag angles and signs, as a day of
@@ -22,6 +23,10 @@ the real writer. Then, each in a fresh process so that each peak is its own:
 Both processes are also sampled every 0.1 s from outside (``/proc``): the largest sum of the
 resident memory of the process and its children, when it happened, and the largest per command
 name — which locates a transient that ``wait4`` reports but no stage's own peak shows.
+
+With ``--compare-root``, the same ``vesselid run`` is made with another checkout's ``pipeline`` (the code
+before a speed change) on the trials up to ``--compare-max`` minutes: its CPU time beside the new one, and
+every coefficient's difference in the other run's standard errors (``compare`` in ``scaling.json``).
 
 A straight line through each quantity gives its cost per trial hour. The machine may be shared:
 CPU time is the figure that does not depend on what else runs. Baseline in the same run: the
@@ -178,9 +183,10 @@ class TreeSampler:
                 "peak_gb_by_command": {k: round(v / 1e9, 3) for k, v in sorted(self.by_name.items())}}
 
 
-def measure_wait4(argv: list[str], cwd: Path) -> dict:
-    """Wall time [s], CPU time [s] and peak RSS [GB] of one process (``os.wait4``), and its tree's sampled peak."""
-    env = dict(os.environ, CI="1", PYTHONPATH=str(ROOT))
+def measure_wait4(argv: list[str], cwd: Path, root: Path = ROOT) -> dict:
+    """Wall time [s], CPU time [s] and peak RSS [GB] of one process (``os.wait4``), and its tree's sampled peak
+    (``root``: the checkout whose ``pipeline`` package the process imports)."""
+    env = dict(os.environ, CI="1", PYTHONPATH=str(root))
     with tempfile.TemporaryFile() as errf, tempfile.TemporaryFile() as outf:
         t0 = time.perf_counter()
         proc = subprocess.Popen([sys.executable, *argv], cwd=cwd, env=env, stdout=outf, stderr=errf)
@@ -308,6 +314,22 @@ def compare_with_baseline(baseline, log: Path, vessel) -> dict:
     return out
 
 
+def coefficient_differences(new: Path, old: Path) -> dict:
+    """Every coefficient of two ``coefficients.json`` files: the difference in the old one's standard errors."""
+    a = json.loads(new.read_text())["coefficients"]
+    b = json.loads(old.read_text())["coefficients"]
+    out = {}
+    for name, cb in b.items():
+        ca = a.get(name)
+        if ca is None or ca.get("value") is None or cb.get("value") is None:
+            continue
+        se = cb.get("stderr")
+        if se and math.isfinite(se) and se > 0:
+            out[name] = round(abs(ca["value"] - cb["value"]) / se, 4)
+    return {"by_coefficient_in_se": out, "max_diff_in_se": max(out.values(), default=math.nan),
+            "only_in_compare": sorted(set(b) - set(a)), "only_in_new": sorted(set(a) - set(b))}
+
+
 def slope(x: list[float], y: list[float]) -> tuple[float, float]:
     """Least-squares line ``y = a + b x``: (b, a)."""
     b, a = np.polyfit(np.asarray(x, float), np.asarray(y, float), 1)
@@ -343,7 +365,7 @@ def plot(results: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 7))
     for name in STAGES + ("run",):
         label = "vesselid run" if name == "run" else name
         x, y = series(results, name, "cpu_s")
@@ -359,6 +381,10 @@ def plot(results: list[dict], path: Path) -> None:
         axes[1].plot(x, wall, "s--", label=f"run: {label}")
         if all(v == v for v in peak):
             axes[2].plot(x, peak, "s--", label=f"run: {label}")
+    # The run's memory sampled from outside (wait4 also counts the benchmark's own image at the fork).
+    tree = [(r["hours"], r["run"]["tree_peak_gb"]) for r in results if "tree_peak_gb" in r.get("run", {})]
+    if tree:
+        axes[2].plot(*zip(*tree), "k^-", label="vesselid run, sampled process tree")
     axes[1].axhline(60, color="k", ls=":", lw=1, label="run target at 2 h")
     axes[2].axhline(1.5, color="k", ls=":", lw=1, label="run target at 2 h")
     axes[0].set(xlabel="trial length [h]", ylabel="CPU time [s]", title="CPU time")
@@ -366,7 +392,8 @@ def plot(results: list[dict], path: Path) -> None:
     axes[2].set(xlabel="trial length [h]", ylabel="peak RSS [GB]", title="peak resident memory per stage")
     for ax in axes:
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        # Below the axes: inside, the legend of many stages hid the data.
+        ax.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=1)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -386,6 +413,10 @@ def main() -> int:
     ap.add_argument("--reuse", action="store_true",
                     help="use a trial log already simulated into --out (same lengths and seed) instead of simulating again")
     ap.add_argument("--keep", action="store_true", help="keep other lengths from an earlier run in --out")
+    ap.add_argument("--compare-root", default=None,
+                    help="another checkout (e.g. the main branch before a change): its vesselid run is measured on "
+                         "the same trials and its coefficients compared")
+    ap.add_argument("--compare-max", type=float, default=30, help="longest trial the --compare-root run is made on [min]")
     ap.add_argument("--stage-worker", nargs=2, metavar=("LOG", "OUT_JSON"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.stage_worker:
@@ -448,6 +479,24 @@ def main() -> int:
                   f"{run['peak_gb']:6.2f} GB peak RSS (wait4), sampled tree peak {run['tree_peak_gb']:.2f} GB at "
                   f"{run['tree_peak_at_s']} s, by command {run['peak_gb_by_command']}  rc={run['rc']} "
                   f"{run['stderr'][-300:]}", flush=True)
+        if args.compare_root and minutes <= args.compare_max and "run" in row:
+            # The same vesselid run with another checkout's pipeline (the baseline of a speed change).
+            cmp = measure_wait4([str(ROOT / "benchmarks" / "stage_timer.py"), str(folder / "compare_stages.json"),
+                                 "run", str(manifest), "--out", str(folder / "report_compare")], folder,
+                                Path(args.compare_root))
+            row["compare"] = {k: cmp[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr")}
+            row["compare"]["root"] = str(args.compare_root)
+            if (folder / "compare_stages.json").exists():
+                row["compare"]["stages"] = json.loads((folder / "compare_stages.json").read_text())
+            if cmp["rc"] == 0 and row["run"]["rc"] == 0:
+                row["compare"]["coefficients"] = coefficient_differences(folder / "report" / "coefficients.json",
+                                                                         folder / "report_compare" / "coefficients.json")
+            c = row["compare"]
+            print(f"{minutes:5.0f} min  compare run ({args.compare_root}) {c['wall_s']:7.1f} s wall {c['cpu_s']:7.1f} s "
+                  f"cpu {c['peak_gb']:6.2f} GB; CPU ratio new/compare {row['run']['cpu_s'] / max(c['cpu_s'], 1e-9):.2f}; "
+                  f"largest coefficient difference "
+                  f"{c.get('coefficients', {}).get('max_diff_in_se', math.nan):.4f} standard errors rc={c['rc']}",
+                  flush=True)
         if baseline is not None and minutes <= args.baseline_max:
             row["baseline"] = compare_with_baseline(baseline, log, vessel)
             b = row["baseline"]

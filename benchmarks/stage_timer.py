@@ -23,6 +23,9 @@ TARGETS = (
     ("pipeline.flow", "load_trial", "ingest + align", True),
     ("pipeline.flow", "segment_trial", "segment", True),
     ("pipeline.flow", "fit_segments", "fit", True),
+    ("pipeline.fit.nomoto_segment", "fit_nomoto", "fit: whole-record Nomoto solves (fit_nomoto, summed)", False),
+    ("pipeline.fit.structure", "select_structure", "fit: damping-structure selection (select_structure, summed)",
+     False),
     ("pipeline.fit.extend", "extend_fits", "fit: grey-box (extend_fits)", False),
     ("pipeline.flow", "design_autopilot", "autopilot", True),
     ("pipeline.autopilot.design", "closed_loop_check", "autopilot: closed-loop check", False),
@@ -66,6 +69,9 @@ def install(out_json: str | Path) -> dict:
                 entry = {"wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(time.process_time() - c0, 2)}
                 if own:
                     entry["peak_gb"] = round(_hwm() / 1e9, 3)
+                if "summed" in _label and _label in costs:
+                    # Called many times inside a stage: the total over the calls.
+                    entry = {k: round(costs[_label][k] + entry[k], 2) for k in ("wall_s", "cpu_s")}
                 costs[_label] = entry
                 # Written after every stage too: a run stopped half-way still says where it got.
                 Path(out_json).write_text(json.dumps(costs, indent=1))

@@ -36,9 +36,10 @@ The yaw rate ``r`` (gyro) is used when given; it is modelled without the wave co
 seed and the simulator do), so a gyro that sees the wave-induced yaw is better left out
 (``channels=("psi",)``).
 
-Uncertainty: the Gauss-Newton covariance ``(J^T W J)^-1`` of the weighted residuals (finite
-differences of the exact simulation: central for K, T and the noise parameters, one-sided and
-exact for the initial states and the bias, in which the residual is linear), scaled by
+Uncertainty: the Gauss-Newton covariance ``(J^T W J)^-1`` of the weighted residuals (the
+Jacobian the solver uses too: exact for K, T, the bias and the initial states from the discrete
+sensitivity equations of :mod:`pipeline.fit.nomoto_sensitivity`, central differences of the exact
+simulation for the noise and servo parameters), scaled by
 ``RSS/(n - p)``; for the PEM this is the asymptotic covariance of Ljung (1999, sec. 9.3). The
 residuals of every record and channel get the whiteness and input cross-correlation tests of
 :mod:`pipeline.fit.residual_tests`.
@@ -69,8 +70,8 @@ from ..model.nomoto import Nomoto2Params, nomoto2_rhs, nomoto_matrices
 from ..model.waves import WaveParams
 from .data import noise_sigma
 from .nomoto_pem import guess_wave_noise
-from .nomoto_problem import (DYNAMIC_PARAMS, MIN_SAMPLES, NOISE_MODELS, NOISE_PARAMS, Problem, finish, plausible_ranges,
-                             prepare, reweighted_solve, start_vector)
+from .nomoto_problem import (COLLAPSE_WEIGHT, DYNAMIC_PARAMS, MIN_SAMPLES, NOISE_MODELS, NOISE_PARAMS, Problem,
+                             cancelled_mode, finish, plausible_ranges, prepare, reweighted_solve, start_vector)
 from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_start import first_order_start, guess_nomoto
 from .nomoto_zoh import simulate_zoh, zoh_discretise
@@ -166,7 +167,7 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
     best = None
     for dyn in candidates:
         prob = Problem(preps, order, bias, channels, "white", None, None, servo)
-        res = reweighted_solve(prob, start_vector(prob, dyn, b0, ics, (), start), max_nfev)
+        res = reweighted_solve(prob, start_vector(prob, dyn, b0, ics, (), start), max_nfev, _collapse_stop(prob))
         if best is None or res.cost < best[1].cost:
             best = (prob, res)
         # A first-order fit that converged inside the plausible ranges needs no other start; the
@@ -174,7 +175,7 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
         if order == 1 and _plausible(*best):
             break
     prob, res = best
-    oe = finish(prob, res, [])
+    oe = finish(prob, res, [res.stopped] if res.stopped else [])
     if noise == "white" or (noise == "auto" and waves is None and _psi_white(oe)):
         note = "compass residuals white: OE kept" if noise == "auto" else ""
         return _timed(_with_message(oe, note), t_start)
@@ -195,8 +196,9 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
     noise0 = [dict(zip(NOISE_PARAMS, (omega0, lam, ratio)))[nm] for nm in pem_prob.noise_free]
     servo0 = {nm: float(theta[j]) for nm, j in zip(prob.servo, prob.servo_index)}
     try:
-        pem_res = reweighted_solve(pem_prob, start_vector(pem_prob, dyn, b, icl, noise0, servo0), max_nfev)
-        pem = finish(pem_prob, pem_res, [])
+        pem_res = reweighted_solve(pem_prob, start_vector(pem_prob, dyn, b, icl, noise0, servo0), max_nfev,
+                                   _collapse_stop(pem_prob))
+        pem = finish(pem_prob, pem_res, [pem_res.stopped] if pem_res.stopped else [])
     except (FitError, np.linalg.LinAlgError, FloatingPointError) as exc:
         if noise != "auto":
             raise
@@ -216,6 +218,26 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
         pem = _with_message(pem, f"OE compass residuals coloured; wave PEM chosen (BIC {pem.bic:.1f} < "
                                  f"{oe.bic:.1f})")
     return _timed(pem, t_start)
+
+
+def _collapse_stop(prob: Problem):
+    """``stop`` for :func:`reweighted_solve`: a second-order solve that ended unconverged with a mode
+    its zero cancels (:func:`cancelled_mode` below ``COLLAPSE_WEIGHT``) is the first-order model
+    drifting along the cancelled pair; re-solving it with new channel weights drifts on (each solve
+    to ``max_nfev``) and cannot make it a candidate, so it is not re-solved (the fit's message says so)."""
+    if prob.order == 1:
+        return None
+
+    def stop(res: optimize.OptimizeResult) -> str:
+        if res.status > 0:
+            return ""
+        weight = cancelled_mode(prob.order, prob.natural(res.x)[: prob.n_dyn])
+        if not weight < COLLAPSE_WEIGHT:
+            return ""
+        return (f"second order collapsing onto the first (its zero cancels a pole: mode weight {weight:.2g} < "
+                f"{COLLAPSE_WEIGHT:g}) without converging in {res.nfev} evaluations: not re-solved with "
+                f"re-estimated channel weights")
+    return stop
 
 
 def _plausible(prob: Problem, res: optimize.OptimizeResult) -> bool:

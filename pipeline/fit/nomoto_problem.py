@@ -8,14 +8,17 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
+import scipy.signal
 from scipy import optimize
 
 from ..errors import FitError
 from ..model.nomoto import (NOMOTO_ORDER_PARAMS, nomoto2_coefficients, nomoto2_sum_product, nomoto_matrices,
+                            pole_time_constants,
                             servo_response)
 from ..model.waves import WaveParams
 from .nomoto_pem import initial_state_response, innovation_filter, InnovationFilter, noise_from_ratio, whiten_profiled
 from .nomoto_records import NomotoFit, NomotoRecord
+from .nomoto_sensitivity import complex_step, propagate, zoh_derivatives
 from .nomoto_zoh import simulate_zoh, zoh_discretise
 from .residual_tests import residual_test
 
@@ -34,7 +37,11 @@ NUMERIC_MARGIN = 100.0
 UNIFORM_TOLERANCE = 1e-3
 # The residual is linear in these (initial states, and the bias through the input delta - b).
 _LINEAR_KINDS = frozenset({"b", "psi0", "r0", "rdot0"})
+# Parameters whose Jacobian columns are exact (sensitivity equations); the rest by finite differences.
+_EXACT_KINDS = frozenset({"K", "T", "T1", "T2", "T3", "T12", "T1T2"}) | _LINEAR_KINDS
 # Floors of the finite-difference steps per parameter kind (step = 1e-6 max(|x|, floor)).
+# Key of the full state trajectory (N, n) in the dict :meth:`Problem.simulate` returns.
+STATES_KEY = "states"
 _FD_FLOOR = {"K": 1e-3, "T": 1.0, "T12": 1.0, "T1T2": 1.0, "T1": 1.0, "T2": 1.0, "T3": 1.0, "b": 1e-2, "psi0": 1e-2, "r0": 1e-3,
              "rdot0": 1e-4, "log": 10.0}
 
@@ -118,7 +125,7 @@ def prepare(rec: NomotoRecord, i: int, channels: Sequence[str]) -> Prepared:
 
 # --------------------------------------------------------------------------- the problem
 class Problem:
-    """Residuals of the OE/PEM criterion over several records, with caches for the FD Jacobian."""
+    """Residuals of the OE/PEM criterion over several records and their Jacobian (exact sensitivities; finite differences for the noise and servo parameters, with caches)."""
 
     def __init__(self, recs: Sequence[Prepared], order: int, bias: bool, channels: tuple[str, ...],
                  noise: str, fixed_waves: WaveParams | None, fixed_noise_var: float | None,
@@ -297,11 +304,11 @@ class Problem:
                 # x2 from the initial yaw acceleration: x2 = r_dot + a1 r - b1 (delta - b).
                 x0[2] = icd["rdot0"] + a1 * icd["r0"] - b1 * (u[0] - b)
             states = simulate_zoh(ad, bd, x0, u - b)
-            out = {"psi": states[:, 0], "r": states[:, 1]}
+            out = {"psi": states[:, 0], "r": states[:, 1], STATES_KEY: states}
             if len(self._sim_cache) > 256:
                 self._sim_cache.clear()
             self._sim_cache[key] = out
-        return {"psi": out["psi"] + psi0, "r": out["r"]} if psi0 else out
+        return {"psi": out["psi"] + psi0, "r": out["r"], STATES_KEY: out[STATES_KEY]} if psi0 else out
 
     def channel_residuals(self, x: np.ndarray) -> list[dict[str, np.ndarray]]:
         """Unweighted residuals per record and channel (masked samples removed).
@@ -356,31 +363,155 @@ class Problem:
         return 1e-6 * np.maximum(np.abs(x), floor)
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """Central differences for K, T and the noise parameters; one-sided for the parameters the
-        residual is linear in (initial states, bias), where a forward difference is exact.
+        """Jacobian of :meth:`residual`: exact for K, T (T12, T1T2, T3), the bias and the initial
+        states (discrete sensitivity equations, :mod:`pipeline.fit.nomoto_sensitivity`), central
+        differences for the noise and servo parameters.
 
         Parameters
         ----------
         x : numpy.ndarray
             Solver vector.
         """
+        x = np.asarray(x, float)
+        jac = np.empty((self._n_residuals(), len(self.names)))
+        exact = [j for j, k in enumerate(self.kinds) if k in _EXACT_KINDS]
+        jac[:, exact] = self._sensitivity_columns(x, exact)
+        fd = [j for j in range(len(self.names)) if j not in set(exact)]
+        if fd:
+            jac[:, fd] = self.fd_jacobian(x, fd)
+        return jac
+
+    def _n_residuals(self) -> int:
+        return sum(int(rec.mask[ch].sum()) for rec in self.recs for ch in self.channels)
+
+    def fd_jacobian(self, x: np.ndarray, cols: Sequence[int] | None = None) -> np.ndarray:
+        """Finite-difference Jacobian columns: central for K, T and the noise and servo parameters;
+        one-sided for the parameters the residual is linear in (initial states, bias), where a
+        forward difference is exact (up to rounding).
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            Solver vector.
+        cols : sequence of int, optional
+            Columns to compute (all by default).
+        """
         steps = self.fd_steps(x)
+        cols = range(len(steps)) if cols is None else cols
         base = None
-        cols = []
-        for j, s in enumerate(steps):
+        out = []
+        for j in cols:
+            s = steps[j]
             xp = np.array(x, float)
             if self.kinds[j] in _LINEAR_KINDS:
                 if base is None:
                     base = self.residual(x)
                 s = 1e3 * s   # exact for a linear map: a larger step only lowers the rounding error
                 xp[j] += s
-                cols.append((self.residual(xp) - base) / s)
+                out.append((self.residual(xp) - base) / s)
                 continue
             xm = np.array(x, float)
             xp[j] += s
             xm[j] -= s
-            cols.append((self.residual(xp) - self.residual(xm)) / (2 * s))
-        return np.column_stack(cols)
+            out.append((self.residual(xp) - self.residual(xm)) / (2 * s))
+        return np.column_stack(out)
+
+    def _sensitivity_columns(self, z: np.ndarray, cols: Sequence[int]) -> np.ndarray:
+        """Exact Jacobian columns ``cols`` (dynamic parameters, bias, initial states) of the residual."""
+        x = self.natural(z)
+        dyn = [float(v) for v in x[: self.n_dyn]]
+        b = float(x[self.n_dyn]) if self.bias else 0.0
+        a, bm = nomoto_matrices(self.order, dyn)
+        dmats = complex_step(lambda d: np.hstack(nomoto_matrices(self.order, d)), dyn)
+        n = a.shape[0]
+        da = [m[:, :n] for m in dmats]
+        db = [m[:, n:] for m in dmats]
+        if self.order != 1:
+            coef = nomoto2_coefficients if self.order == 2 else nomoto2_sum_product
+            a1, _, b1, _ = coef(*dyn)
+            dcoef = complex_step(lambda d: np.array(coef(*d)), dyn)
+        # d natural / d solver: theta for the log parameters (0 where natural() holds them at the margin).
+        held = self.log_mask & ((z <= self._z_lo) | (z >= self._z_hi))
+        chain = np.where(self.log_mask, np.where(held, 0.0, x), 1.0)
+        cols = list(cols)
+        dyn_c = [c for c, j in enumerate(cols) if j < self.n_dyn]
+        dyn_j = [cols[c] for c in dyn_c]
+        b_c = [c for c, j in enumerate(cols) if self.kinds[j] == "b"]
+        out = np.zeros((self._n_residuals(), len(cols)))
+        row = 0
+        for i, rec in enumerate(self.recs):
+            sim = self.simulate(z, i)
+            states = sim[STATES_KEY]
+            u = self.rudder(z, i) - b
+            nsamp = u.size
+            ad, bd, dad, dbd = zoh_derivatives(a, bm, da, db, rec.h)
+            own = set(self.ic_index[i])
+            # Columns this record depends on: the shared ones and its own initial states.
+            use = [c for c, j in enumerate(cols) if j < self.n_dyn or self.kinds[j] == "b" or j in own]
+            at = {c: k for k, c in enumerate(use)}
+            v = np.zeros((nsamp, n, len(use)))
+            s0 = np.zeros((n, len(use)))
+            if dyn_c:
+                # dA_d x[k] + dB_d (u[k] - b) for every dynamic parameter at once.
+                dad_s = np.stack([dad[j] for j in dyn_j])                       # (p_dyn, n, n)
+                dbd_s = np.stack([dbd[j][:, 0] for j in dyn_j])                 # (p_dyn, n)
+                drive = np.tensordot(states, dad_s, axes=([1], [2])) + u[:, None, None] * dbd_s[None]
+                v[:, :, [at[c] for c in dyn_c]] = drive.transpose(0, 2, 1)
+                if self.order != 1:
+                    r0 = float(x[self.ic_index[i][self.ic_names.index("r0")]])
+                    for c, j in zip(dyn_c, dyn_j):
+                        s0[2, at[c]] = dcoef[j][0] * r0 - dcoef[j][2] * u[0]
+            for c in b_c:
+                v[:, :, at[c]] = -bd[:, 0]
+                if self.order != 1:
+                    s0[2, at[c]] = b1
+            for c in use:
+                kind = self.kinds[cols[c]]
+                if kind == "psi0":
+                    s0[0, at[c]] = 1.0
+                elif kind == "r0":
+                    s0[1, at[c]] = 1.0
+                    if self.order != 1:
+                        s0[2, at[c]] = a1
+                elif kind == "rdot0":
+                    s0[2, at[c]] = 1.0
+            sens = propagate(ad, v, s0)
+            sens *= chain[[cols[c] for c in use]]
+            filt = self._filter(z, rec.h)
+            for ch in self.channels:
+                m = rec.mask[ch]
+                d = sens[:, 0 if ch == "psi" else 1, :]
+                if ch == "psi" and filt is not None:
+                    if m.all():
+                        d = whiten_profiled_columns(filt, d, self._phi(filt, rec.h, nsamp))
+                    else:
+                        d = np.column_stack([whiten_with_gaps(filt, d[:, c], m) for c in range(len(use))])
+                k = int(m.sum())
+                out[row:row + k, use] = (d if k == nsamp else d[m]) * (-self.weights[ch])
+                row += k
+        return out
+
+
+def whiten_profiled_columns(filt: InnovationFilter, w: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """:func:`pipeline.fit.nomoto_pem.whiten_profiled` of every column of ``w`` (it is linear in ``w``).
+
+    Parameters
+    ----------
+    filt : InnovationFilter
+        The innovations filter.
+    w : numpy.ndarray, shape (N, p)
+        Output errors (or their derivatives) per column.
+    phi : numpy.ndarray, shape (N, 2)
+        :func:`pipeline.fit.nomoto_pem.initial_state_response` for ``N`` samples.
+    """
+    e0 = scipy.signal.lfilter(filt.num, filt.den, w, axis=0)
+    g = phi.T @ phi
+    det = g[0, 0] * g[1, 1] - g[0, 1] * g[1, 0]
+    if not det > 1e-300:
+        return e0
+    rhs = phi.T @ e0
+    x0 = np.array([g[1, 1] * rhs[0] - g[0, 1] * rhs[1], g[0, 0] * rhs[1] - g[1, 0] * rhs[0]]) / det
+    return e0 - phi @ x0
 
 
 def whiten_with_gaps(filt: InnovationFilter, w: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -460,7 +591,47 @@ def solve(prob: Problem, z0: np.ndarray, max_nfev: int) -> optimize.OptimizeResu
                                   max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
 
 
-def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int) -> optimize.OptimizeResult:
+#: Weight of a second-order mode below which its zero counts as cancelling its pole [-]: the model
+#: is then the first-order one (see :func:`cancelled_mode`).
+COLLAPSE_WEIGHT = 0.02
+
+
+def cancelled_mode(order: int, dyn: Sequence[float]) -> float:
+    """Smallest weight of the two modes of a second-order Nomoto model's yaw-rate response [-].
+
+    ``K (1 + T3 s) / ((1 + T1 s)(1 + T2 s)) = K (A1 / (1 + T1 s) + A2 / (1 + T2 s))`` with
+    ``A1 = (T1 - T3) / (T1 - T2)`` and ``A2 = (T3 - T2) / (T1 - T2)`` (``A1 + A2 = 1``). A weight near
+    zero means the zero cancels that pole: the model is the first-order one with the other time
+    constant, whatever the cancelled pair's values (the solver then drifts along the pair without
+    converging).
+
+    Parameters
+    ----------
+    order : int
+        Model order (2 or 3; NaN for the first order).
+    dyn : sequence of float
+        Dynamic parameters (``K, T1, T2, T3`` or ``K, T12, T1T2, T3``).
+
+    Returns
+    -------
+    float
+        ``min(|A1|, |A2|)``; NaN for the first order, complex or equal poles.
+    """
+    if order == 1:
+        return math.nan
+    if order == 2:
+        _, t1, t2, t3 = dyn
+    else:
+        poles = pole_time_constants(dyn[1], dyn[2])
+        if poles is None:
+            return math.nan
+        (t1, t2), t3 = poles, dyn[3]
+    if not t1 != t2:
+        return math.nan
+    return float(min(abs((t1 - t3) / (t1 - t2)), abs((t3 - t2) / (t1 - t2))))
+
+
+def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int, stop=None) -> optimize.OptimizeResult:
     """Solve, re-estimating the per-channel variances (maximum likelihood for unknown variances).
 
     Parameters
@@ -471,6 +642,9 @@ def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int) -> optimize.O
         Start (solver vector).
     max_nfev : int
         Maximum function evaluations per solver call.
+    stop : callable, optional
+        ``stop(result) -> str``: a non-empty reason ends the re-weighting after a solve (the result
+        then carries it as ``result.stopped``).
     """
     def update_weights(x: np.ndarray) -> None:
         per = prob.channel_residuals(x)
@@ -481,13 +655,19 @@ def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int) -> optimize.O
 
     update_weights(x0)
     res = solve(prob, x0, max_nfev)
+    res.stopped = ""
     # One channel: the weight is only a scale, the solution does not depend on it.
     for _ in range(4 if len(prob.channels) > 1 else 0):
+        why = stop(res) if stop is not None else ""
+        if why:
+            res.stopped = why
+            break
         old = dict(prob.weights)
         update_weights(res.x)
         if all(abs(prob.weights[c] / old[c] - 1.0) < 1e-3 for c in prob.channels):
             break
         res = solve(prob, res.x, max_nfev)
+        res.stopped = ""
     update_weights(res.x)
     return res
 

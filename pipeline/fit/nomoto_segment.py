@@ -260,8 +260,11 @@ def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str
     white_note = "first-order training residuals white" if white else "first-order training residuals coloured"
     if second is None or not _usable(second):
         # A fit that ends out of range (the second order collapsing onto the first: T2 -> 0) is no candidate.
+        collapsed = second is not None and "second order collapsing onto the first" in second.message
+        how = (" (collapsing onto the first order: its zero cancels a pole, so it was not re-solved)"
+               if collapsed else "")
         return OrderChoice(1, f"first-order Nomoto: the second order did not converge in range on the training "
-                              f"part ({white_note})", first_white=white)
+                              f"part{how} ({white_note})", first_white=white)
     filt = first if noise == "waves" else None
     e0 = _heldout_errors(first, rec, channels, servo, n_fit, filt)
     e1 = _heldout_errors(second, rec, channels, servo, n_fit, filt)
