@@ -219,6 +219,7 @@ def day(tmp_path_factory):
     return folder, paths
 
 
+@pytest.mark.slow  # 37 s of fits; the grouping itself is guarded by the fast tests above (make test-ci runs it)
 def test_a_folder_of_separate_runs_fits_like_the_runs_one_by_one(day):
     folder, paths = day
     trial = load_trial([folder], VESSEL)
