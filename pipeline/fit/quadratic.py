@@ -205,7 +205,7 @@ def decimate_records(records: Sequence[DofRecord], dt: float, dof: str) -> tuple
     than ``MIN_SAMPLES_PER_TIME_SCALE`` per time constant (or per 1/wn).
 
     The output is decimated plainly (no averaging, so white noise stays white and its level is
-    kept; the level is re-read at the fitted rate, :func:`decimated_noise_sigma`); each input is
+    kept; the level is re-read at the fitted rate on the logged samples, :func:`logged_phase`); each input is
     the mean over its kept interval (:func:`interval_mean`), so an input change between kept
     samples keeps its impulse.
 
@@ -302,61 +302,6 @@ def logged_phase(y: np.ndarray, k: int, fallback: float, ratio: float = 1.2) -> 
         return 0, fallback
     j = int(np.nanargmax(ests)) if np.nanmax(ests) > ratio * np.nanmin(ests) else 0
     return j, float(ests[j]) if math.isfinite(ests[j]) else float(np.nanmax(ests))
-
-
-def interval_mean(u: np.ndarray, k: int) -> np.ndarray:
-    """A held input decimated by ``k``: the mean over each kept interval ``[i k, (i + 1) k)`` [unit of u].
-
-    The fit holds each decimated input over one decimated interval. Taking the sample at the
-    interval's start instead would move an input change that falls inside the interval to its
-    start: a thrust cut one trial sample after a coast-down record starts would act for a whole
-    decimated interval, and the record's first sample would then be off by ``tau / M_ii`` times
-    that extra time (4-5 noise standard deviations in the damping benchmark's catamaran, enough to
-    bias the surge terms). The mean keeps the impulse of every interval.
-
-    Parameters
-    ----------
-    u : numpy.ndarray
-        Input on the trial grid, held between samples [unit of u].
-    k : int
-        Decimation factor.
-    """
-    u = np.asarray(u, float)
-    if k <= 1 or u.size == 0:
-        return u.copy()
-    n = -(-u.size // k)
-    pad = np.concatenate([u, np.full(n * k - u.size, u[-1])])
-    return pad.reshape(n, k).mean(axis=1)
-
-
-def decimated_noise_sigma(y: np.ndarray, k: int, fallback: float) -> float:
-    """Noise level of a record decimated by ``k``, the same whichever sample the decimation keeps [unit of y].
-
-    An interpolated channel (navigation-filter speed at 50 Hz on a 100 Hz grid) looks smoother at
-    the trial rate than it is between its own samples, so the noise is re-read at the fitted rate.
-    Read on the kept samples alone, it would depend on where the record starts: every other sample
-    of a 2x-interpolated channel is either a logged one (noise sigma) or a midpoint (sigma / sqrt 2,
-    and correlated, which the second-difference estimate reads as sigma / sqrt 6). Records of one
-    channel would then be weighted by their start time, up to 5x apart; in the damping-structure
-    benchmark that bias put the catamaran's surge terms 0.6-1.0 standard errors off on average
-    (CI coverage 80 %). The largest estimate over the ``k`` offsets is the logged samples' noise.
-
-    Parameters
-    ----------
-    y : numpy.ndarray
-        Record on the trial grid [unit of y].
-    k : int
-        Decimation factor.
-    fallback : float
-        Returned when no offset gives a finite positive estimate [unit of y].
-    """
-    ests = []
-    for j in range(max(int(k), 1)):
-        yy = y[j::k]
-        s = noise_sigma(yy[np.isfinite(yy)])
-        if math.isfinite(s) and s > 0:
-            ests.append(s)
-    return max(ests) if ests else fallback
 
 
 def _pad(arrays: Sequence[np.ndarray], n: int, fill: float = np.nan) -> np.ndarray:
