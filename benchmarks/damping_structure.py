@@ -179,12 +179,24 @@ def otter_vessel(boat):
 OTTER_RUNS = {"surge": (0, (1.0, 2.0), 0.01, "u"), "yaw": (5, (0.3, 0.6), 0.002, "r")}
 
 
-def otter_coasts(dof: str, dt: float = 0.01, fs_log: float = 20.0, uncoupled: bool = False) -> list[np.ndarray]:
+def otter_coasts(dof: str, dt: float = 0.01, fs_log: float = 20.0, uncoupled: bool = False,
+                 level_payload: bool = False) -> list[np.ndarray]:
     """Noise-free PVS Otter coast-downs of ``dof`` sampled at ``fs_log`` (one array per start speed);
-    ``uncoupled`` zeroes the mass matrix entries that couple the DOF with the others."""
+    ``uncoupled`` zeroes the mass matrix entries that couple the DOF with the others;
+    ``level_payload`` rotates the payload's weight into body axes by roll and yaw only (PVS's
+    ``Rzyx`` with pitch 0 inside its Otter module, for this call), which removes the surge force
+    ``-m_p g sin(theta)`` that no buoyancy term of PVS's Otter balances."""
     from python_vehicle_simulator.vehicles.otter import otter
 
+    module = sys.modules[otter.__module__]
     nu_i, starts, _, _ = OTTER_RUNS[dof]
+    if level_payload:
+        rzyx = module.Rzyx
+        module.Rzyx = lambda phi, theta, psi: rzyx(phi, 0.0, psi)
+        try:
+            return otter_coasts(dof, dt, fs_log, uncoupled)
+        finally:
+            module.Rzyx = rzyx
     out = []
     for x0 in starts:
         boat = otter("stepInput", 0.0, 0.0, 0.0, 0.0)
@@ -213,6 +225,16 @@ def _otter_fit(dof: str, ys: list[np.ndarray], fs_log: float, sigma: float):
     return {n: v[0] for n, v in fit.terms.items()}
 
 
+def _otter_fit_linear(dof: str, ys: list[np.ndarray], fs_log: float, sigma: float) -> float:
+    """The linear term of the linear structure fitted to noise-free Otter records."""
+    from python_vehicle_simulator.vehicles.otter import otter
+
+    boat = otter("stepInput", 0.0, 0.0, 0.0, 0.0)
+    nu_i, _, _, ch = OTTER_RUNS[dof]
+    recs = [DofRecord(f"coast {i}", "coast_down", y, {}, sigma, "rate", ch) for i, y in enumerate(ys)]
+    return fit_dof(recs, dof, 1 / fs_log, float(boat.M[nu_i, nu_i]), "linear").terms[TERM_NAMES[dof][0]][0]
+
+
 def otter_attribution() -> dict | None:
     """Noise-free one-DOF fits of the Otter's coast-downs with PVS as it is, with a 10x finer Euler
     step, with the DOF's mass-matrix coupling removed, and both: where the one-DOF model's terms
@@ -223,10 +245,28 @@ def otter_attribution() -> dict | None:
     out = {}
     for dof in OTTER_RUNS:
         sd = OTTER_RUNS[dof][2]
-        out[dof] = {label: _otter_fit(dof, otter_coasts(dof, dt, uncoupled=unc), 20.0, sd)
-                    for label, dt, unc in (("PVS as is (Euler 100 Hz)", 0.01, False), ("Euler 1 kHz", 0.001, False),
-                                           ("coupling removed", 0.01, True), ("both", 0.001, True))}
+        runs = [("PVS as is (Euler 100 Hz)", 0.01, False, False), ("Euler 1 kHz", 0.001, False, False),
+                ("coupling removed", 0.01, True, False), ("both", 0.001, True, False)]
+        if dof == "surge":
+            runs.append(("payload weight not pitched (no surge force from pitch)", 0.01, False, True))
+        out[dof] = {}
+        for label, dt, unc, lev in runs:
+            ys = otter_coasts(dof, dt, uncoupled=unc, level_payload=lev)
+            out[dof][label] = {**_otter_fit(dof, ys, 20.0, sd), "linear structure": _otter_fit_linear(dof, ys, 20.0, sd)}
     return out
+
+
+def otter_payload_inertia() -> tuple[float, float, float]:
+    """The Otter's pitched payload as surge inertia, quasi-static: a surge acceleration pitches the
+    boat by ``theta = -M_qu u_dot / G_qq`` and the payload's weight pushes in surge with
+    ``-m_p g theta``, i.e. an extra inertia ``m_p g |M_uq| / G_qq`` [kg]. Returns it, its share of
+    ``M_uu`` and the ``X_u`` a one-DOF fit with ``M_uu`` then finds (``-D_uu M_uu / (M_uu + extra)``)."""
+    from python_vehicle_simulator.vehicles.otter import otter
+
+    boat = otter("stepInput", 0.0, 0.0, 0.0, 0.0)
+    extra = float(boat.mp * boat.g * abs(boat.M[0, 4]) / boat.G[4, 4])
+    m = float(boat.M[0, 0])
+    return extra, extra / m, float(-boat.D[0, 0] * m / (m + extra))
 
 
 def otter_case(seed: int) -> dict | None:
@@ -305,6 +345,9 @@ def summarise(results: dict) -> dict:
             for n in TERM_NAMES[dof]:
                 s[f"{n} within 3 SE"] = float(np.mean([r["terms"][n]["within3"] for r in rows]))
                 s[f"{n} CI95 coverage"] = float(np.mean([r["terms"][n]["covered"] for r in rows]))
+                z = np.array([(r["terms"][n]["value"] - r["terms"][n]["truth"]) / r["terms"][n]["stderr"] for r in rows])
+                s[f"{n} z mean"] = float(np.mean(z))
+                s[f"{n} z sd"] = float(np.std(z, ddof=1)) if z.size > 1 else math.nan
                 s[f"{n} median rel. error"] = float(np.median([abs(r["terms"][n]["value"] / r["terms"][n]["truth"] - 1)
                                                                if r["terms"][n]["truth"] else abs(r["terms"][n]["value"])
                                                                for r in rows]))
@@ -341,12 +384,27 @@ def pooled(results: dict) -> list[str]:
             lo, hi = clopper_pearson(cov, n)
             lines.append(f"- {truth} truth, {label}: CI95 coverage {cov}/{n} = {cov / n:.1%} (95 % interval "
                          f"{lo:.1%}-{hi:.1%}); within 3 SE {w3 / n:.1%}")
+        z = np.array([(t["value"] - t["truth"]) / t["stderr"] for _, r in runs for dof in DOFS
+                      for t in r[dof]["terms"].values()])
+        lines.append(f"- {truth} truth, all terms: z = (estimate - truth) / SE has mean {z.mean():+.3f} and SD "
+                     f"{z.std(ddof=1):.3f} over {z.size} intervals (1 for standard errors that are right); "
+                     f"|z| > 3 in {int(np.sum(np.abs(z) > 3))}")
         sel = sum(r[dof]["selected"] == "quadratic" for _, r in runs for dof in DOFS)
         n = len(runs) * len(DOFS)
         lo, hi = clopper_pearson(sel, n)
         lines.append(f"- {truth} truth: quadratic selected in {sel}/{n} DOF fits = {sel / n:.1%} (95 % interval "
                      f"{lo:.1%}-{hi:.1%})")
     return lines
+
+
+def row_chance(n: int, rows: int, coverage: float = 0.95) -> str:
+    """How often a row of ``n`` trials falls outside 90-98 % CI coverage when the intervals are exactly
+    right (true coverage ``coverage``), and the expected number of such rows among ``rows``."""
+    below = float(stats.binom.cdf(math.ceil(0.9 * n) - 1, n, coverage))
+    above = float(stats.binom.sf(math.floor(0.98 * n), n, coverage))
+    return (f"With exactly right 95 % intervals, a row of {n} trials reads below 90 % with probability {below:.1%} "
+            f"and above 98 % with probability {above:.1%}: of {rows} term rows, {rows * below:.1f} are expected "
+            f"below 90 % and {rows * above:.1f} above 98 % by chance alone.")
 
 
 def markdown(summary: dict, otter: list, cmd: str, seconds: float, results: dict | None = None,
@@ -357,14 +415,16 @@ def markdown(summary: dict, otter: list, cmd: str, seconds: float, results: dict
              "significance rule). Term columns: share of trials with the quadratic fit's term within 3 SE of truth / "
              "95 % CI coverage (for linear truth the quadratic term's truth is 0).", "",
              "| vessel | truth | DOF | n | quadratic selected | linear term: within 3 SE / CI cov. | quadratic term: "
-             "within 3 SE / CI cov. | held-out RMS quad/lin (median) |", "|---|---|---|---|---|---|---|---|"]
+             "within 3 SE / CI cov. | z mean / SD (linear term; quadratic term) | held-out RMS quad/lin (median) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for key, s in summary.items():
         v, truth, dof = key.split(" | ")
         lin, quad = TERM_NAMES[dof]
         lines.append(f"| {v} | {truth} | {dof} | {s['n']} | {s['quadratic_selected']:.0%} | "
                      f"{s[f'{lin} within 3 SE']:.0%} / {s[f'{lin} CI95 coverage']:.0%} | "
                      f"{s[f'{quad} within 3 SE']:.0%} / {s[f'{quad} CI95 coverage']:.0%} | "
-                     f"{s['median held-out RMS ratio quadratic/linear']:.3f} |")
+                     f"{s[f'{lin} z mean']:+.2f} / {s[f'{lin} z sd']:.2f}; {s[f'{quad} z mean']:+.2f} / "
+                     f"{s[f'{quad} z sd']:.2f} | {s['median held-out RMS ratio quadratic/linear']:.3f} |")
     if otter:
         lines += ["", "Independent truth: PythonVehicleSimulator Otter coast-downs (PVS's own dynamics and "
                   "kinematics stepped as its main loop does, 100 Hz Euler, after 30 s at rest; logged at 20 Hz + "
@@ -394,16 +454,25 @@ def markdown(summary: dict, otter: list, cmd: str, seconds: float, results: dict
     if attribution:
         lines += ["", "Where the one-DOF terms part from the Otter's nominal ones (noise-free fits of the same "
                   "coast-downs, PVS changed at run time only):", "",
-                  "| DOF | PVS run | " + " | ".join(f"`{n}`" for n in ("linear term", "quadratic term")) + " |",
-                  "|---|---|---|---|"]
+                  "| DOF | PVS run | linear term | quadratic term | linear term, linear structure |",
+                  "|---|---|---|---|---|"]
         for dof, runs in attribution.items():
             for label, terms in runs.items():
                 vals = list(terms.values())
-                lines.append(f"| {dof} | {label} | {vals[0]:.4g} | {vals[1]:.4g} |")
+                lines.append(f"| {dof} | {label} | {vals[0]:.4g} | {vals[1]:.4g} | {vals[2]:.4g} |")
+        if "surge" in attribution:
+            extra, share, x_u = otter_payload_inertia()
+            lines += ["", f"Surge, quasi-static: a surge acceleration pitches the Otter through `M[surge,pitch]`, and "
+                      f"PVS turns the payload's weight with the pitch into a surge force `-m_p g sin(theta)` that no "
+                      f"buoyancy term balances; together an extra surge inertia `m_p g |M_uq| / G_qq` = {extra:.3g} kg "
+                      f"({share:.1%} of `M_uu`), so a one-DOF fit with the config's `M_uu` finds `X_u` = {x_u:.4g}."]
     elif otter is not None:
         lines += ["", "PythonVehicleSimulator not found (PVS_PATH): independent-truth rows skipped."]
     if results:
         lines += ["", "Pooled over vessels and DOFs (vesselid's simulator):", ""] + pooled(results)
+        ns = [s["n"] for s in summary.values()]
+        if ns:
+            lines += ["", row_chance(int(np.median(ns)), 2 * len(ns))]
     return "\n".join(lines) + "\n"
 
 

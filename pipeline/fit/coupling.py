@@ -21,6 +21,18 @@ the bias of the fitted damping terms (``X = -M_ii a``) that no standard error co
 PythonVehicleSimulator's Otter (``M_vr = 12.25``) the sway-yaw coupling moved the noise-free
 one-DOF yaw fit by 2.7 % (``N_r``) and 4 % (``N_|r|r``), with ``delta`` = 1.9 % (benchmark
 ``damping_structure.py``).
+
+Not covered: a force on DOF ``i`` from the coupled DOF's *angle* (a restoring coupling ``G_ic``).
+A floating hull has none in surge (weight and buoyancy are equal and both vertical, so pitch
+gives no surge force), and the vessel config has no such entry. PythonVehicleSimulator's Otter
+has one: it turns the payload's weight with the pitch into a surge force ``-m_p g sin(theta)`` that
+no buoyancy term balances, so a surge deceleration pitches the boat (``M_uq = -19.75``) and the
+pitch pushes back: quasi-static, an extra surge inertia ``m_p g |M_uq| / G_qq`` = 1.77 kg (2.1 %
+of ``M_uu``), which is the Otter's 2 % ``X_u`` bias (benchmark: the one-DOF fit moves from -74.8
+to -77.5 against -77.55 nominal when the payload weight is not pitched). A coast-down identifies
+only ``D_ii / M_ii``, so the data cannot tell that extra inertia from a smaller damping; the
+config rule here, which sees only ``M``, ``D`` and diagonal ``G``, gives ``delta`` = 0.12-0.15 % and
+rightly does not flag it for a floating hull.
 """
 
 from __future__ import annotations
