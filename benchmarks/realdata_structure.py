@@ -202,7 +202,39 @@ def nemi(folder: Path) -> tuple[list[dict], list[str]]:
     return rows, notes
 
 
-def ce6(folder: Path) -> list[dict]:
+#: Seconds after each CE6 throttle cut left out in the sensitivity rows (the unmodelled first drop).
+CE6_SKIP_S = 1.0
+
+
+def _trimmed(recs, n: int):
+    """Records without their first ``n`` samples (those still long enough for the joint fit)."""
+    from dataclasses import replace
+
+    from pipeline.fit.quadratic import MIN_RECORD_SAMPLES
+
+    return [replace(r, y=r.y[n:], inputs={c: u[n:] for c, u in r.inputs.items()}) for r in recs
+            if np.isfinite(r.y[n:]).sum() >= MIN_RECORD_SAMPLES]
+
+
+def _early_share(choice, recs, dt: float, seconds: float) -> tuple[float, float]:
+    """Share of the selected fit's squared residuals (in sample) that falls in the first ``seconds``
+    of each record, and the share of samples there [-]."""
+    from pipeline.fit.quadratic import decimate_records
+
+    dec, dt_fit, _ = decimate_records(recs, dt, "surge")
+    fit = choice.fits[choice.selected]
+    n = max(int(round(seconds / dt_fit)), 1)
+    early = total = early_n = total_n = 0.0
+    for r, yhat in zip(dec, fit.y_fit):
+        e = (r.y - yhat)[np.isfinite(r.y)]
+        early += float(np.sum(e[:n] ** 2))
+        total += float(np.sum(e ** 2))
+        early_n += min(n, e.size)
+        total_n += e.size
+    return (early / total if total > 0 else math.nan), early_n / max(total_n, 1)
+
+
+def ce6(folder: Path) -> tuple[list[dict], list[str]]:
     from ce6_coastdowns import nmea_files
 
     from pipeline.align import align
@@ -210,7 +242,7 @@ def ce6(folder: Path) -> list[dict]:
     from pipeline.flow import segment_trial
     from pipeline.ingest import read_log
 
-    rows = []
+    rows, notes = [], []
     per_file = []
     for path in nmea_files(folder):
         try:
@@ -221,43 +253,65 @@ def ce6(folder: Path) -> list[dict]:
         recs = dof_records(trial, segs, "surge")
         if not recs:
             continue
+        dt = 1 / trial.fs
         try:
-            ch = select_structure(recs, "surge", 1 / trial.fs, math.nan)
-            chd = select_structure(recs, "surge", 1 / trial.fs, math.nan, drift=True)
+            ch = select_structure(recs, "surge", dt, math.nan)
+            chd = select_structure(recs, "surge", dt, math.nan, drift=True)
+            cut = _trimmed(recs, int(round(CE6_SKIP_S / dt)))
+            cht = select_structure(cut, "surge", dt, math.nan) if cut else None
+            chdt = select_structure(cut, "surge", dt, math.nan, drift=True) if cut else None
         except Exception as exc:  # counted in the note, not hidden
-            per_file.append((path.name, None, None, str(exc)))
+            per_file.append((path.name, None, None, str(exc), None, None, math.nan, math.nan))
             continue
         # What the fit stage itself says (select_structures adds this note on speed over ground).
-        said = check_current(trial, recs, "surge", 1 / trial.fs, math.nan, ch, lambda *a, **k: chd)
-        per_file.append((path.name, ch, chd, said))
-    ok = [(c, d) for _, c, d, _ in per_file if c is not None and math.isfinite(c.heldout_rmse.get("linear", math.nan))
-          and math.isfinite(d.heldout_rmse.get("linear", math.nan))]
+        said = check_current(trial, recs, "surge", dt, math.nan, ch, lambda *a, **k: chd)
+        share = _early_share(chd, recs, dt, CE6_SKIP_S)
+        per_file.append((path.name, ch, chd, said, cht, chdt, share, float(np.median([r.sigma for r in recs]))))
+
+    def finite(c):
+        return c is not None and math.isfinite(c.heldout_rmse.get("linear", math.nan))
+
+    ok = [f for f in per_file if finite(f[1]) and finite(f[2])]
     if not ok:
-        return rows
-    base = np.array([c.heldout_rmse["linear"] for c, _ in ok])
-    base_rms = float(np.sqrt(np.mean(base**2)))
-    for label, pick in (("ground speed", 0), ("ground speed + per-segment drift (current along the track)", 1)):
-        chs = [pair[pick] for pair in ok]
+        return rows, notes
+    both = [f for f in ok if finite(f[4]) and finite(f[5])]
+    variants = (("ground speed", ok, 1, 1), ("ground speed + per-segment drift (current along the track)", ok, 2, 1),
+                (f"ground speed, first {CE6_SKIP_S:g} s after each cut left out", both, 4, 4),
+                (f"ground speed + per-segment drift, first {CE6_SKIP_S:g} s after each cut left out", both, 5, 4))
+    for label, files, pick, base_pick in variants:
+        if not files:
+            continue
+        base = np.array([f[base_pick].heldout_rmse["linear"] for f in files])
+        base_rms = float(np.sqrt(np.mean(base**2)))
+        chs = [f[pick] for f in files]
         lin = np.array([c.heldout_rmse["linear"] for c in chs])
         quad = np.array([c.heldout_rmse["quadratic"] for c in chs])
         sel = sum(c.selected == "quadratic" for c in chs)
         selected = np.where([c.selected == "quadratic" for c in chs], quad, lin)
-        rows.append({"dataset": folder.name, "dof": f"surge ({len(ok)} files with coast-downs; {label})",
+        rows.append({"dataset": folder.name, "dof": f"surge ({len(files)} files with coast-downs; {label})",
                      "linear": float(np.sqrt(np.mean(lin**2))), "quadratic": float(np.sqrt(np.mean(quad**2))),
                      "change": float(100 * (np.sqrt(np.mean(selected**2)) / base_rms - 1)),
-                     "selected": f"quadratic in {sel} of {len(ok)} files",
+                     "selected": f"quadratic in {sel} of {len(files)} files",
                      "terms": f"median a = {np.median([c.fits[c.selected].param('a') for c in chs]):.3g} 1/s",
                      "published": "issue: one exponential T = 17.39 ± 0.24 s (a = 0.0575 1/s)",
-                     "note": "per-file fits, RMS over files; change = selected against linear without drift; no mass "
-                             "(a = D/M, b = D2/M)",
+                     "note": "per-file fits, RMS over files; change = selected against linear without drift on the "
+                             "same samples; no mass (a = D/M, b = D2/M)",
                      "p": math.nan, "shrink": math.nan})
-    said = [e for _, c, _, e in per_file if c is not None and e]
-    rows[-1]["note"] += (f"; the fit says 'unsure: ... current along the track' in {len(said)} of {len(ok)} files"
-                         + (f" (e.g. \"{said[0]}\")" if said else ""))
-    failed = [(n, e) for n, c, _, e in per_file if c is None]
+        if pick == 2:
+            said = [f[3] for f in files if f[3]]
+            rows[-1]["note"] += (f"; the fit says 'unsure: ... current along the track' in {len(said)} of {len(files)} "
+                                 f"files" + (f" (e.g. \"{said[0]}\")" if said else ""))
+    failed = [(f[0], f[3]) for f in per_file if f[1] is None]
     if failed:
         rows[-1]["note"] += f"; {len(failed)} file(s) failed: " + ", ".join(f"{n} ({e})" for n, e in failed[:3])
-    return rows
+    shares = np.array([f[6] for f in ok if np.all(np.isfinite(f[6]))])
+    if shares.size:
+        notes.append(f"CE6: in the drift fits (selected structure, in sample) the first {CE6_SKIP_S:g} s after each cut "
+                     f"holds {np.median(shares[:, 1]):.0%} of the samples but {np.median(shares[:, 0]):.0%} of the "
+                     f"squared error (median over {shares.shape[0]} files; range {shares[:, 0].min():.0%}-"
+                     f"{shares[:, 0].max():.0%}); the speed's own noise (second differences) is "
+                     f"{np.median([f[7] for f in ok]):.3g} m/s (median over files)")
+    return rows, notes
 
 
 def markdown(rows: list[dict], notes: list[str], cmd: str, seconds: float) -> str:
@@ -295,7 +349,9 @@ def main(argv=None) -> int:
         rows += r
         notes += n
     if not args.no_ce6 and (args.realdata / "ce6-boat-limfjord-2022").is_dir():
-        rows += ce6(args.realdata / "ce6-boat-limfjord-2022")
+        r, n = ce6(args.realdata / "ce6-boat-limfjord-2022")
+        rows += r
+        notes += n
     cmd = "python benchmarks/realdata_structure.py " + " ".join(argv if argv is not None else sys.argv[1:])
     text = markdown(rows, notes, cmd.strip(), time.time() - t0)
     print(text)
