@@ -432,8 +432,9 @@ def markdown(summary: dict, otter: list, cmd: str, seconds: float, results: dict
                   "with a vesselid config of the Otter (mass, inertia, CG, added mass, restoring, damping diagonal). "
                   "Nominal truth: the Otter's own D, its 10 D_r |r| r term and `crossFlowDrag` at r = 1. One-DOF "
                   "truth: the same one-DOF model fitted to the noise-free PVS records (the best one-DOF description "
-                  "of PVS's motion). 'unsure' = the fit's message says `unsure:` (inertia coupling, "
-                  "`pipeline/fit/coupling.py`).", "",
+                  "of PVS's motion). 'unsure' = the fit's message says `unsure:` (here: inertia coupling, "
+                  "`pipeline/fit/coupling.py`; a misfit at the segment starts, `pipeline/fit/start_transient.py`, "
+                  "was said in none).", "",
                   "| DOF | truth structure | n | quadratic selected | unsure | term | median value | nominal truth | "
                   "within 3 SE / CI95 (nominal) | one-DOF truth | within 3 SE / CI95 (one-DOF) |",
                   "|---|---|---|---|---|---|---|---|---|---|---|"]

@@ -38,6 +38,7 @@ from pipeline.fit.data import noise_sigma  # noqa: E402
 from pipeline.fit.decay_analysis import extinction_curve, extrema  # noqa: E402
 from pipeline.fit.quadratic import TERM_NAMES, DofRecord, SteadyPoint, dof_records  # noqa: E402
 from pipeline.fit.current import check_current  # noqa: E402
+from pipeline.fit.start_transient import start_transient_note  # noqa: E402
 from pipeline.fit.structure import select_structure  # noqa: E402
 
 
@@ -261,12 +262,13 @@ def ce6(folder: Path) -> tuple[list[dict], list[str]]:
             cht = select_structure(cut, "surge", dt, math.nan) if cut else None
             chdt = select_structure(cut, "surge", dt, math.nan, drift=True) if cut else None
         except Exception as exc:  # counted in the note, not hidden
-            per_file.append((path.name, None, None, str(exc), None, None, math.nan, math.nan))
+            per_file.append((path.name, None, None, str(exc), None, None, math.nan, math.nan, ""))
             continue
         # What the fit stage itself says (select_structures adds this note on speed over ground).
         said = check_current(trial, recs, "surge", dt, math.nan, ch, lambda *a, **k: chd)
         share = _early_share(chd, recs, dt, CE6_SKIP_S)
-        per_file.append((path.name, ch, chd, said, cht, chdt, share, float(np.median([r.sigma for r in recs]))))
+        per_file.append((path.name, ch, chd, said, cht, chdt, share, float(np.median([r.sigma for r in recs])),
+                         start_transient_note(ch, recs, dt)))
 
     def finite(c):
         return c is not None and math.isfinite(c.heldout_rmse.get("linear", math.nan))
@@ -311,6 +313,9 @@ def ce6(folder: Path) -> tuple[list[dict], list[str]]:
                      f"squared error (median over {shares.shape[0]} files; range {shares[:, 0].min():.0%}-"
                      f"{shares[:, 0].max():.0%}); the speed's own noise (second differences) is "
                      f"{np.median([f[7] for f in ok]):.3g} m/s (median over files)")
+    started = [f[8] for f in ok if f[8]]
+    notes.append(f"CE6: the fit stage (`pipeline/fit/start_transient.py`) says 'unsure: the first ... s of the surge "
+                 f"segments holds ...' in {len(started)} of {len(ok)} files" + (f" (e.g. \"{started[0]}\")" if started else ""))
     return rows, notes
 
 

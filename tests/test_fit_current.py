@@ -29,3 +29,5 @@ def test_current_along_the_track_is_named():
 def test_no_current_no_note():
     msg = surge_choice((0.0, 0.0)).message
     assert "current along the track" not in msg, msg
+    # The simulated record is what the model describes: no misfit at the segment starts either.
+    assert "of the surge segments holds" not in msg, msg

@@ -24,6 +24,7 @@ from ..records import DOF_NAMES, DOFS, DampingFit, DecayAnalysis, Estimate, Fits
 from ..vessel import Vessel
 from .coupling import coupling_note
 from .current import check_current
+from .start_transient import start_transient_note
 from .decay_analysis import analyse_decays
 from .heldout_test import channel_score, is_significant
 from .least_squares import confidence_interval
@@ -214,6 +215,7 @@ def select_structures(trial: Trial, segments: Sequence[Segment], vessel: Vessel,
                                        (steady or {}).get(dof, ())))
         except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
             pass
+        notes.append(start_transient_note(out[dof], recs, dt))
         if any(notes):
             out[dof] = replace(out[dof], message="; ".join([out[dof].message] + [n for n in notes if n]))
     return out
