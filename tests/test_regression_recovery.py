@@ -29,24 +29,41 @@ CASES += [("tlog", level, 21) for level in ("low", "nominal", "high")]
 
 @pytest.fixture(scope="module")
 def recovered(tmp_path_factory, sea_trial_sim):
-    """Fits for every (format, noise level, seed) case, run through real files. Only the diagonal
-    and Nomoto K, T are checked here, so the joint grey-box stage is not run (test_fit_greybox)."""
-    out = {}
+    """``recovered(case)``: the fit of one (format, noise level, seed) case, run through a real file,
+    computed once per worker. Each case is its own xdist group (``make test-ci`` runs this module with
+    ``--dist loadgroup``), so the 12 cases split over the workers instead of one worker fitting all.
+    Only the diagonal and Nomoto K, T are checked here, so the joint grey-box stage is not run
+    (test_fit_greybox)."""
+    cache = {}
     folder = tmp_path_factory.mktemp("regression")
-    for fmt, level, seed in CASES:
-        res = sea_trial_sim(level, seed)
-        path = write_log(res.log, folder / f"trial_{level}_{seed}.{fmt}", vessel=VESSEL)
-        trial = load_trial([path], VESSEL)
-        segments = segment_trial(trial)
-        out[(fmt, level, seed)] = fit_trial(trial, segments, VESSEL, extend=False)
-    return out
+
+    def get(case):
+        if case not in cache:
+            fmt, level, seed = case
+            res = sea_trial_sim(level, seed)
+            path = write_log(res.log, folder / f"trial_{level}_{seed}.{fmt}", vessel=VESSEL)
+            trial = load_trial([path], VESSEL)
+            segments = segment_trial(trial)
+            cache[case] = fit_trial(trial, segments, VESSEL, extend=False)
+        return cache[case]
+
+    return get
+
+
+def _case_id(case) -> str:
+    return f"{case[0]}-{case[1]}-{case[2]}"
+
+
+def _grouped(cases):
+    """Each case as a pytest param in its own xdist group (one fit per case per worker)."""
+    return [pytest.param(c, id=_case_id(c), marks=pytest.mark.xdist_group(_case_id(c))) for c in cases]
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", CASES, ids=lambda c: f"{c[0]}-{c[1]}-{c[2]}")
+@pytest.mark.parametrize("case", _grouped(CASES))
 @pytest.mark.parametrize("name", sorted(TRUTH))
 def test_recovers_truth_within_three_sigma(recovered, case, name):
-    est = recovered[case].estimates[name]
+    est = recovered(case).estimates[name]
     assert est.success, f"{name} not identified: {est.message}"
     err = est.value - TRUTH[name]
     assert abs(err) < 3 * est.stderr, (f"{name}: {est.value:.5g} +- {est.stderr:.2g}, truth {TRUTH[name]:.5g}, "
@@ -56,17 +73,18 @@ def test_recovers_truth_within_three_sigma(recovered, case, name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", [c for c in CASES if c[1] in ("low", "nominal")], ids=lambda c: f"{c[0]}-{c[1]}-{c[2]}")
+@pytest.mark.parametrize("case", _grouped([c for c in CASES if c[1] in ("low", "nominal")]))
 @pytest.mark.parametrize("name", sorted(TRUTH))
 def test_within_two_percent_at_nominal_noise(recovered, case, name):
-    est = recovered[case].estimates[name]
+    est = recovered(case).estimates[name]
     rel = abs(est.value / TRUTH[name] - 1)
     assert rel < 0.02, f"{name}: {est.value:.5g} vs truth {TRUTH[name]:.5g} ({100 * rel:.2f}%)"
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("csv-nominal-11")
 def test_damping_matrix_holds_identified_diagonal(recovered):
-    fits = recovered[("csv", "nominal", 11)]
+    fits = recovered(("csv", "nominal", 11))
     dm = fits.damping_matrix
     assert dm.shape == (5, 5)
     np.testing.assert_allclose(np.diag(dm), D, rtol=0.02)
