@@ -15,6 +15,12 @@ Steady-state points (thrust against steady speed from bollard tables or speed ru
 same least squares as rows ``(tau_k/M_ii - a u_k - b |u_k| u_k) / sd_k``, so the drag curve and
 the transients are one model (:class:`SteadyPoint`).
 
+Long trials: a residual row depends on the shared parameters and its own segment's locals only, so
+the Jacobian is sparse (rows x (shared + locals per segment) numbers) and, above
+``DENSE_MAX_PARAMETERS`` parameters, the trust-region steps are LSMR solves on it and the
+covariance's shared block comes from the Schur complement (:func:`shared_hac_covariance`); the
+cost grows linearly with the number of segments instead of with its cube (a dense SVD step).
+
 The covariance is the Newey-West (HAC) sandwich of the weighted residuals
 (:mod:`pipeline.fit.robust_covariance`): the Gauss-Newton ``(J^T J)^-1 s^2`` (Seber & Wild 2003)
 assumes white residuals and comes out too small when a logged channel's errors are coloured
