@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from pipeline.diagnose import diagnose
-from pipeline.diagnose.problem import Window, block_average, block_noise
+from pipeline.diagnose.problem import Window, block_average, block_noise, end_weights
 from diagnose_synthetic import simulated_trial
 from pipeline.diagnose.waves import fit_wave_spectrum
 from pipeline.sim import Effects, sea_trial
@@ -29,6 +29,32 @@ def test_one_sample_block_mean_is_the_interval_mean():
     assert np.allclose(got[:19], np.arange(19) + 0.5)
 
 
+def test_one_sample_block_mean_of_a_curve_is_its_interval_mean():
+    # x(t) = t^3 at 1 Hz: the plain trapezoid is h^2/12 x'' = t/2 off the mean over [k, k + 1);
+    # the end-corrected one is exact for a cubic (first and last two blocks lack neighbours).
+    t = np.arange(30.0)
+    w = (Window(0, 30, 0.0, 29.0, ("step",)),)
+    got = block_average(t**3, w, 1, 30, trapezoid=True)[0]
+    exact = ((t + 1) ** 4 - t**4) / 4
+    assert np.allclose(got[1:28], exact[1:28], rtol=1e-12, atol=1e-9)
+
+
+def test_start_value_at_a_slow_rate_is_not_a_line_across_a_switch():
+    # A first-order response (T = 4 s) logged at 1 Hz whose input switches one sample before a
+    # window starts: five samples through the switch miss the start value; the span stays under
+    # a tenth of T, here the start sample itself.
+    from pipeline.diagnose.gridfit import START_SPAN_T
+    from pipeline.diagnose.problem import initial_values
+
+    t = np.arange(40.0)
+    x = np.where(t < 20, 1 - np.exp(-t / 4.0), 0.0)
+    x[20:] = x[19] * np.exp(-(t[20:] - 19) / 4.0) - 1 + np.exp(-(t[20:] - 19) / 4.0)
+    w = (Window(21, 40, 21.0, 39.0, ("zigzag",)),)
+    assert int(START_SPAN_T * 4.0 * 1.0) == 0
+    assert initial_values(x, w, 0)[0] == pytest.approx(x[21])
+    assert abs(initial_values(x, w, 2)[0] - x[21]) > 0.05
+
+
 def test_trapezoid_block_noise_is_that_of_the_trapezoid():
     rng = np.random.default_rng(0)
     x = rng.normal(0.0, 1.0, 40000)
@@ -37,7 +63,8 @@ def test_trapezoid_block_noise_is_that_of_the_trapezoid():
         means = block_average(x, w, m, len(x) // m, trapezoid=True)[0]
         measured = float(np.nanstd(means))
         assert abs(block_noise(x, w, m, trapezoid=True) / measured - 1) < 0.05
-        assert abs(measured - np.sqrt((m - 0.5) / m**2)) < 0.02
+        # Corrected trapezoid: sqrt(0.590) at m = 1 (weights -1, 13, 13, -1 over 24).
+        assert abs(measured - np.sqrt(np.sum(end_weights(m) ** 2))) < 0.02
 
 
 def test_coloured_noise_is_no_wave():
