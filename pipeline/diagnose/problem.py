@@ -166,12 +166,6 @@ def block_average(x: np.ndarray, windows: tuple[Window, ...], m: int, n: int, tr
         interval the model's exact block means and the held inputs refer to. A plain mean of the
         samples ``t_k ... t_k + dt - h`` is that average half a sample early, a lag that a delay
         candidate would otherwise "explain". Inputs (held over each sample) use plain means.
-        The trapezoid's own error, ``-(h^2 / 12) x''`` (h the sample interval), is removed by the
-        Euler-Maclaurin end correction ``-(h / 12) (x'(t_k + dt) - x'(t_k)) / dt`` with central
-        differences (:func:`end_weights`; the interval mean of the cubic through four samples at
-        ``m = 1``), at ``m <= END_CORRECTION_MAX_M``: at one sample per quarter time constant
-        (AAUSHIP's yaw logged at 1 Hz) the trapezoid misses a zig-zag's yaw rate by 0.5 % of its
-        swing. Where a neighbour sample is missing the block keeps the plain trapezoid.
 
     Returns
     -------
@@ -196,47 +190,7 @@ def block_average(x: np.ndarray, windows: tuple[Window, ...], m: int, n: int, tr
         s = np.where(ok, seg, 0.0).sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             out[k, :nb] = np.where(cnt > 0, s / np.maximum(cnt, 1), np.nan)
-        if trapezoid and m <= END_CORRECTION_MAX_M:
-            a = w.i0 + m * np.arange(nb)
-            corr = (_central(x, a + m) - _central(x, a)) / (12.0 * m)
-            out[k, :nb] -= np.where(np.isfinite(corr), corr, 0.0)
     return out
-
-
-#: Largest block (trial samples) whose trapezoid gets the end correction. The analysis step is
-#: about T/20, so with three or more samples per step a sample is under T/60 and the trapezoid's
-#: error under 2e-5 of ``T^2 x''``; there the correction's own error at an input switch (a central
-#: difference across the kink of the response) would be the larger.
-END_CORRECTION_MAX_M = 2
-
-
-def _central(x: np.ndarray, i: np.ndarray) -> np.ndarray:
-    """Central difference ``(x[i+1] - x[i-1]) / 2`` per sample (NaN at the ends or a gap)."""
-    ok = (i >= 1) & (i + 1 < len(x))
-    j = np.clip(i, 1, max(len(x) - 2, 1))
-    with np.errstate(invalid="ignore"):
-        d = 0.5 * (x[np.minimum(j + 1, len(x) - 1)] - x[j - 1])
-    return np.where(ok, d, np.nan)
-
-
-def end_weights(m: int) -> np.ndarray:
-    """Weights of the samples ``t_k - h ... t_k + dt + h`` (``m + 3`` of them) in one (corrected)
-    trapezoidal block mean (:func:`block_average` with ``trapezoid=True``) [-].
-
-    Parameters
-    ----------
-    m : int
-        Samples per block.
-    """
-    wts = np.zeros(m + 3)
-    wts[1:m + 2] = 1.0 / m
-    wts[1] = wts[m + 1] = 0.5 / m
-    if m > END_CORRECTION_MAX_M:
-        return wts
-    e = 1.0 / (24.0 * m)
-    for pos, sign in ((-1, -1.0), (1, 1.0), (m - 1, 1.0), (m + 1, -1.0)):
-        wts[pos + 1] += sign * e
-    return wts
 
 
 def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) -> np.ndarray:
@@ -391,10 +345,9 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: b
     m : int
         Samples per block.
     trapezoid : bool
-        The block means are corrected trapezoids (:func:`block_average` with ``trapezoid=True``):
-        for white noise their variance is ``s^2`` times the sum of the squared
-        :func:`end_weights` (``(m - 1/2) / m^2`` for the plain trapezoid, 0.59 at ``m = 1``)
-        instead of ``s^2 / m``.
+        The block means are trapezoidal (:func:`block_average` with ``trapezoid=True``): weights
+        ``1/2, 1, ..., 1, 1/2`` over ``m + 1`` samples, variance ``(m - 1/2) s^2 / m^2`` instead
+        of ``s^2 / m`` (half a sample's at ``m = 1``) for white noise.
     """
     mb = max(m, 8)
     q = mb // 4
@@ -404,7 +357,7 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: b
     # The contrast uses the first 4 q of the mb samples: it measures a 4q-sample block mean.
     s_mb = _robust_sd(c) / 4.0
     s_m = s_mb * np.sqrt(4 * q / m)
-    white = float(s_m * np.sqrt(m * np.sum(end_weights(m) ** 2)) if trapezoid else s_m)
+    white = float(s_m * np.sqrt((m - 0.5) / m) if trapezoid else s_m)
     s_inf, q_star = noise_scale(x, windows)
     if np.isfinite(s_inf):
         coloured = float(s_inf / np.sqrt(max(m, 0.75 * q_star)))
