@@ -3,9 +3,10 @@
 Ranking (:data:`pipeline.records.RANKING_RULE`): candidates are ranked by their held-out shrink of
 the RMS gap over the channels of the DOF they act on; only significant ones can be selected.
 
-Forward selection: the best significant candidate is the verdict. Its held-out correction (its
-cross-validated prediction minus the baseline's, so nothing of a held-out window leaks into its
-own fit) is taken off the measurements of its DOF, and every other candidate of that DOF is
+Forward selection: the best significant candidate is the verdict. Its correction (its
+cross-validated prediction minus the baseline fitted on every window, so the candidate's side
+stays held out and the baseline's side is one parameter set, :func:`corrected`) is taken off the
+measurements of its DOF, and every other candidate of that DOF is
 cross-validated and significance-tested again on top of it; the candidates of other DOFs are
 scored on separate problems and keep their scores. The next best significant candidate is
 selected, and so on, until none is significant (at most :data:`MAX_EFFECTS`). Working on the
