@@ -29,6 +29,22 @@ def test_one_sample_block_mean_is_the_interval_mean():
     assert np.allclose(got[:19], np.arange(19) + 0.5)
 
 
+def test_start_value_at_a_slow_rate_is_not_a_line_across_a_switch():
+    # A first-order response (T = 4 s) logged at 1 Hz whose input switches one sample before a
+    # window starts: five samples through the switch miss the start value; the span stays under
+    # a tenth of T, here the start sample itself.
+    from pipeline.diagnose.gridfit import START_SPAN_T
+    from pipeline.diagnose.problem import initial_values
+
+    t = np.arange(40.0)
+    x = np.where(t < 20, 1 - np.exp(-t / 4.0), 0.0)
+    x[20:] = x[19] * np.exp(-(t[20:] - 19) / 4.0) - 1 + np.exp(-(t[20:] - 19) / 4.0)
+    w = (Window(21, 40, 21.0, 39.0, ("zigzag",)),)
+    assert int(START_SPAN_T * 4.0 * 1.0) == 0
+    assert initial_values(x, w, 0)[0] == pytest.approx(x[21])
+    assert abs(initial_values(x, w, 2)[0] - x[21]) > 0.05
+
+
 def test_trapezoid_block_noise_is_that_of_the_trapezoid():
     rng = np.random.default_rng(0)
     x = rng.normal(0.0, 1.0, 40000)

@@ -115,3 +115,41 @@ def test_html_section_leads_with_the_unexplained_gap(tmp_path):
     _, html = diagnose_html_section(rep, figures={})
     assert html.index("Unexplained") < html.index("Verdict")
     assert "Ranking rule" in html and "no effect." not in html.lower().split("unexplained")[0]
+
+
+def test_next_step_works_on_the_candidate_residual_over_one_baseline_fit():
+    """The data the next selection step sees is the selected candidate's held-out residual on top
+    of the baseline fitted on every window, not on its held-out outputs (a different fold fit in
+    every window, whose spread in gain would come back as a gap), and each window's measured start
+    value moves with the correction."""
+    from types import SimpleNamespace
+
+    from pipeline.diagnose.gridfit import GridData
+    from pipeline.diagnose.selection import DofState, forward_select
+    from pipeline.records import CandidateResult, ChannelGap
+
+    rng = np.random.default_rng(0)
+    w, n = 3, 6
+    y = rng.standard_normal((w, n))
+    mask = np.ones((w, n), bool)
+    data = GridData(dt=1.0, y=y, y0=y[:, 0].copy(), angle=None, mask=mask)
+    ramp = np.arange(n, dtype=float)
+    full = {"y": np.outer([1.0, 2.0, 3.0], ramp)}
+    heldout = {"y": full["y"] * np.array([[0.8], [1.3], [0.9]])}   # fold fits with spread gains
+    cand = {"y": full["y"] + 0.5 + 0.1 * ramp}
+    res = CandidateResult(effect="current", dof="yaw", label="current", input_channel=None, gap_before=2.0,
+                          gap_after=1.0, shrink=50.0, explained=0.1, p_value=1e-9, significant=True, params=(),
+                          model=(), channels=(ChannelGap("r", 2.0, 1.0, 1e-9, 30.0),), gain=3.0)
+    state = DofState(problem=None, data=data, results=[(res, SimpleNamespace(heldout=cand))], base_heldout=heldout,
+                     channel_gaps={"r": 2.0}, channel_neff={"r": 30.0}, selected=[], base_full=full)
+    seen = []
+
+    def rescore(s):
+        seen.append(s.data)
+        s.results = []
+
+    chosen = forward_select({"yaw": state}, rescore)
+    assert [c[0].label for c in chosen] == ["current"]
+    np.testing.assert_allclose(seen[0].y, full["y"] + y - cand["y"])
+    # The correction cand - full is 0.5 + 0.1 t at block middles t = 0, 1, ...: 0.45 at the start.
+    np.testing.assert_allclose(seen[0].y0, y[:, 0] - 0.45)

@@ -38,6 +38,8 @@ from ..model.first_order_blocks import (coefficients, effective_forcing, free_re
 from .problem import DofProblem, block_average, block_noise, initial_values, input_moments, len_blocks
 
 
+#: Longest half-span of the line that estimates a window's start value, in time constants.
+START_SPAN_T = 0.05
 #: How much wider than its nominal standard error the prior on a window's start value is.
 Y0_PRIOR_WIDTH = 2.5
 
@@ -150,8 +152,11 @@ def grid_data(p: DofProblem, inputs: Mapping[str, np.ndarray] | None = None) -> 
     for k, win in enumerate(w):
         mask[k, :len_blocks(win, p.m)] = True
     mask &= np.isfinite(y)
-    # The start value from a line through two blocks' worth of samples ending at the start.
-    y0 = initial_values(p.raw[p.channel], w, max(p.m, 2))
+    # The start value from a line through two blocks' worth of samples ending at the start, spanning
+    # at most START_SPAN_T time constants: at a slow log rate (AAUSHIP's yaw at 1 Hz, T = 4 s) five
+    # samples span a whole time constant and a rudder switch a sample before the start, and the
+    # line's end missed the start value by 17 noise units.
+    y0 = initial_values(p.raw[p.channel], w, min(max(p.m, 2), int(START_SPAN_T * p.t_guess * p.fs)))
     angle = block_average(p.raw[p.angle], w, p.m, n, trapezoid=True) if p.angle else None
     src = dict(inputs) if inputs is not None else {c: p.raw[c] for c in p.inputs}
     forcing = {c: input_moments(src[c], w, p.m, n) for c in p.inputs}

@@ -380,11 +380,14 @@ def initial_values(x: np.ndarray, windows: tuple[Window, ...], half: int) -> np.
     windows : tuple[Window, ...]
         Windows.
     half : int
-        The line runs through ``2 half + 1`` samples.
+        The line runs through ``2 half + 1`` samples; 0: the sample at the start itself.
     """
     out = np.empty(len(windows))
     span = 2 * half + 1
     for k, w in enumerate(windows):
+        if half <= 0 and w.i0 < len(x) and np.isfinite(x[w.i0]):
+            out[k] = float(x[w.i0])
+            continue
         for lo, hi in ((w.i0 - span + 1, w.i0 + 1), (w.i0, w.i0 + span)):
             lo, hi = max(lo, 0), min(hi, len(x))
             idx = np.arange(lo, hi)

@@ -3,9 +3,10 @@
 Ranking (:data:`pipeline.records.RANKING_RULE`): candidates are ranked by their held-out shrink of
 the RMS gap over the channels of the DOF they act on; only significant ones can be selected.
 
-Forward selection: the best significant candidate is the verdict. Its held-out correction (its
-cross-validated prediction minus the baseline's, so nothing of a held-out window leaks into its
-own fit) is taken off the measurements of its DOF, and every other candidate of that DOF is
+Forward selection: the best significant candidate is the verdict. Its correction (its
+cross-validated prediction minus the baseline fitted on every window, so the candidate's side
+stays held out and the baseline's side is one parameter set, :func:`corrected`) is taken off the
+measurements of its DOF, and every other candidate of that DOF is
 cross-validated and significance-tested again on top of it; the candidates of other DOFs are
 scored on separate problems and keep their scores. The next best significant candidate is
 selected, and so on, until none is significant (at most :data:`MAX_EFFECTS`). Working on the
@@ -97,6 +98,9 @@ class DofState:
         Effective number of independent samples per channel.
     selected : list[str]
         Labels selected in this DOF.
+    base_full : Mapping[str, numpy.ndarray] or None
+        Outputs of the current baseline fitted on every window (one parameter set); the reference
+        the next correction is taken from (None: ``base_heldout`` stands in).
     """
 
     problem: DofProblem
@@ -106,10 +110,25 @@ class DofState:
     channel_gaps: dict
     channel_neff: dict
     selected: list
+    base_full: Mapping[str, np.ndarray] | None = None
 
 
 def corrected(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str, np.ndarray]) -> GridData:
-    """The measurements minus a candidate's held-out correction (``cand - base``).
+    """The measurements minus a candidate's correction ``cand - base``: the candidate's held-out
+    residual on top of the baseline's outputs, ``base + (y - cand)``.
+
+    ``base`` should be the baseline fitted on every window (one parameter set), not its held-out
+    outputs: those come from a different fold fit in every window, and where a gain is pinned by a
+    few windows (a slow ship's two rudder steps, one ahead, one astern) the folds' gains differ by
+    more than the effect; the corrected data would then carry that fold-to-fold spread as a gap of
+    its own, which the next baseline cannot fit (a rudder bias selected first left a heading gap of
+    10.9 noise units, instead of its own 1.9). The candidate's side stays held out, so nothing of a
+    window's remaining effect is fitted away before the next step scores it.
+
+    The measured start value of each window (the prior of its initial state, ``GridData.y0``)
+    is corrected too: left as measured, it pulls the next baseline's initial states back toward
+    the uncorrected data, and a correction that moves a window's level (a rudder bias, a current)
+    would come back as a gap.
 
     Parameters
     ----------
@@ -118,12 +137,31 @@ def corrected(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str,
     base, cand : Mapping[str, numpy.ndarray]
         Held-out outputs of the baseline and of the selected candidate.
     """
-    dy = np.nan_to_num(cand["y"] - base["y"])
-    out = {"y": data.y - dy}
+    dy = np.where(np.isfinite(cand["y"]), np.nan_to_num(cand["y"] - base["y"]), 0.0)
+    out = {"y": data.y - dy, "y0": data.y0 - start_value(dy, data.mask)}
     if data.angle is not None and "angle" in cand and "angle" in base:
         out["angle"] = data.angle - np.nan_to_num(cand["angle"] - base["angle"])
     new = replace(data, **out)
     return new
+
+
+def start_value(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Each row's value at its window start, extrapolated from its first two block means (W,).
+
+    A block mean refers to the middle of its block, so the start is ``1.5 b_0 - 0.5 b_1`` for a
+    signal that is straight over the first two blocks; ``b_0`` alone for a one-block row.
+
+    Parameters
+    ----------
+    x : numpy.ndarray, shape (W, n)
+        Block means (zero or NaN off-window).
+    mask : numpy.ndarray, shape (W, n)
+        Samples inside each window.
+    """
+    b0 = np.where(mask[:, 0], x[:, 0], 0.0)
+    if x.shape[1] < 2:
+        return b0
+    return np.where(mask[:, 1], 1.5 * b0 - 0.5 * np.where(mask[:, 1], x[:, 1], 0.0), b0)
 
 
 def trial_gap(states: Mapping[str, DofState]) -> float:
@@ -171,7 +209,7 @@ def forward_select(states: dict[str, DofState], rescore: Callable[[DofState], No
         s.selected.append(res.label)
         if len(chosen) >= max_effects:
             break
-        s.data = corrected(s.data, s.base_heldout, run.heldout)
+        s.data = corrected(s.data, s.base_full if s.base_full is not None else s.base_heldout, run.heldout)
         rescore(s)
     return chosen
 

@@ -143,7 +143,7 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
                           "channel_gaps": dict(gaps)}
         states[p.dof] = sel.DofState(problem=p, data=d, results=[(res, r) for res, r, _ in scored],
                                      base_heldout=base.heldout, channel_gaps=dict(gaps), channel_neff=dict(neff),
-                                     selected=[])
+                                     selected=[], base_full=_full_outputs(base, len(p.windows)))
         resid = sig.heldout_residuals(d, base.heldout)
         floor = d.sigma_y
         summaries.append(DofSummary(
@@ -178,6 +178,7 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             run_of[(res.dof, "+" + res.label)] = r
         state.results = [(res, r) for res, r, _ in scored2]
         state.base_heldout = runs2[0].heldout
+        state.base_full = _full_outputs(runs2[0], len(p.windows))
         state.channel_gaps, state.channel_neff = sel.channel_gaps_of(bs)
 
     chosen = sel.forward_select(states, rescore)
@@ -344,6 +345,14 @@ def _score_dof(p: DofProblem, d, cs: list[Candidate], tick, runs: list[Candidate
         scored.append((res, r, s))
     base_score = sig.score(d, base.heldout, base.heldout, 1, names)
     return runs, scored, base_score
+
+
+def _full_outputs(run: CandidateRun, n_windows: int) -> dict[str, np.ndarray] | None:
+    """Outputs on every window of a candidate fitted on every window (None if it cannot simulate)."""
+    try:
+        return run.candidate.simulate(run.full, np.arange(n_windows))
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
 
 
 def _replay_sim(candidate: Candidate, fitted, data) -> dict[str, np.ndarray]:
