@@ -10,13 +10,15 @@ What the log holds decides the model, by the data:
 - The channels: compass and gyro, or the compass alone when a first-order fit leaves its residuals
   coloured (wave-induced yaw, which the gyro sees too but the wave noise model covers only on the
   compass; :func:`_choose_channels`).
-- The structure: first-order Nomoto against second order (T1, T2, T3), by held-out error: both
+- The structure: first-order Nomoto against second order (T1, T2, T3), by held-out error. A trial
+  with two or more whole-record segments chooses it once across them, leaving whole segments out
+  (:mod:`pipeline.fit.nomoto_structure`; :func:`prepare_window` and :func:`fit_window` here are its
+  per-segment parts). A lone segment chooses on its own held-out end: both
   are fitted on the first ``1 - HOLDOUT_FRACTION`` of the record (with the wave PEM when the
   compass needs it) and run on through the rest; the held-out errors are whitened by the same
   wave innovations filter and compared by the shared rule of :mod:`pipeline.fit.heldout_test`.
-  Both orders are always tried (a shortcut that skipped the second order when the first-order
-  residuals looked white was dropped: the order note says whether they were white, so its cost
-  is measured). With the second order, ``T`` is its first-order equivalent ``T1 + T2 - T3``
+  The second order starts from the first-order fit and stops after a few evaluations when its
+  in-sample gain is below noise (:class:`pipeline.fit.nomoto_oe.GainFloor`); the order note says so. With the second order, ``T`` is its first-order equivalent ``T1 + T2 - T3``
   (error from the covariance).
 - Unsure: a near-tie between the structures whose K or T differ materially
   (:func:`structure_ambiguity`), or a second order called for whose fit failed, marks the
