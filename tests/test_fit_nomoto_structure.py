@@ -279,3 +279,18 @@ def test_disagreement_note_names_amplitude_trend_or_structure():
     assert "differs between manoeuvre kinds" in note and "structure" in note
     agree = [_fake_fit("rudder_step", 0.15 + 1e-5 * i, 1e-4, a) for i, a in enumerate(amps)]
     assert disagreement_note(agree, amps) == ""
+
+
+def test_structure_near_tie_marks_only_the_undecided_coefficient_unsure():
+    from dataclasses import replace as _replace
+
+    from pipeline.fit.nomoto_quality import STRUCTURE_UNDECIDED, judge_nomoto
+    from pipeline.records import Estimate
+
+    fit = _fake_fit("rudder_step", 0.15, 1e-4, 0.1)
+    fit = _replace(fit, message=f"OE; {STRUCTURE_UNDECIDED} T: near-tie, T 4.17 (first order) vs 3.48 (second order)")
+    est = {n: Estimate(name=n, value=v, stderr=0.01 * v, ci95=(0.98 * v, 1.02 * v), unit="", n_segments=6,
+                       method="m", success=True, message="") for n, v in (("K_nomoto", 0.15), ("T_nomoto", 4.0))}
+    out = judge_nomoto(est, [fit, fit])
+    assert out["K_nomoto"].success
+    assert not out["T_nomoto"].success and out["T_nomoto"].message.startswith(STRUCTURE_UNDECIDED)

@@ -19,6 +19,9 @@ report, coefficients.json and the CLI show what was found and why it is not trus
   fast sinusoid gave T +42 % with white residuals). Two or more sinusoids are judged by the
   heterogeneity rule above (different frequencies disagree on a second-order ship).
 
+- the structure chosen across the trial's segments is a near-tie whose first- and second-order
+  values of this coefficient differ materially on most segments (``STRUCTURE_UNDECIDED`` in the
+  segment fits' messages, :func:`pipeline.fit.nomoto_structure.undecided_note`).
 The per-segment rules (a near-tie between first- and second-order Nomoto whose K or T differ
 materially; a second order called for but not fitted) are in :mod:`pipeline.fit.nomoto_segment`.
 """
@@ -39,6 +42,9 @@ from .combine import CONSISTENCY_ALPHA
 HETEROGENEITY_MATERIAL = 0.10
 #: Relative standard error above which a Nomoto K or T is not marked success [-] (95 % CI ~ +-20 %).
 UNSURE_RELATIVE_STDERR = 0.10
+#: Start of the note a trial-level near-tie between the Nomoto structures leaves in segment-fit
+#: messages, followed by the coefficients it leaves undecided (``K``, ``T``).
+STRUCTURE_UNDECIDED = "unsure: model structure undecided for"
 #: The estimates these rules judge.
 NOMOTO_ESTIMATES = ("K_nomoto", "T_nomoto")
 
@@ -100,6 +106,10 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if est is None:
             continue
         why = unsure_reasons(est, [f.segment.kind for f in fits])
+        short = name.split("_")[0]
+        for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
+            if est.success and f" {short} " in part.split(":")[1] + " ":
+                why.insert(0, part)
         if why:
             out[name] = replace(est, success=False, message="; ".join(why + ([est.message] if est.message else [])))
     return out

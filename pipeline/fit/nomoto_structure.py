@@ -43,6 +43,7 @@ from ..errors import FitError
 from ..model.nomoto import ORDER2_SUM_PRODUCT
 from ..records import Segment, SegmentFit, Trial
 from .combine import CONSISTENCY_ALPHA
+from .nomoto_quality import STRUCTURE_UNDECIDED
 from .data import segment_label
 from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
 from .nomoto import whole_record_window
@@ -127,11 +128,10 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
     if len(usable) < 2:
         return {}
     choice = choose_structure(usable)
+    undecided = undecided_note(usable) if choice.near_tie and choice.order == 1 else ""
     out: dict[int, SegmentFit] = {}
     for c in usable:
         unsure = ""
-        if choice.near_tie and c.second is not None and choice.order == 1:
-            unsure = structure_ambiguity(c.first, c.second)
         fits = {1: c.first}
         if c.second is not None:
             fits[ORDER2_SUM_PRODUCT] = c.second
@@ -144,9 +144,44 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
     ok = [out[c.index] for c in usable if out[c.index].success]
     amps = {c.index: float(np.max(np.abs(c.win.rec.delta))) for c in usable}
     extra = disagreement_note(ok, [amps[c.index] for c in usable if out[c.index].success])
+    extra = "; ".join(n for n in (undecided, extra) if n)
     if extra:
         out = {i: replace(sf, message=f"{sf.message}; {extra}") for i, sf in out.items()}
     return out
+
+
+def undecided_note(cands: Sequence[_Candidate]) -> str:
+    """Which of K and T the structures leave undecided after a near-tie ('' when neither).
+
+    A coefficient is undecided when, on most segments fitted with both structures, the two fits
+    differ materially (:func:`pipeline.fit.nomoto_segment.structure_ambiguity`). The note starts
+    with ``STRUCTURE_UNDECIDED`` and names the coefficients; :func:`pipeline.fit.nomoto_quality.judge_nomoto`
+    marks only those combined estimates unsure (a K both structures agree on stays).
+
+    Parameters
+    ----------
+    cands : sequence of _Candidate
+        The segments.
+    """
+    both = [c for c in cands if c.second is not None]
+    if not both:
+        return ""
+    names, example = [], {}
+    for name in ("K", "T"):
+        flagged = []
+        for c in both:
+            text = structure_ambiguity(c.first, c.second)
+            parts = [p for p in text.split("materially: ")[-1].split(", ") if p.startswith(f"{name} ")] if text else []
+            if parts:
+                flagged.append(parts[0])
+        if 2 * len(flagged) > len(both):
+            names.append(name)
+            example[name] = flagged[0]
+    if not names:
+        return ""
+    return (f"{STRUCTURE_UNDECIDED} {' and '.join(names)}: the held-out data do not decide between first- and "
+            f"second-order Nomoto (near-tie across the segments) and their {' and '.join(names)} differ materially "
+            f"on most segments (e.g. {', '.join(example.values())})")
 
 
 def _fit_both(index: int, win: NomotoWindow) -> _Candidate:
@@ -443,7 +478,7 @@ def structure_note_from_messages(fits: Sequence[SegmentFit]) -> list[str]:
     out: list[str] = []
     for f in fits:
         for part in f.message.split("; "):
-            if part.startswith(STRUCTURE_PREFIX) or part.startswith(DISAGREEMENT_PREFIX):
+            if part.startswith((STRUCTURE_PREFIX, DISAGREEMENT_PREFIX, STRUCTURE_UNDECIDED)):
                 base = part.split(", on this segment the second order was not fitted")[0]
                 if base not in out:
                     out.append(base)
