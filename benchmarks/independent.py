@@ -5,7 +5,7 @@ frigate (Norrbin model, rudder servo with 1 s lag and 10 deg/s rate limit, U = 8
 Clarke83 ship (linear 3-DOF sway-yaw model: second-order Nomoto with complex poles and a zero;
 1 s rudder lag), and the tanker (nonlinear, shallow water, rudder rate limit 5 deg/s; 20 and
 25 m depth). Manoeuvres: rudder steps (hold, +a, hold, -a, ...), a closed-loop a/a zig-zag and
-sinusoids at two frequencies. Each is run once per ship with the simulator's own ``dynamics`` at
+sinusoids at two frequencies (one log: 3 periods at 2/T, a 10 T hold, 3 periods at 0.5/T). Each is run once per ship with the simulator's own ``dynamics`` at
 20 Hz (its forward Euler) and logged at 5 Hz as a canonical CSV: heading (wrapped), yaw rate,
 speed and the rudder, logged either as the servo's measured angle (``measured``: noisy, ramps) or
 as the command (``commanded``: clean steps). Each seed then adds its own sensor noise (compass
@@ -59,6 +59,7 @@ sys.path.insert(0, str(ROOT))
 from pipeline.errors import VesselidError  # noqa: E402
 from benchmarks.baselines import nomoto_amplitude_method, sinusoid_amplitude  # noqa: E402
 from pipeline.fit import fit_trial  # noqa: E402
+from pipeline.fit.combine import COMBINATION_RULES, combination_rules  # noqa: E402
 from pipeline.flow import load_trial  # noqa: E402
 from pipeline.segment import detect_segments  # noqa: E402
 from pipeline.vessel import parse_vessel  # noqa: E402
@@ -173,11 +174,35 @@ def rudder_program(kind: str, ship: Ship, T: float, K: float):
             return st["d"]
         half_cycle = 2 * ship.zigzag_psi / (abs(K) * a) + T
         return zig, 30.0 + 7 * half_cycle
+    if kind == "sinusoid":
+        # Both frequencies in one trial, as a user runs them: 3 periods at 2/T, a 10 T hold at
+        # midships (the segmenter joins varying stretches separated by less than their own
+        # length), 3 periods at 0.5/T, a 4 T hold.
+        (t0a, t0b, w_fast), (t1a, t1b, w_slow), _ = sinusoid_parts(T)
+
+        def sine_pair(t, psi, st):
+            if t0a <= t < t0b:
+                return a * math.sin(w_fast * (t - t0a))
+            if t1a <= t < t1b:
+                return a * math.sin(w_slow * (t - t1a))
+            return 0.0
+        return sine_pair, sinusoid_parts(T)[2]
     if kind.startswith("sinusoid"):
         w = (0.5 if kind.endswith("slow") else 2.0) / T
         periods = 3
         return (lambda t, psi, st: a * math.sin(w * t)), periods * 2 * math.pi / w
     raise ValueError(kind)
+
+
+def sinusoid_parts(T: float) -> tuple[tuple[float, float, float], tuple[float, float, float], float]:
+    """The sinusoid pair's fast and slow parts as (start [s], end [s], frequency [rad/s]) and the
+    duration [s], for the time scale ``T`` [s]: 3 periods at 2/T, a 10 T hold, 3 periods at 0.5/T,
+    a 4 T hold."""
+    w_fast, w_slow = 2.0 / T, 0.5 / T
+    fast = (0.0, 3 * 2 * math.pi / w_fast, w_fast)
+    t1a = fast[1] + 10 * T
+    slow = (t1a, t1a + 3 * 2 * math.pi / w_slow, w_slow)
+    return fast, slow, slow[1] + 4 * T
 
 
 def time_scale(truth: dict) -> float:
@@ -339,9 +364,12 @@ def run_one(task) -> dict:
                 run["oe"] = scipy_oe(log)
             except (ValueError, np.linalg.LinAlgError):
                 run["oe"] = (math.nan, math.nan)
-            if kind.startswith("sinusoid"):
-                w = (0.5 if kind.endswith("slow") else 2.0) / time_scale(truth)
-                run["amp"] = (sinusoid_amplitude(log["t"], np.unwrap(log["psi"]), log["delta"]), w)
+            if kind == "sinusoid":
+                psi_u = np.unwrap(log["psi"])
+                for lo, hi, w in sinusoid_parts(time_scale(truth))[:2]:
+                    m = (log["t"] >= lo) & (log["t"] < hi)
+                    run.setdefault("amp_parts", []).append(
+                        (sinusoid_amplitude(log["t"][m], psi_u[m], log["delta"][m]), w))
             runs.append(run)
     return runs
 
@@ -385,7 +413,7 @@ def main(argv=None) -> int:
         for man in args.manoeuvres.split(","):
             if wanted and not any(w[:2] == (ship.name, man) for w in wanted):
                 continue
-            kinds = ["sinusoid_slow", "sinusoid_fast"] if man == "sinusoid" else [man]
+            kinds = [man]
             sims = {kind: simulate(ship, kind, truth) for kind in kinds}
             best = [attainable(sims[kind], truth) for kind in kinds]
             truth = dict(truth, attainable=[[rel(k, truth["K"]), rel(tt, truth["T"])] for k, tt in best])
@@ -480,6 +508,7 @@ def summarise(res: dict) -> dict:
     oe_err = {"K": [], "T": []}
     amp_err = {"K": [], "T": []}
     by_seed: dict[int, list] = {}
+    rule_cover: dict[str, dict[str, list]] = {}
     for run in res["runs"]:
         vid = run["vesselid"]
         for key, tv in (("K", K0), ("T", T0)):
@@ -496,10 +525,18 @@ def summarise(res: dict) -> dict:
             cover[key].append(lo <= tv <= hi)
             if abs(e) > 0.2:
                 wrong_success += 1
+        for key, tv in (("K", K0), ("T", T0)):
+            segs = [sg for sg in vid.get("segments", []) if sg["success"] and key in sg["params"]]
+            rules = combination_rules([sg["params"][key] for sg in segs],
+                                      [sg["stderr"].get(key, math.nan) for sg in segs])
+            for rule, (_, _, (lo, hi)) in rules.items():
+                rule_cover.setdefault(rule, {"K": [], "T": []})[key].append(lo <= tv <= hi)
         oe_err["K"].append(rel(run["oe"][0], K0))
         oe_err["T"].append(rel(run["oe"][1], T0))
         if "amp" in run:
             by_seed.setdefault(run["seed"], []).append(run["amp"])
+        for part in run.get("amp_parts", []):
+            by_seed.setdefault(run["seed"], []).append(part)
     for pair in by_seed.values():
         if len(pair) == 2:
             try:
@@ -531,7 +568,9 @@ def summarise(res: dict) -> dict:
             "wrong_success": wrong_success, "oe_K": med(oe_err["K"]), "oe_T": med(oe_err["T"]),
             "amp_K": med(amp_err["K"]), "amp_T": med(amp_err["T"]), "fails": fails[:2],
             "unsure_n": len(unsure["K"]) + len(unsure["T"]), "unsure_K": med(unsure["K"]), "unsure_T": med(unsure["T"]),
-            "best": truth.get("attainable", [])}
+            "best": truth.get("attainable", []),
+            "rules": {rule: {key: [int(sum(v[key])), len(v[key])] for key in ("K", "T")}
+                      for rule, v in rule_cover.items()}}
 
 
 def pct(x):
@@ -576,6 +615,25 @@ def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
     lines = [SECTION, "", f"Command: `PYTHONPATH=. .venv/bin/python {cmd}` ({took}).",
              "", "Truth (the simulator's own linearisation at its straight-line steady state):", ""] + truth_lines + [
              "", HEADER] + [format_row(r) for r in rows]
+    lines += ["", "Combination rules on the same per-segment fits (every run with a usable segment, marked success "
+              "or not; `dersimonian_laird` is what vesselid reports, pipeline/fit/combine.py `combination_rules`): "
+              "95 % CI coverage of the linearisation, K / T, in % (runs):", "",
+              "| ship | manoeuvre | rudder log | waves | " + " | ".join(COMBINATION_RULES) + " |",
+              "|---|---|---|---|" + "---|" * len(COMBINATION_RULES)]
+    total = {rule: {"K": [0, 0], "T": [0, 0]} for rule in COMBINATION_RULES}
+    for r in rows:
+        cells = []
+        for rule in COMBINATION_RULES:
+            c = r.get("rules", {}).get(rule, {"K": [0, 0], "T": [0, 0]})
+            for key in ("K", "T"):
+                total[rule][key][0] += c[key][0]
+                total[rule][key][1] += c[key][1]
+            cells.append(" / ".join(pct(c[k][0] / c[k][1]) if c[k][1] else "-" for k in ("K", "T"))
+                         + f" ({c['K'][1]})")
+        lines.append(f"| {r['ship']} | {r['man']} | {r['rudder']} | {r['waves']} | " + " | ".join(cells) + " |")
+    lines.append("| all | | | | " + " | ".join(
+        " / ".join(pct(total[rule][k][0] / total[rule][k][1]) if total[rule][k][1] else "-" for k in ("K", "T"))
+        + f" ({total[rule]['K'][1]} / {total[rule]['T'][1]})" for rule in COMBINATION_RULES) + " |")
     fails = [f"- {r['ship']} {r['man']} {r['rudder']} {r['waves']}: {r['fails'][0]}" for r in rows if r["fails"]]
     if fails:
         lines += ["", "First failure message per row (not identified / not marked success):", ""] + fails

@@ -195,3 +195,102 @@ def test_second_order_ship_selects_second_order_by_held_out_error():
     assert sf.params["T"] == pytest.approx(13.5 - 10.8, rel=0.1)
     assert "complex pole pair" in sf.message
     assert structure_note([sf, sf]) == ""
+
+
+# --------------------------------------------------------------------------- structure chosen across segments
+def test_second_order_chosen_once_across_rudder_steps():
+    # Steps of a second-order ship (complex poles and a zero): each step's own held-out end is its
+    # steady turn, where the structures differ least, so the per-segment choice kept the first order
+    # (T biased). Leaving whole segments out holds out their transients.
+    from pipeline.fit import fit_trial
+    from pipeline.vessel import parse_vessel
+
+    trial = _ship_log(_steps([0, 10, 0, -10, 0, 5, 0], 45.0), tau=0.0, order1=False, measured=True)
+    segs = detect_segments(trial)
+    assert len(segs.of("rudder_step")) >= 4
+    fits = fit_trial(trial, segs, parse_vessel({"name": "ship2"}), extend=False)
+    k, t = fits.estimates["K_nomoto"], fits.estimates["T_nomoto"]
+    assert "second-order Nomoto (T1, T2, T3) selected, the first order loses" in k.message, k.message
+    assert "leave-one-segment-out" in t.message and "first order" in t.message
+    assert k.success and t.success
+    assert k.value == pytest.approx(0.09, rel=0.02)
+    # T = T1 + T2 - T3 is the difference of two 11-13 s constants: its spread over the steps is wide.
+    assert t.value == pytest.approx(13.5 - 10.8, rel=0.25)
+    assert "T3_nomoto" in fits.estimates and fits.estimates["T3_nomoto"].value == pytest.approx(10.8, rel=0.2)
+    assert all("T3" in sf.params for sf in fits.segment_fits if sf.success and sf.segment.kind == "rudder_step")
+
+
+def test_first_order_steps_stop_the_second_order_early():
+    from pipeline.fit import fit_trial
+    from pipeline.vessel import parse_vessel
+
+    trial = _ship_log(_steps([0, 10, 0, -10, 0], 60.0), tau=0.0, measured=True)
+    segs = detect_segments(trial)
+    fits = fit_trial(trial, segs, parse_vessel({"name": "ship1"}), extend=False)
+    k, t = fits.estimates["K_nomoto"], fits.estimates["T_nomoto"]
+    assert "first-order Nomoto" in k.message and "stopped after" in k.message, k.message
+    assert k.value == pytest.approx(K_TRUE, rel=0.01) and t.value == pytest.approx(T_TRUE, rel=0.03)
+    assert "T3_nomoto" not in fits.estimates
+
+
+def test_gain_floor_stops_a_second_order_fit_on_first_order_data():
+    from pipeline.fit.nomoto_oe import GainFloor, SecondOrderNoGain
+
+    trial = _ship_log(_steps([0, 10, -10, 10, -10], 40.0), tau=0.0)
+    rows = trial.data
+    rec = NomotoRecord(t=rows["t"].to_numpy(), delta=rows["delta"].to_numpy(), psi=rows["psi"].to_numpy(),
+                       r=rows["r"].to_numpy())
+    first = fit_nomoto(rec, noise="white")
+    floor = GainFloor.from_first_order(first, rec)
+    with pytest.raises(SecondOrderNoGain, match="stopped after"):
+        fit_nomoto(rec, order=ORDER2_SUM_PRODUCT, noise="white", start={"K": first.K, "T": first.T},
+                   gain_floor=floor)
+    # On second-order data the same floor lets the fit run.
+    trial2 = _ship_log(_steps([0, 10, -10, 10, -10], 40.0), tau=0.0, order1=False)
+    rows = trial2.data
+    rec2 = NomotoRecord(t=rows["t"].to_numpy(), delta=rows["delta"].to_numpy(), psi=rows["psi"].to_numpy(),
+                        r=rows["r"].to_numpy())
+    first2 = fit_nomoto(rec2, noise="white")
+    second = fit_nomoto(rec2, order=ORDER2_SUM_PRODUCT, noise="white", start={"K": first2.K, "T": first2.T},
+                        gain_floor=GainFloor.from_first_order(first2, rec2))
+    assert second.T == pytest.approx(13.5 - 10.8, rel=0.1)
+
+
+def _fake_fit(kind, k, se_k, amp):
+    from dataclasses import replace as _replace
+
+    from pipeline.fit.segment_fit import failed_segment_fit
+
+    seg = Segment(kind, "yaw", 0.0, 100.0, "delta", 0.0, amp)
+    return _replace(failed_segment_fit(seg, "nomoto_oe", "", ""), success=True, params={"K": k, "T": 20.0},
+                    stderr={"K": se_k, "T": 0.01})
+
+
+def test_disagreement_note_names_amplitude_trend_or_structure():
+    from pipeline.fit.nomoto_structure import disagreement_note
+
+    amps = np.radians([5.0, 10.0, 15.0, 20.0, 10.0])
+    trend = [_fake_fit("rudder_step", 0.15 * (1 - 0.5 * a), 1e-4, a) for a in amps]
+    note = disagreement_note(trend, amps)
+    assert "K changes with the rudder amplitude" in note and "Norrbin" in note and "T from" not in note
+    kinds = [_fake_fit(kd, k, 1e-4, math.radians(10.0)) for kd, k in
+             [("rudder_step", 0.150), ("rudder_step", 0.1501), ("zigzag", 0.140), ("zigzag", 0.1399)]]
+    note = disagreement_note(kinds, [math.radians(10.0)] * 4)
+    assert "differs between manoeuvre kinds" in note and "structure" in note
+    agree = [_fake_fit("rudder_step", 0.15 + 1e-5 * i, 1e-4, a) for i, a in enumerate(amps)]
+    assert disagreement_note(agree, amps) == ""
+
+
+def test_structure_near_tie_marks_only_the_undecided_coefficient_unsure():
+    from dataclasses import replace as _replace
+
+    from pipeline.fit.nomoto_quality import STRUCTURE_UNDECIDED, judge_nomoto
+    from pipeline.records import Estimate
+
+    fit = _fake_fit("rudder_step", 0.15, 1e-4, 0.1)
+    fit = _replace(fit, message=f"OE; {STRUCTURE_UNDECIDED} T: near-tie, T 4.17 (first order) vs 3.48 (second order)")
+    est = {n: Estimate(name=n, value=v, stderr=0.01 * v, ci95=(0.98 * v, 1.02 * v), unit="", n_segments=6,
+                       method="m", success=True, message="") for n, v in (("K_nomoto", 0.15), ("T_nomoto", 4.0))}
+    out = judge_nomoto(est, [fit, fit])
+    assert out["K_nomoto"].success
+    assert not out["T_nomoto"].success and out["T_nomoto"].message.startswith(STRUCTURE_UNDECIDED)

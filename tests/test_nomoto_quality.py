@@ -140,3 +140,19 @@ def test_one_sinusoid_alone_is_unsure(sine_fits):
     both = combine("K_nomoto", "1/s", "test", [_contribution(f, "K", f"sine {i}")
                                                for i, f in enumerate(sine_fits["first"])])
     assert unsure_reasons(both, ["sinusoid", "sinusoid"]) == []
+
+
+def test_sinusoids_spread_covered_by_one_wide_error_are_unsure():
+    # Measured on a Clarke83 pair with waves: T 2.96 +- 0.50 s (fast) and 4.18 +- 0.008 s (slow)
+    # pass the chi-square test (p = 0.015) and gave T +57 % marked success.
+    from pipeline.fit.combine import Contribution, combine
+    from pipeline.fit.nomoto_quality import unsure_reasons
+
+    est = combine("T_nomoto", "s", "m", [Contribution(2.96, 0.50, "fast"), Contribution(4.176, 0.0078, "slow")])
+    assert est.success and est.consistency_p > 0.01
+    why = unsure_reasons(est, ["sinusoid", "sinusoid"])
+    assert why and why[0].startswith("unsure: sinusoids only")
+    assert not unsure_reasons(est, ["rudder_step", "sinusoid"])[:1] or "sinusoids only" not in unsure_reasons(
+        est, ["rudder_step", "sinusoid"])[0]
+    close = combine("T_nomoto", "s", "m", [Contribution(4.0, 0.05, "fast"), Contribution(4.1, 0.05, "slow")])
+    assert not unsure_reasons(close, ["sinusoid", "sinusoid"])

@@ -145,3 +145,71 @@ def combine(name: str, unit: str, method: str, contributions: Sequence[Contribut
     return Estimate(name=name, value=mean, stderr=se, ci95=ci, unit=unit, n_segments=k,
                     method=f"{method}; {rule}", success=success, message="; ".join(messages + left_out),
                     consistency_p=p_value, per_segment=tuple(float(v) for v in x))
+
+
+#: Combination rules :func:`combination_rules` computes (the first is the one :func:`combine` uses).
+COMBINATION_RULES = ("dersimonian_laird", "fixed_effect", "birge_ratio", "hartung_knapp")
+
+
+def combination_rules(values: Sequence[float], stderrs: Sequence[float], dof: float = math.inf
+                      ) -> dict[str, tuple[float, float, tuple[float, float]]]:
+    """Several stated rules for combining per-segment values, for measuring their coverage side by side.
+
+    - ``dersimonian_laird``: what :func:`combine` reports (inverse-variance mean while the segments
+      agree, chi-square p >= ``CONSISTENCY_ALPHA``; else the DerSimonian-Laird random-effects mean),
+      normal 95 % interval (Student's t with ``dof`` for one segment).
+    - ``fixed_effect``: inverse-variance mean and error, normal interval, whatever the spread.
+    - ``birge_ratio``: the inverse-variance mean with its error times ``max(1, sqrt(Q / (k - 1)))``
+      (the Birge ratio), normal interval.
+    - ``hartung_knapp``: the DerSimonian-Laird mean with the Hartung-Knapp(-Sidik-Jonkman) variance
+      ``sum w_i (x_i - x)^2 / ((k - 1) sum w_i)`` (random-effects weights) and a t interval with
+      ``k - 1`` degrees of freedom (Hartung & Knapp 2001); the fixed-effect rule for one segment.
+
+    Parameters
+    ----------
+    values, stderrs : sequence of float
+        Per-segment values and standard errors (finite, positive errors only are used).
+    dof : float
+        Residual degrees of freedom of a single segment's fit.
+
+    Returns
+    -------
+    dict
+        Rule name -> ``(value, stderr, (lo, hi))``; empty when no segment is usable.
+
+    References
+    ----------
+    Birge, R. T. (1932). The calculation of errors by the method of least squares. Phys. Rev. 40, 207-227.
+    Hartung, J., Knapp, G. (2001). On tests of the overall treatment effect in meta-analysis with
+    normally distributed responses. Statistics in Medicine 20, 1771-1782.
+    """
+    x = np.asarray(values, float)
+    s = np.asarray(stderrs, float)
+    ok = np.isfinite(x) & np.isfinite(s) & (s > 0)
+    x, s = x[ok], s[ok]
+    k = x.size
+    if k == 0:
+        return {}
+    w = 1.0 / s**2
+    mean = float(w @ x / w.sum())
+    se = float(1.0 / math.sqrt(w.sum()))
+    if k == 1:
+        one = (mean, se, confidence_interval(mean, se, dof))
+        return {name: one for name in COMBINATION_RULES}
+    z = float(stats.norm.ppf(0.975))
+    q = float(w @ (x - mean) ** 2)
+    out = {"fixed_effect": (mean, se, (mean - z * se, mean + z * se))}
+    birge = se * max(1.0, math.sqrt(q / (k - 1)))
+    out["birge_ratio"] = (mean, birge, (mean - z * birge, mean + z * birge))
+    s1, s2 = float(w.sum()), float((w**2).sum())
+    tau2 = max(0.0, (q - (k - 1)) / (s1 - s2 / s1))
+    w_re = 1.0 / (1.0 / w + tau2)
+    m_re = float(w_re @ x / w_re.sum())
+    se_re = float(1.0 / math.sqrt(w_re.sum()))
+    p_value = float(stats.chi2.sf(q, k - 1))
+    out["dersimonian_laird"] = ((m_re, se_re, (m_re - z * se_re, m_re + z * se_re)) if p_value < CONSISTENCY_ALPHA
+                                else out["fixed_effect"])
+    se_hk = math.sqrt(float(w_re @ (x - m_re) ** 2) / ((k - 1) * w_re.sum()))
+    tq = float(stats.t.ppf(0.975, k - 1))
+    out["hartung_knapp"] = (m_re, se_hk, (m_re - tq * se_hk, m_re + tq * se_hk))
+    return {name: out[name] for name in COMBINATION_RULES}

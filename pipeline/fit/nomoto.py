@@ -189,23 +189,47 @@ def fit_rudder_step(trial: Trial, segment: Segment) -> SegmentFit:
     where = segment_label(segment)
     if segment.dof != "yaw":
         raise FitError(f"{where}: expected a rudder_step in yaw, found DOF {segment.dof!r}")
-    if trial.has("delta") and (trial.has("psi") or trial.has("r")):
-        before, after, _ = input_levels(trial, segment)
-        rudder = trial.window(segment.t_start, segment.t_end)["delta"].to_numpy(dtype=float)
-        # The closed form is exact for a held command and a yaw-rate record; a compass (the
-        # heading's excitation) or a measured servo angle (ramps) needs the whole-record fit.
-        whole = trial.has("psi") or not is_command_like(rudder[np.isfinite(rudder)])
-        if whole and math.isfinite(after - before) and after != before:
-            try:
-                sf = fit_nomoto_window(trial, segment, rudder_step_lead_in(trial, segment), segment.t_end)
-            except FitError as exc:
-                fallback = str(exc)
-            else:
-                return sf
-            sf = fit_rudder_step_response(trial, segment)
-            return replace(sf, message=f"whole-record fit not possible ({fallback}): step response fitted; "
-                                       f"{sf.message}")
+    span = whole_record_window(trial, segment)
+    if span is not None:
+        try:
+            sf = fit_nomoto_window(trial, segment, *span)
+        except FitError as exc:
+            fallback = str(exc)
+        else:
+            return sf
+        sf = fit_rudder_step_response(trial, segment)
+        return replace(sf, message=f"whole-record fit not possible ({fallback}): step response fitted; "
+                                   f"{sf.message}")
     return fit_rudder_step_response(trial, segment)
+
+
+def whole_record_window(trial: Trial, segment: Segment) -> tuple[float, float] | None:
+    """The window [s, trial clock] the whole-record Nomoto fit uses for a yaw segment, or None.
+
+    Zig-zags and sinusoids: the segment. A rudder step: from the start of its steady lead-in
+    (:func:`pipeline.fit.nomoto_segment.rudder_step_lead_in`) to its end, when the log has a
+    compass or a measured (not held) rudder; a held command with only the yaw rate gets the exact
+    closed-form step response instead (None).
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    segment : Segment
+        A yaw segment.
+    """
+    if segment.kind in ("zigzag", "sinusoid"):
+        return float(segment.t_start), float(segment.t_end)
+    if segment.kind != "rudder_step" or not (trial.has("delta") and (trial.has("psi") or trial.has("r"))):
+        return None
+    before, after, _ = input_levels(trial, segment)
+    rudder = trial.window(segment.t_start, segment.t_end)["delta"].to_numpy(dtype=float)
+    # The closed form is exact for a held command and a yaw-rate record; a compass (the
+    # heading's excitation) or a measured servo angle (ramps) needs the whole-record fit.
+    whole = trial.has("psi") or not is_command_like(rudder[np.isfinite(rudder)])
+    if whole and math.isfinite(after - before) and after != before:
+        return rudder_step_lead_in(trial, segment), float(segment.t_end)
+    return None
 
 
 def fit_rudder_step_response(trial: Trial, segment: Segment) -> SegmentFit:

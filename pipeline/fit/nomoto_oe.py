@@ -59,7 +59,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -71,21 +71,22 @@ from ..model.waves import WaveParams
 from .data import noise_sigma
 from .nomoto_pem import guess_wave_noise
 from .nomoto_problem import (COLLAPSE_WEIGHT, DYNAMIC_PARAMS, MIN_SAMPLES, NOISE_MODELS, NOISE_PARAMS, Problem,
-                             cancelled_mode, finish, plausible_ranges, prepare, reweighted_solve, start_vector)
+                             cancelled_mode, finish, plausible_ranges, prepare, reweighted_solve, start_vector,
+                             unwrap_heading)
 from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_start import first_order_start, guess_nomoto
 from .nomoto_zoh import simulate_zoh, zoh_discretise
 
 #: Re-exported for callers of the former single module (the model lives in :mod:`pipeline.model.nomoto`).
 __all__ = ["DYNAMIC_PARAMS", "MIN_SAMPLES", "NOISE_MODELS", "NOISE_PARAMS", "Nomoto2Params", "NomotoFit",
-           "NomotoRecord", "fit_nomoto", "fit_nomoto_oe", "fit_nomoto_pem", "guess_nomoto", "nomoto2_rhs",
+           "NomotoRecord", "GainFloor", "SecondOrderNoGain", "fit_nomoto", "fit_nomoto_oe", "fit_nomoto_pem", "guess_nomoto", "nomoto2_rhs",
            "nomoto_matrices", "simulate_zoh", "zoh_discretise"]
 
 
 def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, noise: str = "auto",
                waves: WaveParams | None = None, noise_var: float | None = None, bias: bool = True,
                channels: Sequence[str] | None = None, start: Mapping[str, float] | None = None,
-               max_nfev: int = 100, servo: Sequence[str] = ()) -> NomotoFit:
+               max_nfev: int = 100, servo: Sequence[str] = (), gain_floor: "GainFloor | None" = None) -> NomotoFit:
     """Fit the Nomoto model to whole records by output error or prediction error.
 
     Parameters
@@ -117,6 +118,10 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
         Rudder-servo parameters to estimate when ``delta`` is the logged *command*: ``t_servo``
         (first-order lag [s]) and/or ``rate_servo`` (rate limit [rad/s]); the ship is then driven
         by :func:`pipeline.model.nomoto.servo_response`. Empty: ``delta`` is the rudder angle.
+    gain_floor : GainFloor, optional
+        For the second order: the first-order fit of the same record and the in-sample gain the
+        second order must reach within ``GainFloor.nfev`` evaluations to go on
+        (:class:`GainFloor`); below it the fit stops with a :class:`SecondOrderNoGain` error.
 
     Returns
     -------
@@ -126,7 +131,8 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
     ------
     FitError
         Bad records (non-uniform time, missing channels, non-finite rudder), an unknown order or
-        noise model, or waves asked for without a compass channel.
+        noise model, or waves asked for without a compass channel; :class:`SecondOrderNoGain` when
+        ``gain_floor`` stops a second-order fit.
     """
     t_start = time.perf_counter()
     recs = [records] if isinstance(records, NomotoRecord) else list(records)
@@ -167,6 +173,8 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
     best = None
     for dyn in candidates:
         prob = Problem(preps, order, bias, channels, "white", None, None, servo)
+        if gain_floor is not None and order != 1:
+            watch_gain(prob, gain_floor)
         res = reweighted_solve(prob, start_vector(prob, dyn, b0, ics, (), start), max_nfev, _collapse_stop(prob))
         if best is None or res.cost < best[1].cost:
             best = (prob, res)
@@ -218,6 +226,125 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
         pem = _with_message(pem, f"OE compass residuals coloured; wave PEM chosen (BIC {pem.bic:.1f} < "
                                  f"{oe.bic:.1f})")
     return _timed(pem, t_start)
+
+
+#: Parameters the second-order model adds (T12, T1T2, T3 for T; the initial yaw acceleration).
+ORDER2_ADDED = 3
+#: Evaluations after which a second-order solve must show its in-sample gain (:class:`GainFloor`).
+GAIN_CHECK_NFEV = 25
+
+
+class SecondOrderNoGain(FitError):
+    """A second-order fit stopped early: its in-sample gain over the first order is below noise."""
+
+
+@dataclass(frozen=True)
+class GainFloor:
+    """What a second-order solve must reach to be worth finishing.
+
+    The in-sample gain ``G = sum_ch n_ch (mse1_ch - mse2_ch) / var_ch`` is the drop of the output
+    (simulation) error's sum of squares in units of the first order's innovation variance per
+    channel (its white-noise variance; with the wave noise model the innovations filter passes
+    the slow structural error nearly unchanged, so the drop is read against the innovation, not
+    the wave-coloured output error). When the extra pole-zero pair only fits noise, ``G`` is about
+    chi-square with ``ORDER2_ADDED`` degrees of freedom (larger under coloured noise, which makes
+    the stop rarer, not wrong). A solve whose best point after ``nfev`` evaluations has ``G`` below
+    ``ORDER2_ADDED``, the gain noise alone gives on average, is stopped: its held-out gain (which
+    the in-sample one bounds in expectation) is then below noise, and on first-order data the
+    second order otherwise drifts along its cancelled pole-zero pair to the evaluation limit of
+    every start. The floor is this lenient, not the shared rule's quantile, because the structure
+    is chosen on the held-out errors of all segments together (:mod:`pipeline.fit.nomoto_structure`),
+    where gains too small for one segment add up.
+
+    Attributes
+    ----------
+    mse : Mapping[str, float]
+        First-order output-error mean square per channel.
+    var : Mapping[str, float]
+        First-order innovation (white-noise) variance per channel, the gain's unit.
+    threshold : float
+        Smallest gain [-] that goes on.
+    nfev : int
+        Evaluations before the check.
+    """
+
+    mse: Mapping[str, float]
+    var: Mapping[str, float]
+    threshold: float
+    nfev: int = GAIN_CHECK_NFEV
+
+    @classmethod
+    def from_first_order(cls, first: NomotoFit, records: NomotoRecord | Sequence[NomotoRecord]) -> "GainFloor":
+        """The floor against a first-order fit.
+
+        The first order's mean squares are its output (simulation) errors, as the second order's
+        first solve is an output-error one, whatever noise model the first-order fit chose.
+
+        Parameters
+        ----------
+        first : NomotoFit
+            First-order fit of ``records``.
+        records : NomotoRecord or sequence of NomotoRecord
+            The records it was fitted to.
+        """
+        recs = [records] if isinstance(records, NomotoRecord) else list(records)
+        mse = {}
+        for ch in first.channels:
+            errs = []
+            for rec, sim in zip(recs, first.y_fit):
+                y = unwrap_heading(rec.psi) if ch == "psi" else np.asarray(rec.r, float)
+                errs.append(y - sim[ch])
+            e = np.concatenate(errs)
+            e = e[np.isfinite(e)]
+            mse[ch] = float(np.mean(e**2)) if e.size else math.nan
+        var = {ch: float(first.innovation_var.get(ch, math.nan)) for ch in mse}
+        return cls(mse, var, float(ORDER2_ADDED))
+
+
+def in_sample_gain(prob: Problem, z: np.ndarray, floor: GainFloor) -> float:
+    """``sum_ch n_ch (mse1_ch - mse2_ch) / var_ch`` of the problem at ``z`` against the floor's first order [-].
+
+    Parameters
+    ----------
+    prob : Problem
+        The second-order problem.
+    z : numpy.ndarray
+        Solver vector.
+    floor : GainFloor
+        The first order's residual mean squares.
+    """
+    per = prob.channel_residuals(z)
+    gain = 0.0
+    for ch in prob.channels:
+        e = np.concatenate([q[ch] for q in per])
+        m1, v1 = floor.mse.get(ch, math.nan), floor.var.get(ch, math.nan)
+        if e.size and math.isfinite(m1) and math.isfinite(v1) and v1 > 0:
+            gain += e.size * (m1 - float(np.mean(e**2))) / v1
+    return gain
+
+
+def watch_gain(prob: Problem, floor: GainFloor) -> None:
+    """Make ``prob.residual`` stop the solve (:class:`SecondOrderNoGain`) when the best point after
+    ``floor.nfev`` evaluations has an in-sample gain below ``floor.threshold``."""
+    plain = prob.residual
+    best = {"cost": math.inf, "z": None, "n": 0}
+
+    def residual(z: np.ndarray) -> np.ndarray:
+        r = plain(z)
+        cost = float(r @ r)
+        if cost < best["cost"]:
+            best["cost"], best["z"] = cost, np.array(z, float)
+        best["n"] += 1
+        if best["n"] == floor.nfev and best["z"] is not None:
+            gain = in_sample_gain(prob, best["z"], floor)
+            if gain < floor.threshold:
+                raise SecondOrderNoGain(
+                    f"second order stopped after {floor.nfev} evaluations: its in-sample gain over the first "
+                    f"order, {gain:.3g} noise variances, is below what noise alone gives "
+                    f"({floor.threshold:.3g}: the mean of chi-square with {ORDER2_ADDED} added parameters)")
+        return r
+
+    prob.residual = residual
 
 
 def _collapse_stop(prob: Problem):

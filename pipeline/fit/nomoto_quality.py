@@ -16,9 +16,14 @@ report, coefficients.json and the CLI show what was found and why it is not trus
 - every segment behind it is a sinusoid and there is only one: a first-order model matched at
   one frequency reproduces the ship's gain and phase there whatever its structure, so K and T are
   the ship's only if it is first order, which one frequency cannot show (measured: a tanker's
-  fast sinusoid gave T +42 % with white residuals). Two or more sinusoids are judged by the
-  heterogeneity rule above (different frequencies disagree on a second-order ship).
+  fast sinusoid gave T +42 % with white residuals). Two or more sinusoids alone are unsure when
+  their values spread by more than ``HETEROGENEITY_MATERIAL`` of the combined value, significant
+  or not (measured: a Clarke83 pair with waves, T 2.96 +- 0.50 s fast and 4.18 +- 0.008 s slow,
+  passed the chi-square test at p = 0.015 and gave T +57 % marked success).
 
+- the structure chosen across the trial's segments is a near-tie whose first- and second-order
+  values of this coefficient differ materially on most segments (``STRUCTURE_UNDECIDED`` in the
+  segment fits' messages, :func:`pipeline.fit.nomoto_structure.undecided_note`).
 The per-segment rules (a near-tie between first- and second-order Nomoto whose K or T differ
 materially; a second order called for but not fitted) are in :mod:`pipeline.fit.nomoto_segment`.
 """
@@ -39,6 +44,9 @@ from .combine import CONSISTENCY_ALPHA
 HETEROGENEITY_MATERIAL = 0.10
 #: Relative standard error above which a Nomoto K or T is not marked success [-] (95 % CI ~ +-20 %).
 UNSURE_RELATIVE_STDERR = 0.10
+#: Start of the note a trial-level near-tie between the Nomoto structures leaves in segment-fit
+#: messages, followed by the coefficients it leaves undecided (``K``, ``T``).
+STRUCTURE_UNDECIDED = "unsure: model structure undecided for"
 #: The estimates these rules judge.
 NOMOTO_ESTIMATES = ("K_nomoto", "T_nomoto")
 
@@ -62,6 +70,15 @@ def unsure_reasons(est: Estimate, kinds: Sequence[str] = ()) -> list[str]:
                    "and T only if the ship is first order, which one frequency cannot show (add a rudder step, a "
                    "zig-zag or a sinusoid at another frequency)")
     x = np.asarray(est.per_segment, float)
+    if kinds and all(k == "sinusoid" for k in kinds) and x.size >= 2:
+        spread = float(np.std(x, ddof=1)) / abs(est.value)
+        if spread > HETEROGENEITY_MATERIAL:
+            out.append(f"unsure: sinusoids only, and their values spread by {spread:.0%} of the combined value "
+                       f"(> {HETEROGENEITY_MATERIAL:.0%}; from {x.min():.4g} to {x.max():.4g} {est.unit}): sinusoids "
+                       f"show the ship's structure only by agreeing across frequencies, and a spread covered by "
+                       f"one segment's wide error is not agreement (the combined value is then the other "
+                       f"frequency's first-order match)")
+            return out + _rel_reason(est)
     p = est.consistency_p
     if x.size >= 2 and math.isfinite(p) and p < CONSISTENCY_ALPHA:
         spread = float(np.std(x, ddof=1)) / abs(est.value)
@@ -71,11 +88,15 @@ def unsure_reasons(est: Estimate, kinds: Sequence[str] = ()) -> list[str]:
                        f"(> {HETEROGENEITY_MATERIAL:.0%}; from {x.min():.4g} to {x.max():.4g} {est.unit}): one "
                        f"Nomoto model does not describe every manoeuvre alike (model structure, servo, speed or "
                        f"nonlinear effects)")
+    return out + _rel_reason(est)
+
+
+def _rel_reason(est: Estimate) -> list[str]:
     rel = abs(est.stderr) / abs(est.value) if math.isfinite(est.stderr) else math.inf
     if rel > UNSURE_RELATIVE_STDERR:
-        out.append(f"unsure: relative standard error {rel:.0%} above {UNSURE_RELATIVE_STDERR:.0%} (the 95 % "
-                   f"interval spans more than about +-{2 * UNSURE_RELATIVE_STDERR:.0%} of the value)")
-    return out
+        return [f"unsure: relative standard error {rel:.0%} above {UNSURE_RELATIVE_STDERR:.0%} (the 95 % "
+                f"interval spans more than about +-{2 * UNSURE_RELATIVE_STDERR:.0%} of the value)"]
+    return []
 
 
 def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()) -> dict[str, Estimate]:
@@ -100,6 +121,10 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if est is None:
             continue
         why = unsure_reasons(est, [f.segment.kind for f in fits])
+        short = name.split("_")[0]
+        for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
+            if est.success and f" {short} " in part.split(":")[1] + " ":
+                why.insert(0, part)
         if why:
             out[name] = replace(est, success=False, message="; ".join(why + ([est.message] if est.message else [])))
     return out

@@ -10,13 +10,15 @@ What the log holds decides the model, by the data:
 - The channels: compass and gyro, or the compass alone when a first-order fit leaves its residuals
   coloured (wave-induced yaw, which the gyro sees too but the wave noise model covers only on the
   compass; :func:`_choose_channels`).
-- The structure: first-order Nomoto against second order (T1, T2, T3), by held-out error: both
+- The structure: first-order Nomoto against second order (T1, T2, T3), by held-out error. A trial
+  with two or more whole-record segments chooses it once across them, leaving whole segments out
+  (:mod:`pipeline.fit.nomoto_structure`; :func:`prepare_window` and :func:`fit_window` here are its
+  per-segment parts). A lone segment chooses on its own held-out end: both
   are fitted on the first ``1 - HOLDOUT_FRACTION`` of the record (with the wave PEM when the
   compass needs it) and run on through the rest; the held-out errors are whitened by the same
   wave innovations filter and compared by the shared rule of :mod:`pipeline.fit.heldout_test`.
-  Both orders are always tried (a shortcut that skipped the second order when the first-order
-  residuals looked white was dropped: the order note says whether they were white, so its cost
-  is measured). With the second order, ``T`` is its first-order equivalent ``T1 + T2 - T3``
+  The second order starts from the first-order fit and stops after a few evaluations when its
+  in-sample gain is below noise (:class:`pipeline.fit.nomoto_oe.GainFloor`); the order note says so. With the second order, ``T`` is its first-order equivalent ``T1 + T2 - T3``
   (error from the covariance).
 - Unsure: a near-tie between the structures whose K or T differ materially
   (:func:`structure_ambiguity`), or a second order called for whose fit failed, marks the
@@ -37,7 +39,7 @@ from ..segment.rudder import is_servo_command
 from .data import noise_sigma, pick_channel, segment_label
 from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
 from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
-from .nomoto_oe import fit_nomoto
+from .nomoto_oe import GainFloor, SecondOrderNoGain, fit_nomoto
 from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
 from .nomoto_records import NomotoFit, NomotoRecord
 from .segment_fit import MAX_RELATIVE_STDERR
@@ -83,6 +85,10 @@ def fit_nomoto_segment(trial: Trial, segment: Segment) -> SegmentFit:
 def fit_nomoto_window(trial: Trial, segment: Segment, t0: float, t1: float) -> SegmentFit:
     """Whole-record Nomoto fit of the trial between ``t0`` and ``t1`` for ``segment``.
 
+    The structure (first or second order) is chosen on this record alone, by its held-out end
+    (:func:`_choose_order`); a trial with several whole-record segments chooses it once across
+    them instead (:func:`pipeline.fit.nomoto_structure.fit_nomoto_trial`).
+
     Parameters
     ----------
     trial : Trial
@@ -96,6 +102,56 @@ def fit_nomoto_window(trial: Trial, segment: Segment, t0: float, t1: float) -> S
     -------
     SegmentFit
         See :func:`fit_nomoto_segment`; ``t`` is relative to ``segment.t_start``.
+
+    Raises
+    ------
+    FitError
+        Wrong DOF, missing channels, gaps in the rudder, too few samples.
+    """
+    win = prepare_window(trial, segment, t0, t1)
+    choice = _choose_order(win.rec, win.channels, win.servo)
+    return fit_window(win, choice.order, choice.note, choice.unsure)
+
+
+@dataclass(frozen=True)
+class NomotoWindow:
+    """One segment's record prepared for the whole-record fit (channels and servo chosen).
+
+    Attributes
+    ----------
+    segment : Segment
+        The segment the fit belongs to.
+    rec : NomotoRecord
+        The record (rudder as it drives the model).
+    channels : tuple of str
+        Outputs fitted (``psi``, ``r``).
+    servo : tuple of str
+        Servo parameters estimated (a logged command), or empty.
+    notes : tuple of str
+        What was decided preparing it, for the fit's message.
+    t_rel : numpy.ndarray
+        Sample times relative to ``segment.t_start`` [s].
+    """
+
+    segment: Segment
+    rec: NomotoRecord
+    channels: tuple[str, ...]
+    servo: tuple[str, ...]
+    notes: tuple[str, ...]
+    t_rel: np.ndarray
+
+
+def prepare_window(trial: Trial, segment: Segment, t0: float, t1: float) -> NomotoWindow:
+    """The record of ``segment`` between ``t0`` and ``t1``, its output channels and its servo model.
+
+    Parameters
+    ----------
+    trial : Trial
+        Trial with ``delta`` and ``psi`` and/or ``r``.
+    segment : Segment
+        A yaw segment driven by ``delta``.
+    t0, t1 : float
+        Window [s, trial clock].
 
     Raises
     ------
@@ -138,22 +194,72 @@ def fit_nomoto_window(trial: Trial, segment: Segment, t0: float, t1: float) -> S
     if command:
         servo, servo_note = _choose_servo(rec, channels)
         notes.append(servo_note)
-    choice = _choose_order(rec, channels, servo)
-    order = choice.order
-    notes.append(choice.note)
-    fit = fit_nomoto(rec, order=order, noise="auto", channels=channels, servo=servo)
-    if servo and any(n in SERVO_PARAMS for n in fit.at_bound):
-        notes.append("the servo parameters left their range with the chosen structure: rudder taken as the command")
-        fit = fit_nomoto(rec, order=order, noise="auto", channels=channels)
-    unsure = choice.unsure
+    return NomotoWindow(segment, rec, tuple(channels), servo, tuple(notes), t - segment.t_start)
+
+
+def fit_window_order(win: NomotoWindow, order: int, noise: str = "auto", **kwargs) -> tuple[NomotoFit, str]:
+    """Fit one structure to a prepared window; the servo is dropped when its parameters leave their range.
+
+    Parameters
+    ----------
+    win : NomotoWindow
+        The prepared record.
+    order : int
+        1 or ``ORDER2_SUM_PRODUCT``.
+    noise : str
+        Noise model (see :func:`pipeline.fit.nomoto_oe.fit_nomoto`).
+    **kwargs
+        Passed to :func:`pipeline.fit.nomoto_oe.fit_nomoto` (``gain_floor``, ``start``).
+
+    Returns
+    -------
+    fit : NomotoFit
+    note : str
+        Why the servo was dropped ('' when it was not).
+    """
+    fit = fit_nomoto(win.rec, order=order, noise=noise, channels=win.channels, servo=win.servo, **kwargs)
+    if win.servo and any(n in SERVO_PARAMS for n in fit.at_bound):
+        fit = fit_nomoto(win.rec, order=order, noise=noise, channels=win.channels, **kwargs)
+        return fit, "the servo parameters left their range with the chosen structure: rudder taken as the command"
+    return fit, ""
+
+
+def fit_window(win: NomotoWindow, order: int, order_note: str, unsure: str = "",
+               fits: dict[int, NomotoFit] | None = None) -> SegmentFit:
+    """The segment fit of a prepared window with the structure chosen (first order kept, marked
+    unsure, when a chosen second order fails on the whole record).
+
+    Parameters
+    ----------
+    win : NomotoWindow
+        The prepared record.
+    order : int
+        1 or ``ORDER2_SUM_PRODUCT``.
+    order_note : str
+        How the structure was chosen.
+    unsure : str
+        Why the structure leaves K or T undecided ('' when it does not).
+    fits : dict, optional
+        Whole-record fits already made, by order (reused instead of refitting).
+    """
+    notes = list(win.notes) + [order_note]
+    fits = dict(fits or {})
+    if order in fits:
+        fit = fits[order]
+    else:
+        fit, servo_note = fit_window_order(win, order)
+        if servo_note:
+            notes.append(servo_note)
     if order != 1 and not fit.success:
-        first = fit_nomoto(rec, order=1, noise="auto", channels=channels, servo=servo)
+        first = fits.get(1)
+        if first is None:
+            first, _ = fit_window_order(win, 1)
         if first.success:
             notes.append("the second-order fit of the whole record failed: first order kept")
             unsure = ("unsure: the held-out data call for the second-order structure, whose fit of the whole "
                       "record failed; the first-order K and T kept are biased by the missing pole-zero pair")
             fit = first
-    return _segment_fit(segment, fit, rec, channels, t - segment.t_start, notes, unsure)
+    return _segment_fit(win.segment, fit, win.rec, win.channels, win.t_rel, notes, unsure)
 
 
 def _choose_channels(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...]) -> tuple[tuple[str, ...], str]:
@@ -248,8 +354,12 @@ def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str
                               "no held-out check)")
     white = all(t.white for t in first.residual_tests)
     noise = first.noise_model
+    floor = GainFloor.from_first_order(first, part)
     try:
-        second = fit_nomoto(part, order=ORDER2_SUM_PRODUCT, noise=noise, channels=channels, servo=servo)
+        second = fit_nomoto(part, order=ORDER2_SUM_PRODUCT, noise=noise, channels=channels, servo=servo,
+                            start=first_order_start_values(first), gain_floor=floor)
+    except SecondOrderNoGain as exc:
+        return OrderChoice(1, f"first-order Nomoto: {exc} (training part)", first_white=white)
     except FitError:
         second = None
     if noise == "waves" and (second is None or not _usable(second)):
@@ -299,6 +409,18 @@ def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str
 ORDER2_EXTRA_PARAMS = 3
 #: Relative difference of K or T between the structures that makes a near-tie matter [-].
 STRUCTURE_MATERIAL = 0.10
+
+
+def first_order_start_values(first: NomotoFit) -> dict[str, float]:
+    """Start values for a second-order fit from a first-order one: K, T, b and the servo.
+
+    Parameters
+    ----------
+    first : NomotoFit
+        First-order fit of the same record.
+    """
+    return {n: float(v) for n, v in zip(first.names, first.values)
+            if n in ("K", "T", "b") + SERVO_PARAMS and math.isfinite(v)}
 
 
 def structure_ambiguity(first: NomotoFit, second: NomotoFit) -> str:

@@ -19,7 +19,8 @@ from .data import gain_formulation, input_levels, segment_label
 from .first_order import fit_coast_down, fit_step, step_steadiness
 from .nomoto import fit_rudder_step
 from .nomoto_quality import judge_nomoto
-from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment, structure_note
+from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment
+from .nomoto_structure import fit_nomoto_trial, structure_note
 from .second_order import fit_free_decay
 from .segment_fit import failed_segment_fit
 
@@ -330,8 +331,10 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = T
     """
     collector = _Collector(trial, vessel)
     fits = []
-    for seg in segments.items:
-        sf = _fit_segment(trial, seg)
+    # Several whole-record Nomoto segments: one model structure chosen across them.
+    nomoto = fit_nomoto_trial(trial, segments.items)
+    for i, seg in enumerate(segments.items):
+        sf = nomoto[i] if i in nomoto else _fit_segment(trial, seg)
         fits.append(sf)
         collector.collect(sf)
     estimates = collector.estimates()

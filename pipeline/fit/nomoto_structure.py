@@ -1,0 +1,485 @@
+"""Nomoto model structure chosen once per trial, across its segments, by leave-one-segment-out error.
+
+A trial with several whole-record Nomoto segments (rudder steps, zig-zags, sinusoids) is one
+ship: first-order Nomoto (K, T) or second order (K, T1, T2, T3) holds for all of them. Choosing per
+segment by the held-out end of each record (:func:`pipeline.fit.nomoto_segment.fit_nomoto_window`)
+compares a step's steady turn, where the two structures differ least, and lets segments of one
+ship choose differently. Here the choice is made once:
+
+1. Each segment's record is prepared (channels, servo; :func:`prepare_window`) and fitted whole with
+   both structures (the second order stops early, :class:`pipeline.fit.nomoto_oe.GainFloor`, when
+   its in-sample gain over the first order is below noise: it cannot then win on held-out data).
+2. Leave one segment out: for each segment ``j``, the dynamics of each structure are pooled from the
+   *other* segments' fits (generalised least squares with their covariances) and simulated over
+   ``j``; only ``j``'s nuisances are re-estimated on it (initial heading, yaw rate and yaw
+   acceleration, the rudder bias, and the gain K, which a nonlinear ship shifts with the rudder
+   amplitude: the structure is the shape of the response, its time constants), with ``j``'s own first-order
+   noise filter and servo for both structures (the same whitening for both). The transients of
+   every segment are held out, not only the records' ends.
+3. The held-out errors of all segments (each channel scaled by its spread in that segment) are
+   compared by the project's shared rule (:func:`pipeline.fit.heldout_test.is_significant`):
+   Bartlett-corrected F test, Bonferroni over channels, the most favourable segment left out for
+   the robustness p-value, the held-out shrink and the explained error. The second order wins
+   only when it passes; a near-tie whose structures differ materially marks the segments unsure
+   (:func:`pipeline.fit.nomoto_segment.structure_ambiguity`).
+
+The losing structure's held-out error is reported beside the winner's in every segment fit's
+message (and so in ``K_nomoto``/``T_nomoto``), prefixed ``STRUCTURE_PREFIX``. When the segments'
+K or T then disagree beyond their errors, :func:`disagreement_note` says what the spread points to:
+a trend with the rudder amplitude (a nonlinearity: Norrbin's cubic yaw-rate term, a speed change
+in turns) or a difference between manoeuvre kinds (the structure), else neither.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+from scipy import stats
+
+from ..errors import FitError
+from ..model.nomoto import ORDER2_SUM_PRODUCT
+from ..records import Segment, SegmentFit, Trial
+from .combine import CONSISTENCY_ALPHA
+from .nomoto_quality import STRUCTURE_UNDECIDED
+from .data import segment_label
+from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
+from .nomoto import whole_record_window
+from .nomoto_oe import GainFloor, SecondOrderNoGain
+from .nomoto_problem import SERVO_PARAMS, Problem, prepare
+from .nomoto_records import NomotoFit
+from .nomoto_segment import (ORDER2_EXTRA_PARAMS, NomotoWindow, fit_window, fit_window_order,
+                             first_order_start_values, prepare_window, rec_channel, structure_ambiguity)
+from .nomoto_segment import structure_note as per_segment_structure_note
+from .segment_fit import failed_segment_fit
+
+#: Start of the trial-level structure note in segment-fit messages (read by ``structure_note``).
+STRUCTURE_PREFIX = "model structure chosen once across"
+#: Start of the disagreement note in segment-fit messages.
+DISAGREEMENT_PREFIX = "segments disagree beyond their errors"
+#: |t| of an amplitude trend (or a between-kind difference) that explains a disagreement.
+TREND_T = 3.0
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    """One segment's prepared window and its fits of both structures (local)."""
+
+    index: int
+    win: NomotoWindow
+    first: NomotoFit | None
+    second: NomotoFit | None
+    why_no_second: str
+
+
+@dataclass(frozen=True)
+class StructureChoice:
+    """The trial-level structure decision.
+
+    Attributes
+    ----------
+    order : int
+        1 or ``ORDER2_SUM_PRODUCT``.
+    note : str
+        Winner and loser with their held-out errors (starts with ``STRUCTURE_PREFIX``).
+    near_tie : bool
+        Not significant, but the second order not clearly worse either (shrink above ``-MIN_SHRINK``).
+    """
+
+    order: int
+    note: str
+    near_tie: bool = False
+
+
+def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, SegmentFit]:
+    """Whole-record Nomoto fits of a trial's yaw segments with one structure chosen across them.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    segments : sequence of Segment
+        All its segments (the rudder steps, zig-zags and sinusoids in yaw that the whole-record fit
+        serves are picked out).
+
+    Returns
+    -------
+    dict
+        Segment index -> :class:`SegmentFit` for those segments; empty when fewer than two can be
+        fitted whole (each segment then chooses on its own held-out end, in the per-segment fitter).
+    """
+    wins: list[tuple[int, NomotoWindow]] = []
+    for i, seg in enumerate(segments):
+        if seg.dof != "yaw" or seg.kind not in ("rudder_step", "zigzag", "sinusoid"):
+            continue
+        span = whole_record_window(trial, seg)
+        if span is None:
+            continue
+        try:
+            wins.append((i, prepare_window(trial, seg, *span)))
+        except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+            continue  # the per-segment fitter reports it (or falls back to the step response)
+    if len(wins) < 2:
+        return {}
+    cands = [_fit_both(i, w) for i, w in wins]
+    usable = [c for c in cands if c.first is not None]
+    if len(usable) < 2:
+        return {}
+    choice = choose_structure(usable)
+    undecided = undecided_note(usable) if choice.near_tie and choice.order == 1 else ""
+    out: dict[int, SegmentFit] = {}
+    for c in usable:
+        unsure = ""
+        fits = {1: c.first}
+        if c.second is not None:
+            fits[ORDER2_SUM_PRODUCT] = c.second
+        note = choice.note if choice.order == 1 or c.second is not None else (
+            f"{choice.note}, on this segment the second order was not fitted ({c.why_no_second})")
+        try:
+            out[c.index] = fit_window(c.win, choice.order, note, unsure, fits)
+        except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            out[c.index] = failed_segment_fit(c.win.segment, "nomoto_oe", "", f"{segment_label(c.win.segment)}: {exc}")
+    ok = [out[c.index] for c in usable if out[c.index].success]
+    amps = {c.index: float(np.max(np.abs(c.win.rec.delta))) for c in usable}
+    extra = disagreement_note(ok, [amps[c.index] for c in usable if out[c.index].success])
+    extra = "; ".join(n for n in (undecided, extra) if n)
+    if extra:
+        out = {i: replace(sf, message=f"{sf.message}; {extra}") for i, sf in out.items()}
+    return out
+
+
+def undecided_note(cands: Sequence[_Candidate]) -> str:
+    """Which of K and T the structures leave undecided after a near-tie ('' when neither).
+
+    A coefficient is undecided when, on most segments fitted with both structures, the two fits
+    differ materially (:func:`pipeline.fit.nomoto_segment.structure_ambiguity`). The note starts
+    with ``STRUCTURE_UNDECIDED`` and names the coefficients; :func:`pipeline.fit.nomoto_quality.judge_nomoto`
+    marks only those combined estimates unsure (a K both structures agree on stays).
+
+    Parameters
+    ----------
+    cands : sequence of _Candidate
+        The segments.
+    """
+    both = [c for c in cands if c.second is not None]
+    if not both:
+        return ""
+    names, example = [], {}
+    for name in ("K", "T"):
+        flagged = []
+        for c in both:
+            text = structure_ambiguity(c.first, c.second)
+            parts = [p for p in text.split("materially: ")[-1].split(", ") if p.startswith(f"{name} ")] if text else []
+            if parts:
+                flagged.append(parts[0])
+        if 2 * len(flagged) > len(both):
+            names.append(name)
+            example[name] = flagged[0]
+    if not names:
+        return ""
+    return (f"{STRUCTURE_UNDECIDED} {' and '.join(names)}: the held-out data do not decide between first- and "
+            f"second-order Nomoto (near-tie across the segments) and their {' and '.join(names)} differ materially "
+            f"on most segments (e.g. {', '.join(example.values())})")
+
+
+def _fit_both(index: int, win: NomotoWindow) -> _Candidate:
+    """Both structures fitted to one window; the second stops early when it cannot gain."""
+    try:
+        first, _ = fit_window_order(win, 1)
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return _Candidate(index, win, None, None, "the first order could not be fitted")
+    if not _usable(first):
+        return _Candidate(index, win, None, None, "the first-order fit left the plausible range")
+    floor = GainFloor.from_first_order(first, win.rec)
+    try:
+        second, _ = fit_window_order(win, ORDER2_SUM_PRODUCT, noise=first.noise_model,
+                                     start=first_order_start_values(first), gain_floor=floor)
+    except SecondOrderNoGain as exc:
+        return _Candidate(index, win, first, None, str(exc))
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        return _Candidate(index, win, first, None, f"second-order fit failed: {exc}")
+    if not _usable(second):
+        return _Candidate(index, win, first, None, "the second order did not converge in range")
+    return _Candidate(index, win, first, second, "")
+
+
+def _usable(fit: NomotoFit) -> bool:
+    """Converged, finite, the ship's parameters in range (a servo parameter at its bound allowed)."""
+    return bool(fit.converged and all(n in SERVO_PARAMS for n in fit.at_bound) and np.all(np.isfinite(fit.values))
+                and np.all(np.isfinite(fit.stderr[:_n_dyn(fit)])))
+
+
+def _n_dyn(fit: NomotoFit) -> int:
+    return 2 if fit.order == 1 else 4
+
+
+def pooled_dynamics(fits: Sequence[NomotoFit]) -> np.ndarray:
+    """Generalised-least-squares mean of the fits' dynamic parameters (K, T or K, T12, T1T2, T3).
+
+    ``theta = (sum C_i^-1)^-1 sum C_i^-1 theta_i`` with each fit's covariance block; per-parameter
+    inverse-variance weights where a block is singular.
+
+    Parameters
+    ----------
+    fits : sequence of NomotoFit
+        Fits of one structure.
+    """
+    k = _n_dyn(fits[0])
+    info = np.zeros((k, k))
+    vec = np.zeros(k)
+    try:
+        for f in fits:
+            c_inv = np.linalg.inv(f.covariance[:k, :k])
+            info += c_inv
+            vec += c_inv @ f.values[:k]
+        out = np.linalg.solve(info, vec)
+        if np.all(np.isfinite(out)):
+            return out
+    except np.linalg.LinAlgError:
+        pass
+    w = np.array([1.0 / np.maximum(f.stderr[:k], 1e-300) ** 2 for f in fits])
+    vals = np.array([f.values[:k] for f in fits])
+    return (w * vals).sum(axis=0) / w.sum(axis=0)
+
+
+def heldout_errors(c: _Candidate, order: int, dyn: np.ndarray) -> dict[str, np.ndarray]:
+    """Errors of the dynamics ``dyn`` (pooled from the other segments) on segment ``c`` [channel units].
+
+    The segment's own first-order fit gives the nuisances shared by both structures (its wave
+    innovations filter and compass noise, its servo); the rudder bias and the initial states are
+    re-estimated on the segment by Gauss-Newton (the residual is linear in them), and so is the
+    gain K (the time constants are what is held out).
+
+    Parameters
+    ----------
+    c : _Candidate
+        The held-out segment.
+    order : int
+        Structure of ``dyn``.
+    dyn : numpy.ndarray
+        K, T (or K, T12, T1T2, T3).
+    """
+    own = c.first
+    servo = tuple(n for n in SERVO_PARAMS if n in own.names)
+    var = own.noise_var.get("psi")
+    waves = own.waves if own.noise_model == "waves" and var is not None and var > 0 else None
+    kind = "waves" if waves is not None else "white"
+    prob = Problem([prepare(c.win.rec, 0, c.win.channels)], order, "b" in own.names, c.win.channels, kind,
+                   waves, var if waves is not None else None, servo)
+    theta = np.zeros(len(prob.names))
+    theta[: prob.n_dyn] = dyn
+    for j, nm in enumerate(prob.names[prob.n_dyn:], start=prob.n_dyn):
+        theta[j] = own.value(nm) if nm in own.names else 0.0
+    for ch in prob.channels:
+        v = own.innovation_var.get(ch, math.nan)
+        prob.weights[ch] = 1.0 / math.sqrt(v) if math.isfinite(v) and v > 0 else 1.0
+    z = prob.solver_vector(theta)
+    # The gain K (index 0) is re-estimated with the nuisances: the structure is the response's
+    # shape, and K shifts with the rudder amplitude on a nonlinear ship, which would otherwise
+    # dominate the held-out heading error of both structures alike.
+    cols = [0] + ([prob.n_dyn] if prob.bias else []) + list(prob.ic_index[0])
+    for _ in range(4):
+        r = prob.residual(z)
+        jac = prob.fd_jacobian(z, cols)
+        step, *_ = np.linalg.lstsq(jac, -r, rcond=None)
+        if not np.all(np.isfinite(step)):
+            break
+        z[cols] += step
+    per = prob.channel_residuals(z)[0]
+    out = {}
+    for ch in prob.channels:
+        m = prob.recs[0].mask[ch]
+        e = np.full(m.size, np.nan)
+        e[m] = per[ch]
+        out[ch] = e
+    return out
+
+
+def choose_structure(cands: Sequence[_Candidate]) -> StructureChoice:
+    """First or second order for all segments, by leave-one-segment-out held-out error (module doc).
+
+    Parameters
+    ----------
+    cands : sequence of _Candidate
+        Segments with a usable first-order fit (two or more).
+    """
+    n = len(cands)
+    with_second = [c for c in cands if c.second is not None]
+    head = f"{STRUCTURE_PREFIX} the {n} Nomoto segments by leave-one-segment-out error"
+    if not with_second:
+        whys = sorted({c.why_no_second.split(":")[0] for c in cands})
+        return StructureChoice(1, f"{head}: first-order Nomoto, the second order was no candidate on any segment "
+                                  f"({', '.join(whys)})")
+    rows0: dict[str, list[np.ndarray]] = {}
+    rows1: dict[str, list[np.ndarray]] = {}
+    for c in cands:
+        others1 = [o.first for o in cands if o is not c]
+        others2 = [o.second for o in with_second if o is not c]
+        if not others2:
+            continue
+        try:
+            e0 = heldout_errors(c, 1, pooled_dynamics(others1))
+            e1 = heldout_errors(c, ORDER2_SUM_PRODUCT, pooled_dynamics(others2))
+        except (FitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+            continue
+        for ch in c.win.channels:
+            y = rec_channel(c.win.rec, ch)
+            scale = max(float(np.std(y[np.isfinite(y)])), 1e-12)
+            rows0.setdefault(ch, []).append(e0[ch] / scale)
+            rows1.setdefault(ch, []).append(e1[ch] / scale)
+    scored = max((len(v) for v in rows0.values()), default=0)
+    if scored < 2:
+        return StructureChoice(1, f"{head}: first-order Nomoto, fewer than two segments could be held out against "
+                                  f"the second order")
+    scores = []
+    for ch in rows0:
+        e0, e1 = _stack(rows0[ch]), _stack(rows1[ch])
+        cs = channel_score(ch, e0, e1, ORDER2_EXTRA_PARAMS, e0.shape[0], math.nan)
+        gain = np.nansum(e0**2, axis=1) - np.nansum(e1**2, axis=1)
+        keep = np.arange(e0.shape[0]) != int(np.argmax(gain))
+        robust = channel_score(ch, e0[keep], e1[keep], ORDER2_EXTRA_PARAMS, int(keep.sum()), math.nan)
+        scores.append((cs, robust))
+    m = len(scores)
+    pv_of = lambda s: min(1.0, (s.p_value if math.isfinite(s.p_value) else 1.0) * m)  # noqa: E731
+    cs, robust = min(scores, key=lambda s: pv_of(s[0]))
+    pv, p_rob = pv_of(cs), pv_of(robust)
+    shrink = 100.0 * (1.0 - cs.gap_after / cs.gap_before) if cs.gap_before > 0 else 0.0
+    sig = is_significant(pv, p_rob, shrink, cs.explained)
+    text = (f"held-out RMS error on channel {cs.channel} (each segment's spread = 1) first order {cs.gap_before:.4g}, "
+            f"second order {cs.gap_after:.4g} ({shrink:+.1f} % shrink, p = {pv:.2g}, with the most favourable "
+            f"segment left out p = {p_rob:.2g}, over {cs.n} samples of {scored} segments, shared rule p < {ALPHA:g}, "
+            f"shrink >= {MIN_SHRINK:g} %)")
+    if sig:
+        return StructureChoice(ORDER2_SUM_PRODUCT, f"{head}: second-order Nomoto (T1, T2, T3) selected, the first "
+                                                   f"order loses, {text}")
+    return StructureChoice(1, f"{head}: first-order Nomoto selected, the second order loses (not significant), "
+                              f"{text}", near_tie=shrink > -MIN_SHRINK)
+
+
+def _stack(rows: list[np.ndarray]) -> np.ndarray:
+    width = max(r.size for r in rows)
+    out = np.full((len(rows), width), np.nan)
+    for i, r in enumerate(rows):
+        out[i, : r.size] = r
+    return out
+
+
+def disagreement_note(fits: Sequence[SegmentFit], amplitudes: Sequence[float]) -> str:
+    """What a spread of K or T beyond the segments' errors points to ('' when they agree).
+
+    For K and T (first-order equivalent) in turn: the chi-square consistency test of
+    :func:`pipeline.fit.combine.combine`; when it fails, a weighted straight line against the
+    rudder amplitude (|t| of the slope, its error inflated by the Birge ratio of the line's own
+    misfit) and a weighted difference between manoeuvre kinds are tried. A trend with the amplitude
+    points to a nonlinearity (the cubic yaw-rate term of Norrbin's model, or a speed change in
+    turns): K and T then hold for one amplitude only. A difference between kinds with no trend
+    points to the model structure (steps, zig-zags and sinusoids weight different frequencies).
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Successful Nomoto segment fits.
+    amplitudes : sequence of float
+        Largest |rudder| of each segment's record [rad].
+    """
+    out = []
+    for name in ("K", "T"):
+        x = np.array([f.params.get(name, math.nan) for f in fits])
+        se = np.array([f.stderr.get(name, math.nan) for f in fits])
+        a = np.asarray(amplitudes, float)
+        ok = np.isfinite(x) & np.isfinite(se) & (se > 0) & np.isfinite(a)
+        if ok.sum() < 2:
+            continue
+        x, se, a = x[ok], se[ok], a[ok]
+        kinds = [f.segment.kind for f, k in zip(fits, ok) if k]
+        w = 1.0 / se**2
+        mean = float(w @ x / w.sum())
+        chi2 = float(w @ (x - mean) ** 2)
+        p = float(stats.chi2.sf(chi2, x.size - 1))
+        if not p < CONSISTENCY_ALPHA:
+            continue
+        spread = f"{name} from {x.min():.4g} to {x.max():.4g} (chi2 = {chi2:.3g} on {x.size - 1} dof, p = {p:.2g})"
+        why = ""
+        t_amp = _slope_t(a, x, w)
+        if math.isfinite(t_amp) and abs(t_amp) >= TREND_T:
+            why = (f"{name} changes with the rudder amplitude ({math.degrees(a.min()):.3g} to "
+                   f"{math.degrees(a.max()):.3g} deg, slope t = {t_amp:.2g}): a nonlinearity (Norrbin's cubic "
+                   f"yaw-rate term, or a speed change in turns), so the linear K and T hold for one amplitude; the "
+                   f"Norrbin fit is the model to read")
+        elif len(set(kinds)) > 1:
+            t_kind = _kind_t(kinds, x, w)
+            if math.isfinite(t_kind) and abs(t_kind) >= TREND_T:
+                why = (f"{name} differs between manoeuvre kinds ({', '.join(sorted(set(kinds)))}; t = {t_kind:.2g}) "
+                       f"with no trend in amplitude: the model structure (the manoeuvres weight different "
+                       f"frequencies)")
+        if not why:
+            why = ("neither a trend with the rudder amplitude nor a difference between manoeuvre kinds explains it "
+                   "(an unmodelled disturbance, or a structure error common to all)")
+        out.append(f"{spread}: {why}")
+    if not out:
+        return ""
+    return f"{DISAGREEMENT_PREFIX}: " + ", and ".join(out)
+
+
+def _slope_t(a: np.ndarray, x: np.ndarray, w: np.ndarray) -> float:
+    """t of the weighted slope of ``x`` on ``a``, its error scaled by the Birge ratio of the line (>= 1)."""
+    if a.size < 3 or np.ptp(a) <= 1e-9 * max(np.max(np.abs(a)), 1e-12):
+        return math.nan
+    design = np.column_stack([np.ones_like(a), a])
+    info = design.T @ (design * w[:, None])
+    try:
+        cov = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        return math.nan
+    beta = cov @ (design.T @ (w * x))
+    resid = x - design @ beta
+    birge2 = max(1.0, float(w @ resid**2) / (a.size - 2)) if a.size > 2 else 1.0
+    se = math.sqrt(cov[1, 1] * birge2)
+    return float(beta[1] / se) if se > 0 else math.nan
+
+
+def _kind_t(kinds: Sequence[str], x: np.ndarray, w: np.ndarray) -> float:
+    """t of the difference between the first manoeuvre kind's weighted mean and the others'."""
+    first = np.array([k == kinds[0] for k in kinds])
+    parts = []
+    for m in (first, ~first):
+        ww = w[m]
+        mu = float(ww @ x[m] / ww.sum())
+        birge2 = max(1.0, float(ww @ (x[m] - mu) ** 2) / (m.sum() - 1)) if m.sum() > 1 else 1.0
+        parts.append((mu, birge2 / ww.sum()))
+    (m1, v1), (m2, v2) = parts
+    return float((m1 - m2) / math.sqrt(v1 + v2)) if v1 + v2 > 0 else math.nan
+
+
+def structure_note(fits: Sequence[SegmentFit]) -> str:
+    """The note on K and T about the model structure: the trial-level choice and any disagreement
+    (from the segment fits' messages), else the per-segment structures' note
+    (:func:`pipeline.fit.nomoto_segment.structure_note`).
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Successful Nomoto segment fits.
+    """
+    notes = structure_note_from_messages(fits)
+    return "; ".join(notes) if notes else per_segment_structure_note(fits)
+
+
+def structure_note_from_messages(fits: Sequence[SegmentFit]) -> list[str]:
+    """The trial-level structure and disagreement notes carried in segment-fit messages (deduplicated).
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Nomoto segment fits.
+    """
+    out: list[str] = []
+    for f in fits:
+        for part in f.message.split("; "):
+            if part.startswith((STRUCTURE_PREFIX, DISAGREEMENT_PREFIX, STRUCTURE_UNDECIDED)):
+                base = part.split(", on this segment the second order was not fitted")[0]
+                if base not in out:
+                    out.append(base)
+    return out
