@@ -325,7 +325,16 @@ def in_sample_gain(prob: Problem, z: np.ndarray, floor: GainFloor) -> float:
 
 def watch_gain(prob: Problem, floor: GainFloor) -> None:
     """Make ``prob.residual`` stop the solve (:class:`SecondOrderNoGain`) when the best point after
-    ``floor.nfev`` evaluations has an in-sample gain below ``floor.threshold``."""
+    ``floor.nfev`` evaluations has an in-sample gain below ``floor.threshold``.
+
+    Parameters
+    ----------
+    prob : Problem
+        The second-order output-error problem; its ``residual`` is wrapped in place.
+    floor : GainFloor
+        Evaluation count at which to check, and the in-sample gain [noise variances] below which the
+        second order is not worth finishing (the first-order fit it is compared with).
+    """
     plain = prob.residual
     best = {"cost": math.inf, "z": None, "n": 0}
 
