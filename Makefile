@@ -23,12 +23,13 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 -m "not slow"
 
 ## make test-all: the whole suite: make test, then the slow regression runs (pytest -m slow)
-test-all: test
-	$(BIN)/python -m pytest -q -n 2 -m slow --dist loadscope
+test-all: test-ci
 
-## make test-ci: make test, then the slow runs except the 12-case regression module (what .ci/run calls)
+## make test-ci: make test, then every slow run (what .ci/run calls); the regression module runs on its own
+## with --dist loadgroup (one xdist group per case) so its 12 fits split over both workers
 test-ci: test
 	$(BIN)/python -m pytest -q -n 2 -m slow --dist loadscope --ignore=tests/test_regression_recovery.py
+	$(BIN)/python -m pytest -q -n 2 -m slow --dist loadgroup tests/test_regression_recovery.py
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/ingest.py
