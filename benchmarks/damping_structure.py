@@ -52,6 +52,7 @@ from scipy import stats
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from pipeline.atomic import atomic_write_text  # noqa: E402
 from pipeline.align.align import align  # noqa: E402
 from pipeline.fit.quadratic import TERM_NAMES, DofRecord, dof_records, fit_dof  # noqa: E402
 from pipeline.fit.structure import select_structure, select_structures  # noqa: E402
@@ -495,7 +496,6 @@ def main(argv=None) -> int:
                                       "already holds, so that a long run can be resumed in chunks")
     args = ap.parse_args(argv)
     t0 = time.time()
-    allv = vessels()
     tasks = [(vname, truth, seed) for vname in args.vessels.split(",")
              for truth, n in (("quadratic", args.seeds), ("linear", args.linear_seeds)) for seed in range(n)]
     results = {(v, t): [] for v, t, _ in tasks}
@@ -539,7 +539,7 @@ def main(argv=None) -> int:
     text = markdown(summary, otter, cmd.strip(), time.time() - t0, results, attribution)
     print(text)
     if args.markdown:
-        Path(args.markdown).write_text(text)
+        atomic_write_text(args.markdown, text)
     if args.json:
         Path(args.json).write_text(json.dumps({"summary": summary, "otter": otter, "otter_attribution": attribution,
                                                "raw": {f"{k[0]}|{k[1]}": v for k, v in results.items()}},

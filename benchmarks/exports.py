@@ -37,6 +37,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from pipeline.atomic import atomic_write_text  # noqa: E402
 from pipeline.cli import main as vesselid  # noqa: E402
 from pipeline.export.ardupilot import RANGES  # noqa: E402
 from pipeline.model.vessel5dof import simulate_dof  # noqa: E402
@@ -201,7 +202,7 @@ def run(argv=None) -> int:
     text = markdown(lines, pvs, cmd.strip(), time.time() - t0)
     print(text)
     if args.markdown:
-        Path(args.markdown).write_text(text)
+        atomic_write_text(args.markdown, text)
     return 0
 
 

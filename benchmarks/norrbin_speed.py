@@ -28,6 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from pipeline.atomic import atomic_write_text  # noqa: E402
 from pipeline.fit.nomoto_records import NomotoRecord  # noqa: E402
 from pipeline.fit.nomoto_speed import fit_nomoto_speeds  # noqa: E402
 from pipeline.fit.norrbin import select_norrbin  # noqa: E402
@@ -130,7 +131,7 @@ def main(argv=None) -> int:
     text = "\n".join(lines) + "\n"
     print(text)
     if args.markdown:
-        Path(args.markdown).write_text(text)
+        atomic_write_text(args.markdown, text)
     return 0
 
 

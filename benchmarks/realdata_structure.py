@@ -34,9 +34,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from realdata_fits import AAUSHIP, DEFAULT_REALDATA, PUBLISHED, series  # noqa: E402
 
+from pipeline.atomic import atomic_write_text  # noqa: E402
 from pipeline.fit.data import noise_sigma  # noqa: E402
 from pipeline.fit.decay_analysis import extinction_curve, extrema  # noqa: E402
-from pipeline.fit.quadratic import TERM_NAMES, DofRecord, SteadyPoint, dof_records  # noqa: E402
+from pipeline.fit.quadratic import DofRecord, SteadyPoint, dof_records  # noqa: E402
 from pipeline.fit.current import check_current  # noqa: E402
 from pipeline.fit.start_transient import start_transient_note  # noqa: E402
 from pipeline.fit.structure import select_structure  # noqa: E402
@@ -361,7 +362,7 @@ def main(argv=None) -> int:
     text = markdown(rows, notes, cmd.strip(), time.time() - t0)
     print(text)
     if args.markdown:
-        Path(args.markdown).write_text(text)
+        atomic_write_text(args.markdown, text)
     return 0
 
 
