@@ -18,7 +18,7 @@ from ..model.nomoto import (NOMOTO_ORDER_PARAMS, nomoto2_coefficients, nomoto2_s
 from ..model.waves import WaveParams
 from .nomoto_pem import initial_state_response, innovation_filter, InnovationFilter, noise_from_ratio, whiten_profiled
 from .nomoto_records import NomotoFit, NomotoRecord
-from .nomoto_sensitivity import complex_step, propagate, zoh_derivatives
+from .nomoto_sensitivity import complex_step, propagate_outputs, zoh_derivatives
 from .nomoto_zoh import simulate_zoh, zoh_discretise
 from .residual_tests import residual_test
 
@@ -449,20 +449,22 @@ class Problem:
             # Columns this record depends on: the shared ones and its own initial states.
             use = [c for c, j in enumerate(cols) if j < self.n_dyn or self.kinds[j] == "b" or j in own]
             at = {c: k for k, c in enumerate(use)}
-            v = np.zeros((nsamp, n, len(use)))
+            # Driving terms (column, state, sample): each column's rows contiguous for the filters.
+            v = np.zeros((len(use), n, nsamp))
             s0 = np.zeros((n, len(use)))
             if dyn_c:
-                # dA_d x[k] + dB_d (u[k] - b) for every dynamic parameter at once.
+                # dA_d x[k] + dB_d (u[k] - b) for every dynamic parameter at once (one matrix product).
                 dad_s = np.stack([dad[j] for j in dyn_j])                       # (p_dyn, n, n)
                 dbd_s = np.stack([dbd[j][:, 0] for j in dyn_j])                 # (p_dyn, n)
-                drive = np.tensordot(states, dad_s, axes=([1], [2])) + u[:, None, None] * dbd_s[None]
-                v[:, :, [at[c] for c in dyn_c]] = drive.transpose(0, 2, 1)
+                drive = (dad_s.reshape(-1, n) @ states.T).reshape(len(dyn_j), n, nsamp)
+                drive += dbd_s[:, :, None] * u[None, None, :]
+                v[[at[c] for c in dyn_c]] = drive
                 if self.order != 1:
                     r0 = float(x[self.ic_index[i][self.ic_names.index("r0")]])
                     for c, j in zip(dyn_c, dyn_j):
                         s0[2, at[c]] = dcoef[j][0] * r0 - dcoef[j][2] * u[0]
             for c in b_c:
-                v[:, :, at[c]] = -bd[:, 0]
+                v[at[c]] = -bd[:, 0][:, None]
                 if self.order != 1:
                     s0[2, at[c]] = b1
             for c in use:
@@ -475,19 +477,19 @@ class Problem:
                         s0[2, at[c]] = a1
                 elif kind == "rdot0":
                     s0[2, at[c]] = 1.0
-            sens = propagate(ad, v, s0)
-            sens *= chain[[cols[c] for c in use]]
+            sens = propagate_outputs(ad, v, s0, [0 if ch == "psi" else 1 for ch in self.channels])
+            scale = chain[[cols[c] for c in use]][:, None]
             filt = self._filter(z, rec.h)
             for ch in self.channels:
                 m = rec.mask[ch]
-                d = sens[:, 0 if ch == "psi" else 1, :]
+                d = sens[0 if ch == "psi" else 1] * scale                       # (columns, samples)
                 if ch == "psi" and filt is not None:
                     if m.all():
-                        d = whiten_profiled_columns(filt, d, self._phi(filt, rec.h, nsamp))
+                        d = whiten_profiled_rows(filt, d, self._phi(filt, rec.h, nsamp))
                     else:
-                        d = np.column_stack([whiten_with_gaps(filt, d[:, c], m) for c in range(len(use))])
+                        d = np.vstack([whiten_with_gaps(filt, d[c], m) for c in range(len(use))])
                 k = int(m.sum())
-                out[row:row + k, use] = (d if k == nsamp else d[m]) * (-self.weights[ch])
+                out[row:row + k, use] = (d if k == nsamp else d[:, m]).T * (-self.weights[ch])
                 row += k
         return out
 
@@ -512,6 +514,28 @@ def whiten_profiled_columns(filt: InnovationFilter, w: np.ndarray, phi: np.ndarr
     rhs = phi.T @ e0
     x0 = np.array([g[1, 1] * rhs[0] - g[0, 1] * rhs[1], g[0, 0] * rhs[1] - g[1, 0] * rhs[0]]) / det
     return e0 - phi @ x0
+
+
+def whiten_profiled_rows(filt: InnovationFilter, w: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """:func:`whiten_profiled_columns` with the samples along the last axis (rows of ``w``).
+
+    Parameters
+    ----------
+    filt : InnovationFilter
+        The innovations filter.
+    w : numpy.ndarray, shape (p, N)
+        Output errors (or their derivatives) per row.
+    phi : numpy.ndarray, shape (N, 2)
+        :func:`pipeline.fit.nomoto_pem.initial_state_response` for ``N`` samples.
+    """
+    e0 = scipy.signal.lfilter(filt.num, filt.den, w, axis=-1)
+    g = phi.T @ phi
+    det = g[0, 0] * g[1, 1] - g[0, 1] * g[1, 0]
+    if not det > 1e-300:
+        return e0
+    rhs = e0 @ phi                                                              # (p, 2)
+    x0 = np.column_stack([g[1, 1] * rhs[:, 0] - g[0, 1] * rhs[:, 1], g[0, 0] * rhs[:, 1] - g[1, 0] * rhs[:, 0]]) / det
+    return e0 - x0 @ phi.T
 
 
 def whiten_with_gaps(filt: InnovationFilter, w: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -146,3 +146,62 @@ def propagate(ad: np.ndarray, v: np.ndarray, s0: np.ndarray) -> np.ndarray:
     out[0, 0, :] = s0[0]
     out[1:, 0, :] = s0[0] + np.cumsum(inc, axis=0)
     return out
+
+
+def propagate_outputs(ad: np.ndarray, v: np.ndarray, s0: np.ndarray, outputs: Sequence[int]) -> dict[int, np.ndarray]:
+    """The heading (state 0) and/or yaw-rate (state 1) rows of :func:`propagate`, columns first.
+
+    The same recursion ``s[k+1] = A_d s[k] + v[k]``, ``s[0] = s0``, but only the outputs the fit
+    uses are formed: each is one all-pole IIR filter of a short FIR combination of the driving
+    terms (every stable state shares the denominator ``det(zI - A_r)``, so the ``m x m`` filters
+    of :func:`propagate` collapse into one per output), run along the contiguous sample axis
+    of all columns at once. The heading is accumulated by a cumulative sum as before.
+
+    Parameters
+    ----------
+    ad : numpy.ndarray, shape (n, n)
+        Discrete system matrix (Nomoto structure, see :func:`propagate`).
+    v : numpy.ndarray, shape (p, n, N)
+        Driving terms per column, state and sample.
+    s0 : numpy.ndarray, shape (n, p)
+        Initial values per column.
+    outputs : sequence of int
+        States wanted: 0 (heading) and/or 1 (yaw rate).
+
+    Returns
+    -------
+    dict
+        State index -> sensitivities, shape (p, N).
+    """
+    p, n, nsamp = v.shape
+    ar = ad[1:, 1:]
+    m = n - 1
+    _, den = state_tf(ar, np.eye(m)[:, 0])
+    nums = [state_tf(ar, np.eye(m)[:, l])[0] for l in range(m)]
+    # Output weights over the stable states: the yaw rate is state 1; the heading's increment is
+    # A_d[0, 1:] times them (plus its own drive).
+    weights = {0: ad[0, 1:], 1: np.eye(m)[0]}
+    out: dict[int, np.ndarray] = {}
+    for o in outputs:
+        w = np.zeros((p, nsamp))
+        for l in range(m):
+            # Without num's leading zero (one sample of delay): drive[j] = s0 at j = 0, v[j - 1] after.
+            c = weights[o] @ nums[l][:, 1:]
+            if not np.any(c):
+                continue
+            drive = np.empty((p, nsamp))
+            drive[:, 0] = s0[1 + l]
+            drive[:, 1:] = v[:, 1 + l, :-1]
+            for j, cj in enumerate(c):
+                if cj != 0.0:
+                    w[:, j:] += cj * drive[:, :nsamp - j]
+        y = scipy.signal.lfilter([1.0], den, w, axis=-1)
+        if o == 1:
+            out[1] = y
+        else:
+            psi = np.empty((p, nsamp))
+            psi[:, 0] = s0[0]
+            np.cumsum(y[:, :-1] + v[:, 0, :-1], axis=-1, out=psi[:, 1:])
+            psi[:, 1:] += s0[0][:, None]
+            out[0] = psi
+    return out
