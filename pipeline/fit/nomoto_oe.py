@@ -57,8 +57,10 @@ Control 23(3), 395-404.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
@@ -170,20 +172,34 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
                       [K0, T0, 0.05 * T0, 0.15 * T0], [K0, 1.5 * T0, 0.2 * T0, 0.7 * T0]]
     else:
         candidates = [[K0, T0], [K0, 0.3 * T0], [K0, 3.0 * T0]]
-    best = None
-    for dyn in candidates:
-        prob = Problem(preps, order, bias, channels, "white", None, None, servo)
-        if gain_floor is not None and order != 1:
-            watch_gain(prob, gain_floor)
-        res = reweighted_solve(prob, start_vector(prob, dyn, b0, ics, (), start), max_nfev, _collapse_stop(prob))
-        if best is None or res.cost < best[1].cost:
-            best = (prob, res)
-        # A first-order fit that converged inside the plausible ranges needs no other start; the
-        # second-order one can stop in a local minimum, so every start is tried.
-        if order == 1 and _plausible(*best):
-            break
-    prob, res = best
-    oe = finish(prob, res, [res.stopped] if res.stopped else [])
+    # The same white-noise OE fit (same records, settings and starts) is asked for more than once
+    # while a record is prepared (channel and servo choice, then the fit itself): it is made once.
+    key = None if gain_floor is not None and order != 1 else (
+        records_digest(recs), order, bias, channels, tuple(sorted(start.items())), max_nfev, tuple(servo))
+    cached = _OE_CACHE.get(key) if key is not None else None
+    if cached is not None:
+        _OE_CACHE.move_to_end(key)
+        prob, res, oe = cached
+    else:
+        best = None
+        for dyn in candidates:
+            prob = Problem(preps, order, bias, channels, "white", None, None, servo)
+            if gain_floor is not None and order != 1:
+                watch_gain(prob, gain_floor)
+            res = reweighted_solve(prob, start_vector(prob, dyn, b0, ics, (), start), max_nfev, _collapse_stop(prob))
+            if best is None or res.cost < best[1].cost:
+                best = (prob, res)
+            # A first-order fit that converged inside the plausible ranges needs no other start; the
+            # second-order one can stop in a local minimum, so every start is tried.
+            if order == 1 and _plausible(*best):
+                break
+        prob, res = best
+        oe = finish(prob, res, [res.stopped] if res.stopped else [])
+        if key is not None:
+            prob.clear_caches()
+            _OE_CACHE[key] = (prob, res, oe)
+            while len(_OE_CACHE) > OE_CACHE_SIZE:
+                _OE_CACHE.popitem(last=False)
     if noise == "white" or (noise == "auto" and waves is None and _psi_white(oe)):
         note = "compass residuals white: OE kept" if noise == "auto" else ""
         return _timed(_with_message(oe, note), t_start)
@@ -226,6 +242,33 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
         pem = _with_message(pem, f"OE compass residuals coloured; wave PEM chosen (BIC {pem.bic:.1f} < "
                                  f"{oe.bic:.1f})")
     return _timed(pem, t_start)
+
+
+#: White-noise OE fits kept for reuse, most recent last: key -> (problem, solver result, fit).
+_OE_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
+#: How many OE fits are kept (a record's preparation repeats one within a few calls).
+OE_CACHE_SIZE = 8
+
+
+def records_digest(records: Sequence[NomotoRecord]) -> bytes:
+    """A digest of the records' samples and names: equal digests, equal records (for the OE cache).
+
+    Parameters
+    ----------
+    records : sequence of NomotoRecord
+        The records.
+    """
+    h = hashlib.blake2b(digest_size=20)
+    for rec in records:
+        for arr in (rec.t, rec.delta, rec.psi, rec.r):
+            if arr is None:
+                h.update(b"none;")
+                continue
+            a = np.ascontiguousarray(arr, dtype=float)
+            h.update(repr(a.shape).encode())
+            h.update(a.tobytes())
+        h.update(repr(rec.name).encode())
+    return h.digest()
 
 
 #: Parameters the second-order model adds (T12, T1T2, T3 for T; the initial yaw acceleration).

@@ -186,6 +186,35 @@ class Problem:
         self._filt_cache: dict = {}
         self._phi_cache: dict = {}
         self._servo_cache: dict = {}
+        # The exact discretisation per dynamic parameters and sample time: a finite-difference step
+        # in a servo or noise parameter, or a new initial state, needs no new matrix exponential.
+        self._zoh_cache: dict = {}
+
+    def clear_caches(self) -> None:
+        """Drop the cached simulations, filters and discretisations (e.g. before keeping the problem)."""
+        for cache in (self._sim_cache, self._filt_cache, self._phi_cache, self._servo_cache, self._zoh_cache):
+            cache.clear()
+
+    def discretised(self, dyn: tuple[float, ...], h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Continuous ``A`` and the exact zero-order-hold ``(A_d, B_d)`` of the dynamic parameters ``dyn`` (cached).
+
+        Parameters
+        ----------
+        dyn : tuple of float
+            K, T (or the second-order parameters) [SI].
+        h : float
+            Sample time [s].
+        """
+        key = (dyn, h)
+        out = self._zoh_cache.get(key)
+        if out is None:
+            a, bm = nomoto_matrices(self.order, dyn)
+            ad, bd = zoh_discretise(a, bm, h)
+            out = (a, ad, bd)
+            if len(self._zoh_cache) > 64:
+                self._zoh_cache.clear()
+            self._zoh_cache[key] = out
+        return out
 
     def rudder(self, z: np.ndarray, i: int) -> np.ndarray:
         """Rudder angle driving record ``i``: the logged one, or the servo's response to the logged
@@ -295,8 +324,7 @@ class Problem:
         out = self._sim_cache.get(key)
         if out is None:
             u = self.rudder(z, i)
-            a, bm = nomoto_matrices(self.order, dyn)
-            ad, bd = zoh_discretise(a, bm, rec.h)
+            a, ad, bd = self.discretised(dyn, rec.h)
             x0 = np.zeros(a.shape[0])
             x0[1] = icd["r0"]
             if self.order != 1:
