@@ -402,7 +402,7 @@ class Problem:
         """
         x = np.asarray(x, float)
         jac = np.empty((self._n_residuals(), len(self.names)))
-        exact = [j for j, k in enumerate(self.kinds) if k in _EXACT_KINDS]
+        exact = [j for j, k in enumerate(self.kinds) if k in _EXACT_KINDS] + list(self.servo_index)
         jac[:, exact] = self._sensitivity_columns(x, exact)
         fd = [j for j in range(len(self.names)) if j not in set(exact)]
         if fd:
@@ -445,7 +445,10 @@ class Problem:
         return np.column_stack(out)
 
     def _sensitivity_columns(self, z: np.ndarray, cols: Sequence[int]) -> np.ndarray:
-        """Exact Jacobian columns ``cols`` (dynamic parameters, bias, initial states) of the residual."""
+        """Jacobian columns ``cols`` of the residual: exact for the dynamic parameters, the bias and the
+        initial states; for the servo parameters the central difference of the servo's rudder angle,
+        run through the ship's sensitivity equations (the ship is linear in the rudder, so this is the
+        central difference of the residual itself, without two further simulations)."""
         x = self.natural(z)
         dyn = [float(v) for v in x[: self.n_dyn]]
         b = float(x[self.n_dyn]) if self.bias else 0.0
@@ -465,6 +468,11 @@ class Problem:
         dyn_c = [c for c, j in enumerate(cols) if j < self.n_dyn]
         dyn_j = [cols[c] for c in dyn_c]
         b_c = [c for c, j in enumerate(cols) if self.kinds[j] == "b"]
+        servo_c = [c for c, j in enumerate(cols) if j in self.servo_index]
+        steps = self.fd_steps(z)
+        # The servo columns are derivatives in the solver's coordinates already (no chain factor).
+        chain = chain.copy()
+        chain[[cols[c] for c in servo_c]] = 1.0
         out = np.zeros((self._n_residuals(), len(cols)))
         row = 0
         for i, rec in enumerate(self.recs):
@@ -475,7 +483,8 @@ class Problem:
             ad, bd, dad, dbd = zoh_derivatives(a, bm, da, db, rec.h)
             own = set(self.ic_index[i])
             # Columns this record depends on: the shared ones and its own initial states.
-            use = [c for c, j in enumerate(cols) if j < self.n_dyn or self.kinds[j] == "b" or j in own]
+            use = [c for c, j in enumerate(cols)
+                   if j < self.n_dyn or self.kinds[j] == "b" or j in own or j in self.servo_index]
             at = {c: k for k, c in enumerate(use)}
             # Driving terms (column, state, sample): each column's rows contiguous for the filters.
             v = np.zeros((len(use), n, nsamp))
@@ -495,6 +504,15 @@ class Problem:
                 v[at[c]] = -bd[:, 0][:, None]
                 if self.order != 1:
                     s0[2, at[c]] = b1
+            for c in servo_c:
+                j = cols[c]
+                zp, zm = np.array(z, float), np.array(z, float)
+                zp[j] += steps[j]
+                zm[j] -= steps[j]
+                du = (self.rudder(zp, i) - self.rudder(zm, i)) / (2 * steps[j])
+                v[at[c]] = bd[:, 0][:, None] * du[None, :]
+                if self.order != 1:
+                    s0[2, at[c]] = -b1 * du[0]
             for c in use:
                 kind = self.kinds[cols[c]]
                 if kind == "psi0":
