@@ -391,3 +391,36 @@ def test_fit_trial_combines_zigzag_sinusoid_and_rudder_steps(tmp_path):
     k = fits.estimates["K_nomoto"]
     assert "rudder step" in k.method and "1 zig-zag and 1 sinusoid" in k.method and k.n_segments >= 3
     assert fits.estimates["b_nomoto"].unit == "rad"
+
+
+def test_a_repeated_white_oe_fit_is_reused_and_equals_a_fresh_one(monkeypatch):
+    # A record's preparation asks for the same white-noise OE fit more than once (channel choice,
+    # servo choice, then the fit with noise="auto"): it is solved once, and the reused fit is the
+    # one a fresh solve gives; a record differing in one sample is solved again.
+    import pipeline.fit.nomoto_oe as oe
+
+    t, u, psi = zigzag_design(300.0)
+    y = psi + math.sqrt(COMPASS_VAR) * np.random.default_rng(5).standard_normal(t.size)
+    rec = NomotoRecord(t, u, y, name="cache test")
+    size = oe.OE_CACHE_SIZE
+    monkeypatch.setattr(oe, "OE_CACHE_SIZE", 0)       # nothing kept: a fresh solve
+    fresh = fit_nomoto(NomotoRecord(t.copy(), u.copy(), y.copy(), name="cache test"), noise="white")
+    monkeypatch.setattr(oe, "OE_CACHE_SIZE", size)
+    solves = []
+    plain = oe.reweighted_solve
+    monkeypatch.setattr(oe, "reweighted_solve", lambda *a, **k: solves.append(1) or plain(*a, **k))
+    first = fit_nomoto(rec, noise="white")
+    n_first = len(solves)
+    assert n_first >= 1
+    again = fit_nomoto(rec, noise="white")
+    auto = fit_nomoto(rec, noise="auto")
+    assert len(solves) == n_first, "the same OE fit was solved again"
+    assert auto.noise_model == "white" and np.array_equal(auto.values, first.values)
+    for fit in (first, again):
+        np.testing.assert_array_equal(fit.values, fresh.values)
+        np.testing.assert_array_equal(fit.stderr, fresh.stderr)
+        np.testing.assert_array_equal(fit.covariance, fresh.covariance)
+    y2 = y.copy()
+    y2[100] += 1e-4
+    fit_nomoto(NomotoRecord(t, u, y2, name="cache test"), noise="white")
+    assert len(solves) > n_first
