@@ -39,7 +39,8 @@ seed and the simulator do), so a gyro that sees the wave-induced yaw is better l
 Uncertainty: the Gauss-Newton covariance ``(J^T W J)^-1`` of the weighted residuals (the
 Jacobian the solver uses too: exact for K, T, the bias and the initial states from the discrete
 sensitivity equations of :mod:`pipeline.fit.nomoto_sensitivity`, central differences of the exact
-simulation for the noise and servo parameters), scaled by
+simulation for the noise parameters, and of the servo's rudder angle run through the same
+sensitivity equations for the servo parameters), scaled by
 ``RSS/(n - p)``; for the PEM this is the asymptotic covariance of Ljung (1999, sec. 9.3). The
 residuals of every record and channel get the whiteness and input cross-correlation tests of
 :mod:`pipeline.fit.residual_tests`.

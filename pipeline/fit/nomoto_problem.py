@@ -125,7 +125,8 @@ def prepare(rec: NomotoRecord, i: int, channels: Sequence[str]) -> Prepared:
 
 # --------------------------------------------------------------------------- the problem
 class Problem:
-    """Residuals of the OE/PEM criterion over several records and their Jacobian (exact sensitivities; finite differences for the noise and servo parameters, with caches)."""
+    """Residuals of the OE/PEM criterion over several records and their Jacobian (exact sensitivities;
+    finite differences for the noise parameters and, through the sensitivities, the servo's; with caches)."""
 
     def __init__(self, recs: Sequence[Prepared], order: int, bias: bool, channels: tuple[str, ...],
                  noise: str, fixed_waves: WaveParams | None, fixed_noise_var: float | None,
@@ -392,8 +393,9 @@ class Problem:
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         """Jacobian of :meth:`residual`: exact for K, T (T12, T1T2, T3), the bias and the initial
-        states (discrete sensitivity equations, :mod:`pipeline.fit.nomoto_sensitivity`), central
-        differences for the noise and servo parameters.
+        states (discrete sensitivity equations, :mod:`pipeline.fit.nomoto_sensitivity`); for the servo
+        parameters the central difference of the servo's rudder angle run through the same equations;
+        central differences of the residual for the noise parameters.
 
         Parameters
         ----------
