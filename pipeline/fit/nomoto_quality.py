@@ -23,7 +23,15 @@ report, coefficients.json and the CLI show what was found and why it is not trus
 
 - the structure chosen across the trial's segments is a near-tie whose first- and second-order
   values of this coefficient differ materially on most segments (``STRUCTURE_UNDECIDED`` in the
-  segment fits' messages, :func:`pipeline.fit.nomoto_structure.undecided_note`).
+  segment fits' messages, :func:`pipeline.fit.nomoto_structure.undecided_note`), or the held-out
+  errors did not decide the structure clearly and the two structures' values differ beyond their
+  errors (:func:`pipeline.fit.nomoto_structure.structure_term_notes`).
+
+Before these rules, a model-structure term (``STRUCTURE_TERM`` notes in the segment fits'
+messages: the difference between the first- and second-order values where the structure was not
+decided clearly or the two disagree) is added in quadrature to the combined standard error and the
+95 % interval is widened to match (:func:`add_structure_term`): a structure bias is common to all
+segments, so it is added after combining, never averaged down.
 The per-segment rules (a near-tie between first- and second-order Nomoto whose K or T differ
 materially; a second order called for but not fitted) are in :mod:`pipeline.fit.nomoto_segment`.
 """
@@ -39,6 +47,7 @@ from typing import Sequence
 
 from ..records import Estimate, SegmentFit
 from .combine import CONSISTENCY_ALPHA
+from .least_squares import confidence_interval
 
 #: Relative between-segment standard deviation that makes a significant disagreement material [-].
 HETEROGENEITY_MATERIAL = 0.10
@@ -47,6 +56,9 @@ UNSURE_RELATIVE_STDERR = 0.10
 #: Start of the note a trial-level near-tie between the Nomoto structures leaves in segment-fit
 #: messages, followed by the coefficients it leaves undecided (``K``, ``T``).
 STRUCTURE_UNDECIDED = "unsure: model structure undecided for"
+#: Start of the note that carries a model-structure term (``STRUCTURE_TERM <K|T>: +-<value> <unit>``);
+#: the same text as ``pipeline.fit.nomoto_structure.STRUCTURE_TERM_PREFIX``.
+STRUCTURE_TERM = "model-structure term for"
 #: The estimates these rules judge.
 NOMOTO_ESTIMATES = ("K_nomoto", "T_nomoto")
 
@@ -120,6 +132,8 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         est = out.get(name)
         if est is None:
             continue
+        est = add_structure_term(est, structure_term(fits, name.split("_")[0]))
+        out[name] = est
         why = unsure_reasons(est, [f.segment.kind for f in fits])
         short = name.split("_")[0]
         for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
@@ -128,3 +142,44 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if why:
             out[name] = replace(est, success=False, message="; ".join(why + ([est.message] if est.message else [])))
     return out
+
+
+def structure_term(fits: Sequence[SegmentFit], short: str) -> float:
+    """The largest model-structure term for ``K`` or ``T`` in the fits' messages (0 when none) [unit of it].
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Nomoto segment fits.
+    short : str
+        ``K`` or ``T``.
+    """
+    head = f"{STRUCTURE_TERM} {short}: +-"
+    out = 0.0
+    for f in fits:
+        for part in f.message.split("; "):
+            if part.startswith(head):
+                try:
+                    out = max(out, abs(float(part[len(head):].split(" ")[0])))
+                except ValueError:
+                    continue
+    return out
+
+
+def add_structure_term(est: Estimate, term: float) -> Estimate:
+    """``est`` with ``term`` added in quadrature to its standard error and its 95 % interval widened.
+
+    Parameters
+    ----------
+    est : Estimate
+        A combined Nomoto K or T.
+    term : float
+        Model-structure term [unit of the estimate]; 0 leaves ``est`` unchanged.
+    """
+    if not (term > 0 and math.isfinite(est.value) and math.isfinite(est.stderr)):
+        return est
+    se = math.hypot(est.stderr, term)
+    return replace(est, stderr=se, ci95=confidence_interval(est.value, se, math.inf),
+                   message="; ".join([f"standard error {est.stderr:.4g} -> {se:.4g} {est.unit} with the "
+                                      f"model-structure term {term:.4g} {est.unit}"]
+                                     + ([est.message] if est.message else [])))
