@@ -328,7 +328,7 @@ def test_structure_term_widens_or_marks_unsure_when_the_structures_disagree():
     fit = _replace(_fake_fit("rudder_step", -0.00584, 2e-5, 0.17), message="; ".join(["OE"] + notes))
     out = judge_nomoto(est, [fit, fit])
     t = out["T_nomoto"]
-    assert t.stderr == pytest.approx(math.hypot(0.19, abs(gaps["T"].diff)), rel=1e-3)
+    assert t.stderr == pytest.approx(math.hypot(0.19, gaps["T"].term), rel=1e-3)
     assert t.ci95[0] < 9.32 < t.ci95[1]                                  # the truth is now inside
     assert "model-structure term" in t.message
     # Values that differ beyond their errors on an undecided structure: unsure, with both values.

@@ -214,6 +214,13 @@ class StructureGap:
     n: int
 
     @property
+    def term(self) -> float:
+        """The model-structure term: the larger of the paired difference and the difference of the
+        two structures' own means (each weighted by its own errors, so a few precise first-order
+        fits do not hide the second order's value) [unit]."""
+        return max(abs(self.diff), abs(self.second - self.first))
+
+    @property
     def beyond_errors(self) -> bool:
         """The two structures disagree by more than ``DISAGREE_Z`` combined standard errors."""
         return abs(self.diff) > DISAGREE_Z * self.diff_se
@@ -306,7 +313,7 @@ def structure_term_notes(gaps: Sequence[StructureGap], decided: str, why: str) -
                        f"their errors, {values}, and {why}: the ship's response has a pole-zero pair (or "
                        f"servo, speed or nonlinear dynamics) that a first-order {g.name} does not hold, and the "
                        f"data cannot tell which value is the ship's")
-        out.append(f"{STRUCTURE_TERM_PREFIX} {g.name}: +-{abs(g.diff):.6g} {g.unit} added in quadrature to its "
+        out.append(f"{STRUCTURE_TERM_PREFIX} {g.name}: +-{g.term:.6g} {g.unit} added in quadrature to its "
                    f"standard error, {values}, because {why}")
     return out
 
