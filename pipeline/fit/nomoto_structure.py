@@ -23,6 +23,15 @@ ship choose differently. Here the choice is made once:
    only when it passes; a near-tie whose structures differ materially marks the segments unsure
    (:func:`pipeline.fit.nomoto_segment.structure_ambiguity`).
 
+4. Where the held-out errors do not decide the structure clearly (the first order kept on a near-tie,
+   including a second order significantly better by less than ``MIN_SHRINK``; or a lone zig-zag or
+   sinusoid, which only its own record's end can test), the difference between the two structures'
+   K and T is a model-structure term added to the combined error (:func:`structure_term_notes`,
+   applied by :func:`pipeline.fit.nomoto_quality.judge_nomoto`); when the structure is undecided
+   and the two values also differ beyond their errors, the coefficient is marked unsure with both
+   values. Measured on PythonVehicleSimulator's tanker at 20 m (steps, measured rudder, waves): the
+   first order was kept at +0.1 % shrink (p = 5e-6) with T +14.5 % marked success, 0 % coverage.
+
 The losing structure's held-out error is reported beside the winner's in every segment fit's
 message (and so in ``K_nomoto``/``T_nomoto``), prefixed ``STRUCTURE_PREFIX``. When the segments'
 K or T then disagree beyond their errors, :func:`disagreement_note` says what the spread points to:
