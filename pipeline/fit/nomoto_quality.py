@@ -19,7 +19,9 @@ report, coefficients.json and the CLI show what was found and why it is not trus
   fast sinusoid gave T +42 % with white residuals). Two or more sinusoids alone are unsure when
   their values spread by more than ``HETEROGENEITY_MATERIAL`` of the combined value, significant
   or not (measured: a Clarke83 pair with waves, T 2.96 +- 0.50 s fast and 4.18 +- 0.008 s slow,
-  passed the chi-square test at p = 0.015 and gave T +57 % marked success).
+  passed the chi-square test at p = 0.015 and gave T +57 % marked success). Their K is unsure
+  too when that T spread is flagged and the K values disagree beyond their errors
+  (:func:`sinusoid_k_reason`).
 
 - the structure chosen across the trial's segments is a near-tie whose first- and second-order
   values of this coefficient differ materially on most segments (``STRUCTURE_UNDECIDED`` in the
@@ -128,13 +130,19 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         the reasons at the start of its message.
     """
     out = dict(estimates)
+    kinds = [f.segment.kind for f in fits]
+    t_est = out.get("T_nomoto")
+    # T's reasons first: sinusoids whose T spread marks a structure error make their K suspect too.
+    t_why = unsure_reasons(t_est, kinds) if t_est is not None else []
     for name in NOMOTO_ESTIMATES:
         est = out.get(name)
         if est is None:
             continue
         est = add_structure_term(est, structure_term(fits, name.split("_")[0]))
         out[name] = est
-        why = unsure_reasons(est, [f.segment.kind for f in fits])
+        why = unsure_reasons(est, kinds)
+        if name == "K_nomoto":
+            why += sinusoid_k_reason(est, kinds, t_why)
         short = name.split("_")[0]
         for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
             if est.success and f" {short} " in part.split(":")[1] + " ":
@@ -142,6 +150,40 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if why:
             out[name] = replace(est, success=False, message="; ".join(why + ([est.message] if est.message else [])))
     return out
+
+
+def sinusoid_k_reason(est: Estimate, kinds: Sequence[str], t_reasons: Sequence[str]) -> list[str]:
+    """Why a K from sinusoids only is unsure when their T spread already shows a structure error.
+
+    A first-order model matched at two frequencies gives the ship's K only if the ship is first
+    order; when the T of the same fits spreads beyond ``HETEROGENEITY_MATERIAL`` (``t_reasons``
+    holds the sinusoid-spread reason) the ship is not, and a K whose per-frequency values also
+    disagree beyond their errors (chi-square ``p < CONSISTENCY_ALPHA``) is the random-effects mean
+    of two gains that are not the ship's (measured: PythonVehicleSimulator's tanker at 25 m, K +16.6 %
+    fast and +8.0 % slow, combined +12.3 +- 4.3 % marked success, its spread 5 % under the 10 %
+    materiality). Empty otherwise.
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K.
+    kinds : sequence of str
+        Segment kinds of the fits behind it.
+    t_reasons : sequence of str
+        The unsure reasons of the combined T (:func:`unsure_reasons`).
+    """
+    if not (est.success and kinds and all(k == "sinusoid" for k in kinds)):
+        return []
+    if not any(r.startswith("unsure: sinusoids only, and their values spread") for r in t_reasons):
+        return []
+    p = est.consistency_p
+    if not (math.isfinite(p) and p < CONSISTENCY_ALPHA):
+        return []
+    x = np.asarray(est.per_segment, float)
+    return [f"unsure: sinusoids only, their T spreads beyond {HETEROGENEITY_MATERIAL:.0%} (a first-order model "
+            f"matched at each frequency: the ship is not first order) and their K values disagree beyond their "
+            f"errors (chi-square p = {p:.2g} < {CONSISTENCY_ALPHA}; from {x.min():.4g} to {x.max():.4g} {est.unit}): "
+            f"the combined K is a mean of two frequencies' gains, not the ship's (add a rudder step or a zig-zag)"]
 
 
 def structure_term(fits: Sequence[SegmentFit], short: str) -> float:
