@@ -345,6 +345,110 @@ def attainable(sim: dict, truth: dict) -> tuple[float, float]:
     return float(p[0]), float(p[1] if truth["order"] == 1 else p[1] - p[3])
 
 
+# --------------------------------------------------------------------------- coast-downs
+U_NOISE = 0.02        # speed-over-ground noise [m/s]
+
+
+def coastdown_truth(v) -> dict:
+    """Clarke83's own surge model (PythonVehicleSimulator ``clarke83``): X_u, m - X_udot and the config."""
+    from python_vehicle_simulator.lib.models import clarke83
+
+    ship = v.shipClarke83()
+    M, N = clarke83(3.0, ship.L, ship.B, ship.T, ship.Cb, ship.R66, 0, ship.L)
+    m = 1025.0 * ship.Cb * ship.L * ship.B * ship.T
+    iz = m * ship.R66**2
+    cfg = {"name": "clarke83", "rigid_body": {"mass": m, "inertia": [0.1 * iz, iz, iz]},
+           "added_mass": {"surge": float(M[0, 0] - m), "sway": float(M[1, 1] - m), "yaw": float(M[2, 2] - iz)}}
+    return {"X_u": -float(N[0, 0]), "m_eff": float(M[0, 0]), "config": cfg}
+
+
+def simulate_coastdown(v, cut_s: float = 60.0, coast_s: float = 200.0) -> dict[str, np.ndarray]:
+    """Clarke83 at its steady speed under the default thrust, thrust cut at ``cut_s``; rudder amidships."""
+    ship = v.shipClarke83()
+    nu = settle(ship, 10 * ship.L)      # surge time constant T_surge = L [s]: 10 of them
+    ua, eta, psi = np.zeros(1), np.zeros(6), 0.0
+    every = int(round(1 / (FS_LOG * H_SIM)))
+    rows = []
+    thrust = ship.tau_X
+    for k in range(int((cut_s + coast_s) / H_SIM) + 1):
+        t = k * H_SIM
+        ship.tau_X = thrust if t < cut_s else 0.0
+        if k % every == 0:
+            rows.append((t, psi, nu[5], nu[0]))
+        nu, ua = ship.dynamics(eta, nu, ua, np.zeros(1), H_SIM)
+        psi += H_SIM * nu[5]
+    arr = np.array(rows)
+    return dict(zip(("t", "psi", "r", "u"), arr.T)) | {"cut": cut_s}
+
+
+def coastdown_one(task) -> dict:
+    """One seed: noisy speed log -> vesselid X_u (config with the simulator's mass and added mass) and a peer."""
+    sim, truth, seed = task
+    rng = np.random.default_rng(1000 * seed + 29)
+    t = sim["t"]
+    log = {"t": t, "psi": sim["psi"] + NOISE["psi"] * rng.standard_normal(t.size),
+           "r": sim["r"] + NOISE["r"] * rng.standard_normal(t.size),
+           "u": sim["u"] + U_NOISE * rng.standard_normal(t.size), "delta": np.zeros(t.size)}
+    out: dict = {"seed": seed}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"coast_{seed}.csv"
+        write_csv(log, path)
+        try:
+            trial = load_trial([path])
+            segs = detect_segments(trial)
+            fits = fit_trial(trial, segs, parse_vessel(truth["config"]), extend=False)
+            est = fits.estimates.get("X_u")
+            out["segments"] = [s.kind for s in segs.items if s.dof == "surge"]
+            if est is not None:
+                out["X_u"] = {"value": est.value, "stderr": est.stderr, "ci": est.ci95, "success": est.success,
+                              "message": est.message[:300]}
+        except VesselidError as exc:
+            out["error"] = str(exc)
+    # Peer: exponential decay fitted with scipy to the speed after the (known) cut.
+    m = t >= sim["cut"]
+    tt, uu = t[m] - sim["cut"], log["u"][m]
+    try:
+        p, _ = scipy.optimize.curve_fit(lambda x, a, T, c: a * np.exp(-x / T) + c, tt, uu, p0=(uu[0], 30.0, 0.0))
+        out["peer"] = -truth["m_eff"] / p[1]
+    except (RuntimeError, ValueError):
+        out["peer"] = math.nan
+    return out
+
+
+def coastdown_table(v, seeds: int) -> str:
+    """Coast-down rows: X_u of Clarke83 over ``seeds`` seeds (markdown)."""
+    truth = coastdown_truth(v)
+    sim = simulate_coastdown(v)
+    res = [coastdown_one((sim, truth, s)) for s in range(seeds)]
+    x0 = truth["X_u"]
+    errs, cover, ok, peer, wrong = [], [], 0, [], 0
+    for r in res:
+        peer.append(abs(rel(r.get("peer", math.nan), x0)))
+        est = r.get("X_u")
+        if est is None or not est["success"]:
+            continue
+        ok += 1
+        e = rel(est["value"], x0)
+        errs.append(e)
+        cover.append(est["ci"][0] <= x0 <= est["ci"][1])
+        wrong += abs(e) > 0.2
+    errs_a = np.abs(np.array(errs)) if errs else np.array([math.nan])
+    fails = [r.get("error") or (r.get("X_u") or {}).get("message", "no X_u estimate") for r in res
+             if not (r.get("X_u") or {}).get("success")]
+    lines = [f"Coast-downs (Clarke83, thrust cut from its steady {sim['u'][0]:.2f} m/s, 200 s logged at {FS_LOG:g} Hz, "
+             f"speed noise {U_NOISE} m/s; config from the simulator's own mass and added mass; truth X_u = {x0:.6g} "
+             f"kg/s, m - X_udot = {truth['m_eff']:.6g} kg):", "",
+             "| ship | manoeuvre | X_u marked success | X_u err % (median signed / median abs / worst) | 95% CI coverage % "
+             "| >20 % off marked success | scipy exponential-fit peer median abs err % |",
+             "|---|---|---|---|---|---|---|",
+             f"| clarke83 | coast-down | {ok} of {len(res)} | {pct(float(np.median(errs)) if errs else math.nan)} / "
+             f"{pct(float(np.median(errs_a)))} / {pct(float(np.max(errs_a)))} | "
+             f"{pct(float(np.mean(cover)) if cover else math.nan)} | {wrong} | {pct(float(np.nanmedian(peer)))} |"]
+    if fails:
+        lines += ["", f"First failure: {fails[0][:200]}"]
+    return "\n".join(lines) + "\n"
+
+
 # --------------------------------------------------------------------------- the benchmark
 def rel(v, truth):
     return (v - truth) / abs(truth) if v is not None and math.isfinite(v) else math.nan
@@ -389,12 +493,21 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default="", help="also write every task's raw result to this JSON-lines file")
     ap.add_argument("--deadline-min", type=float, default=0.0,
                     help="stop after this many minutes and summarise the tasks done (0: no deadline)")
+    ap.add_argument("--coastdowns", type=int, default=0,
+                    help="run N seeds of the Clarke83 coast-down rows instead (surge damping X_u; appended to the "
+                         "section by hand)")
     ap.add_argument("--from-jsonl", default="",
                     help="only summarise the tasks recorded in these JSON-lines files (comma-separated, from --json) "
                          "and write them")
     args = ap.parse_args(argv)
     if args.from_jsonl:
         return summarise_jsonl(args)
+    if args.coastdowns:
+        v = load_pvs()
+        if v is None:
+            return 0
+        print(coastdown_table(v, args.coastdowns))
+        return 0
     v = load_pvs()
     if v is None:
         return 0

@@ -294,3 +294,52 @@ def test_structure_near_tie_marks_only_the_undecided_coefficient_unsure():
     out = judge_nomoto(est, [fit, fit])
     assert out["K_nomoto"].success
     assert not out["T_nomoto"].success and out["T_nomoto"].message.startswith(STRUCTURE_UNDECIDED)
+
+
+def test_structure_term_widens_or_marks_unsure_when_the_structures_disagree():
+    # Measured on the PythonVehicleSimulator tanker at 20 m (rudder steps, measured rudder, waves):
+    # the second order was significantly better on held-out segments (p = 5e-6) but by 0.1 % only,
+    # so the first order was kept: T 10.5 +- 0.19 s marked success, truth 9.32 s. Where fitted, the
+    # second order gave T about 1 s lower, with errors of 0.7-1.1 s.
+    from dataclasses import replace as _replace
+
+    from pipeline.fit.nomoto_quality import STRUCTURE_UNDECIDED, judge_nomoto
+    from pipeline.fit.nomoto_structure import (STRUCTURE_TERM_PREFIX, StructureChoice, choice_is_clear,
+                                               structure_gaps, structure_term_notes)
+    from pipeline.records import Estimate
+
+    near = StructureChoice(1, "note", near_tie=True, shrink=0.1, p_value=5.4e-6)
+    clear, why = choice_is_clear(near)
+    assert not clear and "significantly better" in why and "+0.1 %" in why
+    assert choice_is_clear(StructureChoice(2, "note", shrink=14.5, p_value=1e-100))[0]
+    assert choice_is_clear(StructureChoice(1, "note", near_tie=False, shrink=-30.0, p_value=1.0))[0]
+
+    pairs = [{"K": (-0.00584, 2e-5, -0.00585, 3e-5), "T": (10.70, 0.43, 9.79, 0.73)},
+             {"K": (-0.00573, 4e-5, -0.00570, 5e-5), "T": (11.85, 0.89, 10.85, 1.14)}]
+    gaps = {g.name: g for g in structure_gaps(pairs)}
+    assert gaps["T"].diff == pytest.approx(-0.95, abs=0.05) and not gaps["T"].beyond_errors
+    assert structure_term_notes(gaps.values(), "clear", "") == []       # decided across segments: nothing
+    notes = structure_term_notes(gaps.values(), "undecided", why)
+    assert any(n.startswith(f"{STRUCTURE_TERM_PREFIX} T: +-0.9") for n in notes), notes
+    assert not any(n.startswith(STRUCTURE_UNDECIDED) for n in notes)
+    est = {n: Estimate(name=n, value=v, stderr=s, ci95=(v - 2 * s, v + 2 * s), unit=u, n_segments=6, method="m",
+                       success=True, message="") for n, v, s, u in (("K_nomoto", -0.00584, 2.5e-5, "1/s"),
+                                                                   ("T_nomoto", 10.50, 0.19, "s"))}
+    fit = _replace(_fake_fit("rudder_step", -0.00584, 2e-5, 0.17), message="; ".join(["OE"] + notes))
+    out = judge_nomoto(est, [fit, fit])
+    t = out["T_nomoto"]
+    assert t.stderr == pytest.approx(math.hypot(0.19, gaps["T"].term), rel=1e-3)
+    assert t.ci95[0] < 9.32 < t.ci95[1]                                  # the truth is now inside
+    assert "model-structure term" in t.message
+    # Values that differ beyond their errors on an undecided structure: unsure, with both values.
+    far = [{"T": (10.70, 0.10, 9.00, 0.20)}, {"T": (11.00, 0.10, 9.20, 0.20)}]
+    notes = structure_term_notes(structure_gaps(far), "undecided", why)
+    assert notes[0].startswith(f"{STRUCTURE_UNDECIDED} T:") and "first order 10.8" in notes[0]
+    fit = _replace(fit, message="; ".join(["OE"] + notes))
+    out = judge_nomoto(est, [fit])
+    assert not out["T_nomoto"].success and out["T_nomoto"].message.startswith(STRUCTURE_UNDECIDED)
+    assert out["K_nomoto"].success
+    # The second order chosen on one record's end only (a lone zig-zag): its value, the error widened.
+    notes = structure_term_notes(structure_gaps(far), "weak", "one record")
+    assert len(notes) == 1 and notes[0].startswith(STRUCTURE_TERM_PREFIX)
+    assert structure_term_notes(structure_gaps(far), "clear", "") == []

@@ -156,3 +156,26 @@ def test_sinusoids_spread_covered_by_one_wide_error_are_unsure():
         est, ["rudder_step", "sinusoid"])[0]
     close = combine("T_nomoto", "s", "m", [Contribution(4.0, 0.05, "fast"), Contribution(4.1, 0.05, "slow")])
     assert not unsure_reasons(close, ["sinusoid", "sinusoid"])
+
+
+def test_sinusoid_k_unsure_when_their_t_spread_shows_a_structure_error():
+    # Measured on PythonVehicleSimulator's tanker at 25 m (sinusoid pair, commanded rudder, waves):
+    # K -0.02005 (fast) and -0.01817 1/s (slow) disagree far beyond their errors, their spread 5 %
+    # (under the 10 % materiality); T 32.5 and 43.5 s was already unsure. The combined K was
+    # +12.3 +- 4.3 % off the linearisation and marked success.
+    from pipeline.fit.combine import Contribution, combine
+    from pipeline.fit.nomoto_quality import sinusoid_k_reason, unsure_reasons
+
+    k = combine("K_nomoto", "1/s", "m", [Contribution(-0.02005, 2.6e-5, "fast"), Contribution(-0.01817, 2e-5, "slow")])
+    t = combine("T_nomoto", "s", "m", [Contribution(32.46, 1.5, "fast"), Contribution(43.47, 1.4, "slow")])
+    assert k.success and not unsure_reasons(k, ["sinusoid", "sinusoid"])
+    t_why = unsure_reasons(t, ["sinusoid", "sinusoid"])
+    why = sinusoid_k_reason(k, ["sinusoid", "sinusoid"], t_why)
+    assert why and "not the ship's" in why[0]
+    # Not when a rudder step is among the segments, nor when T agrees across the frequencies.
+    assert sinusoid_k_reason(k, ["rudder_step", "sinusoid"], t_why) == []
+    t_ok = combine("T_nomoto", "s", "m", [Contribution(40.0, 1.0, "fast"), Contribution(41.0, 1.0, "slow")])
+    assert sinusoid_k_reason(k, ["sinusoid", "sinusoid"], unsure_reasons(t_ok, ["sinusoid", "sinusoid"])) == []
+    # K values that agree within their errors stay.
+    k_ok = combine("K_nomoto", "1/s", "m", [Contribution(-0.0200, 1e-4, "fast"), Contribution(-0.0201, 1e-4, "slow")])
+    assert sinusoid_k_reason(k_ok, ["sinusoid", "sinusoid"], t_why) == []

@@ -19,11 +19,21 @@ report, coefficients.json and the CLI show what was found and why it is not trus
   fast sinusoid gave T +42 % with white residuals). Two or more sinusoids alone are unsure when
   their values spread by more than ``HETEROGENEITY_MATERIAL`` of the combined value, significant
   or not (measured: a Clarke83 pair with waves, T 2.96 +- 0.50 s fast and 4.18 +- 0.008 s slow,
-  passed the chi-square test at p = 0.015 and gave T +57 % marked success).
+  passed the chi-square test at p = 0.015 and gave T +57 % marked success). Their K is unsure
+  too when that T spread is flagged and the K values disagree beyond their errors
+  (:func:`sinusoid_k_reason`).
 
 - the structure chosen across the trial's segments is a near-tie whose first- and second-order
   values of this coefficient differ materially on most segments (``STRUCTURE_UNDECIDED`` in the
-  segment fits' messages, :func:`pipeline.fit.nomoto_structure.undecided_note`).
+  segment fits' messages, :func:`pipeline.fit.nomoto_structure.undecided_note`), or the held-out
+  errors did not decide the structure clearly and the two structures' values differ beyond their
+  errors (:func:`pipeline.fit.nomoto_structure.structure_term_notes`).
+
+Before these rules, a model-structure term (``STRUCTURE_TERM`` notes in the segment fits'
+messages: the difference between the first- and second-order values where the structure was not
+decided clearly or the two disagree) is added in quadrature to the combined standard error and the
+95 % interval is widened to match (:func:`add_structure_term`): a structure bias is common to all
+segments, so it is added after combining, never averaged down.
 The per-segment rules (a near-tie between first- and second-order Nomoto whose K or T differ
 materially; a second order called for but not fitted) are in :mod:`pipeline.fit.nomoto_segment`.
 """
@@ -39,6 +49,7 @@ from typing import Sequence
 
 from ..records import Estimate, SegmentFit
 from .combine import CONSISTENCY_ALPHA
+from .least_squares import confidence_interval
 
 #: Relative between-segment standard deviation that makes a significant disagreement material [-].
 HETEROGENEITY_MATERIAL = 0.10
@@ -47,6 +58,9 @@ UNSURE_RELATIVE_STDERR = 0.10
 #: Start of the note a trial-level near-tie between the Nomoto structures leaves in segment-fit
 #: messages, followed by the coefficients it leaves undecided (``K``, ``T``).
 STRUCTURE_UNDECIDED = "unsure: model structure undecided for"
+#: Start of the note that carries a model-structure term (``STRUCTURE_TERM <K|T>: +-<value> <unit>``);
+#: the same text as ``pipeline.fit.nomoto_structure.STRUCTURE_TERM_PREFIX``.
+STRUCTURE_TERM = "model-structure term for"
 #: The estimates these rules judge.
 NOMOTO_ESTIMATES = ("K_nomoto", "T_nomoto")
 
@@ -116,11 +130,19 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         the reasons at the start of its message.
     """
     out = dict(estimates)
+    kinds = [f.segment.kind for f in fits]
+    t_est = out.get("T_nomoto")
+    # T's reasons first: sinusoids whose T spread marks a structure error make their K suspect too.
+    t_why = unsure_reasons(t_est, kinds) if t_est is not None else []
     for name in NOMOTO_ESTIMATES:
         est = out.get(name)
         if est is None:
             continue
-        why = unsure_reasons(est, [f.segment.kind for f in fits])
+        est = add_structure_term(est, structure_term(fits, name.split("_")[0]))
+        out[name] = est
+        why = unsure_reasons(est, kinds)
+        if name == "K_nomoto":
+            why += sinusoid_k_reason(est, kinds, t_why)
         short = name.split("_")[0]
         for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
             if est.success and f" {short} " in part.split(":")[1] + " ":
@@ -128,3 +150,78 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if why:
             out[name] = replace(est, success=False, message="; ".join(why + ([est.message] if est.message else [])))
     return out
+
+
+def sinusoid_k_reason(est: Estimate, kinds: Sequence[str], t_reasons: Sequence[str]) -> list[str]:
+    """Why a K from sinusoids only is unsure when their T spread already shows a structure error.
+
+    A first-order model matched at two frequencies gives the ship's K only if the ship is first
+    order; when the T of the same fits spreads beyond ``HETEROGENEITY_MATERIAL`` (``t_reasons``
+    holds the sinusoid-spread reason) the ship is not, and a K whose per-frequency values also
+    disagree beyond their errors (chi-square ``p < CONSISTENCY_ALPHA``) is the random-effects mean
+    of two gains that are not the ship's (measured: PythonVehicleSimulator's tanker at 25 m, K +16.6 %
+    fast and +8.0 % slow, combined +12.3 +- 4.3 % marked success, its spread 5 % under the 10 %
+    materiality). Empty otherwise.
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K.
+    kinds : sequence of str
+        Segment kinds of the fits behind it.
+    t_reasons : sequence of str
+        The unsure reasons of the combined T (:func:`unsure_reasons`).
+    """
+    if not (est.success and kinds and all(k == "sinusoid" for k in kinds)):
+        return []
+    if not any(r.startswith("unsure: sinusoids only, and their values spread") for r in t_reasons):
+        return []
+    p = est.consistency_p
+    if not (math.isfinite(p) and p < CONSISTENCY_ALPHA):
+        return []
+    x = np.asarray(est.per_segment, float)
+    return [f"unsure: sinusoids only, their T spreads beyond {HETEROGENEITY_MATERIAL:.0%} (a first-order model "
+            f"matched at each frequency: the ship is not first order) and their K values disagree beyond their "
+            f"errors (chi-square p = {p:.2g} < {CONSISTENCY_ALPHA}; from {x.min():.4g} to {x.max():.4g} {est.unit}): "
+            f"the combined K is a mean of two frequencies' gains, not the ship's (add a rudder step or a zig-zag)"]
+
+
+def structure_term(fits: Sequence[SegmentFit], short: str) -> float:
+    """The largest model-structure term for ``K`` or ``T`` in the fits' messages (0 when none) [unit of it].
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Nomoto segment fits.
+    short : str
+        ``K`` or ``T``.
+    """
+    head = f"{STRUCTURE_TERM} {short}: +-"
+    out = 0.0
+    for f in fits:
+        for part in f.message.split("; "):
+            if part.startswith(head):
+                try:
+                    out = max(out, abs(float(part[len(head):].split(" ")[0])))
+                except ValueError:
+                    continue
+    return out
+
+
+def add_structure_term(est: Estimate, term: float) -> Estimate:
+    """``est`` with ``term`` added in quadrature to its standard error and its 95 % interval widened.
+
+    Parameters
+    ----------
+    est : Estimate
+        A combined Nomoto K or T.
+    term : float
+        Model-structure term [unit of the estimate]; 0 leaves ``est`` unchanged.
+    """
+    if not (term > 0 and math.isfinite(est.value) and math.isfinite(est.stderr)):
+        return est
+    se = math.hypot(est.stderr, term)
+    return replace(est, stderr=se, ci95=confidence_interval(est.value, se, math.inf),
+                   message="; ".join([f"standard error {est.stderr:.4g} -> {se:.4g} {est.unit} with the "
+                                      f"model-structure term {term:.4g} {est.unit}"]
+                                     + ([est.message] if est.message else [])))

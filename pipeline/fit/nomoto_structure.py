@@ -23,6 +23,15 @@ ship choose differently. Here the choice is made once:
    only when it passes; a near-tie whose structures differ materially marks the segments unsure
    (:func:`pipeline.fit.nomoto_segment.structure_ambiguity`).
 
+4. Where the held-out errors do not decide the structure clearly (the first order kept on a near-tie,
+   including a second order significantly better by less than ``MIN_SHRINK``; or a lone zig-zag or
+   sinusoid, which only its own record's end can test), the difference between the two structures'
+   K and T is a model-structure term added to the combined error (:func:`structure_term_notes`,
+   applied by :func:`pipeline.fit.nomoto_quality.judge_nomoto`); when the structure is undecided
+   and the two values also differ beyond their errors, the coefficient is marked unsure with both
+   values. Measured on PythonVehicleSimulator's tanker at 20 m (steps, measured rudder, waves): the
+   first order was kept at +0.1 % shrink (p = 5e-6) with T +14.5 % marked success, 0 % coverage.
+
 The losing structure's held-out error is reported beside the winner's in every segment fit's
 message (and so in ``K_nomoto``/``T_nomoto``), prefixed ``STRUCTURE_PREFIX``. When the segments'
 K or T then disagree beyond their errors, :func:`disagreement_note` says what the spread points to:
@@ -43,15 +52,16 @@ from ..errors import FitError
 from ..model.nomoto import ORDER2_SUM_PRODUCT
 from ..records import Segment, SegmentFit, Trial
 from .combine import CONSISTENCY_ALPHA
-from .nomoto_quality import STRUCTURE_UNDECIDED
+from .nomoto_quality import STRUCTURE_TERM, STRUCTURE_UNDECIDED
 from .data import segment_label
 from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
 from .nomoto import whole_record_window
 from .nomoto_oe import GainFloor, SecondOrderNoGain
 from .nomoto_problem import SERVO_PARAMS, Problem, prepare
 from .nomoto_records import NomotoFit
-from .nomoto_segment import (ORDER2_EXTRA_PARAMS, NomotoWindow, fit_window, fit_window_order,
-                             first_order_start_values, prepare_window, rec_channel, structure_ambiguity)
+from .nomoto_segment import (ORDER2_EXTRA_PARAMS, NomotoWindow, equivalent_t_stderr, fit_nomoto_window, fit_window,
+                             fit_window_order, first_order_start_values, prepare_window, rec_channel,
+                             structure_ambiguity)
 from .nomoto_segment import structure_note as per_segment_structure_note
 from .segment_fit import failed_segment_fit
 
@@ -91,6 +101,8 @@ class StructureChoice:
     order: int
     note: str
     near_tie: bool = False
+    shrink: float = math.nan
+    p_value: float = math.nan
 
 
 def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, SegmentFit]:
@@ -107,8 +119,9 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
     Returns
     -------
     dict
-        Segment index -> :class:`SegmentFit` for those segments; empty when fewer than two can be
-        fitted whole (each segment then chooses on its own held-out end, in the per-segment fitter).
+        Segment index -> :class:`SegmentFit` for those segments. A lone zig-zag or sinusoid chooses on
+        its own held-out end (:func:`lone_segment_fit`, with the model-structure term); empty when
+        fewer than two can be fitted whole otherwise (the per-segment fitter then serves them).
     """
     wins: list[tuple[int, NomotoWindow]] = []
     for i, seg in enumerate(segments):
@@ -121,6 +134,8 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
             wins.append((i, prepare_window(trial, seg, *span)))
         except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
             continue  # the per-segment fitter reports it (or falls back to the step response)
+    if len(wins) == 1:
+        return lone_segment_fit(trial, segments[wins[0][0]], wins[0][0], wins[0][1])
     if len(wins) < 2:
         return {}
     cands = [_fit_both(i, w) for i, w in wins]
@@ -129,6 +144,11 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
         return {}
     choice = choose_structure(usable)
     undecided = undecided_note(usable) if choice.near_tie and choice.order == 1 else ""
+    clear, why = choice_is_clear(choice)
+    terms = structure_term_notes(
+        structure_gaps([pair_values(c.first, c.second) for c in usable if c.second is not None]),
+        "clear" if clear else "undecided", why)
+    undecided = "; ".join(n for n in [undecided] + terms if n)
     out: dict[int, SegmentFit] = {}
     for c in usable:
         unsure = ""
@@ -148,6 +168,215 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
     if extra:
         out = {i: replace(sf, message=f"{sf.message}; {extra}") for i, sf in out.items()}
     return out
+
+
+def choice_is_clear(choice: StructureChoice) -> tuple[bool, str]:
+    """Whether the held-out errors decided the structure clearly, and why not when they did not.
+
+    Clear: the second order passed the shared rule, or it lost by at least ``MIN_SHRINK`` (its
+    held-out error clearly larger). Not clear: the first order kept on a near-tie, including a second
+    order significantly better whose held-out gain is below ``MIN_SHRINK`` (real but small: at a low
+    signal-to-noise ratio the missing pole-zero pair still biases the first-order T).
+
+    Parameters
+    ----------
+    choice : StructureChoice
+        The trial-level decision.
+    """
+    if choice.order != 1 or not choice.near_tie:
+        return True, ""
+    sig = math.isfinite(choice.p_value) and choice.p_value < ALPHA
+    if sig:
+        return False, (f"the second order is significantly better on the held-out segments (p = "
+                       f"{choice.p_value:.2g}) but by {choice.shrink:+.1f} % only (the rule asks {MIN_SHRINK:g} %), so "
+                       f"the first order was kept although the data show the second order's pole-zero pair")
+    return False, (f"the held-out segments do not decide between the structures ({choice.shrink:+.1f} % shrink, "
+                   f"p = {choice.p_value:.2g})")
+
+
+@dataclass(frozen=True)
+class StructureGap:
+    """How far the second-order value of K or T (first-order equivalent) lies from the first-order one.
+
+    Attributes
+    ----------
+    name : str
+        ``K`` or ``T``.
+    unit : str
+        Its unit.
+    first, second : float
+        Inverse-variance means over the segments fitted with both structures.
+    diff, diff_se : float
+        Inverse-variance mean of the per-segment differences (second minus first) and its standard
+        error (per-segment errors combined in quadrature, scaled by the Birge ratio of the
+        differences when they scatter more than that).
+    n : int
+        Segments fitted with both structures.
+    """
+
+    name: str
+    unit: str
+    first: float
+    second: float
+    diff: float
+    diff_se: float
+    n: int
+
+    @property
+    def term(self) -> float:
+        """The model-structure term: the larger of the paired difference and the difference of the
+        two structures' own means (each weighted by its own errors, so a few precise first-order
+        fits do not hide the second order's value) [unit]."""
+        return max(abs(self.diff), abs(self.second - self.first))
+
+    @property
+    def beyond_errors(self) -> bool:
+        """The two structures disagree by more than ``DISAGREE_Z`` combined standard errors."""
+        return abs(self.diff) > DISAGREE_Z * self.diff_se
+
+
+#: Combined standard errors beyond which the two structures' values disagree.
+DISAGREE_Z = 2.0
+#: Start of the note that adds the structure disagreement to a Nomoto coefficient's error
+#: (``model-structure term for T: +-<value> <unit> ...``, read by
+#: :func:`pipeline.fit.nomoto_quality.judge_nomoto`).
+STRUCTURE_TERM_PREFIX = STRUCTURE_TERM
+
+
+def pair_values(first: NomotoFit, second: NomotoFit) -> dict[str, tuple[float, float, float, float]]:
+    """K and T (first-order equivalent) of both structures fitted to one segment: name -> (first,
+    its error, second, its error).
+
+    Parameters
+    ----------
+    first, second : NomotoFit
+        First- and second-order whole-record fits of the same segment.
+    """
+    return {"K": (first.K, first.error("K"), second.K, second.error("K")),
+            "T": (first.T, first.error("T"), second.T, equivalent_t_stderr(second))}
+
+
+def structure_gaps(pairs: Sequence[dict[str, tuple[float, float, float, float]]]) -> list[StructureGap]:
+    """First- against second-order K and T over the segments fitted with both (empty without any).
+
+    Parameters
+    ----------
+    pairs : sequence of dict
+        Per segment, :func:`pair_values`.
+    """
+    out = []
+    for name, unit in (("K", "1/s"), ("T", "s")):
+        rows = []
+        for pv in pairs:
+            v1, s1, v2, s2 = pv.get(name, (math.nan,) * 4)
+            if all(math.isfinite(x) for x in (v1, s1, v2, s2)) and s1 > 0 and s2 > 0:
+                rows.append((v1, s1, v2, s2))
+        if not rows:
+            continue
+        v1, s1, v2, s2 = (np.array(c) for c in zip(*rows))
+        d, sd = v2 - v1, np.hypot(s1, s2)
+        w = 1.0 / sd**2
+        diff = float(w @ d / w.sum())
+        birge = math.sqrt(max(1.0, float(w @ (d - diff) ** 2) / (d.size - 1))) if d.size > 1 else 1.0
+        out.append(StructureGap(name, unit, float((v1 / s1**2).sum() / (1 / s1**2).sum()),
+                                float((v2 / s2**2).sum() / (1 / s2**2).sum()), diff,
+                                birge / math.sqrt(float(w.sum())), d.size))
+    return out
+
+
+def structure_term_notes(gaps: Sequence[StructureGap], decided: str, why: str) -> list[str]:
+    """Notes that widen (or mark unsure) K and T where the structure was not decided clearly.
+
+    ``decided`` says how the held-out errors decided the structure:
+
+    - ``clear``: leave-one-segment-out across the trial's segments passed the shared rule for the
+      winner (or the second order lost clearly): the winner's value stands, no term.
+    - ``weak``: the second order won on the held-out end of one record only (a lone zig-zag or
+      sinusoid: no other manoeuvre confirms it): the difference to the first-order value is a
+      model-structure term (``STRUCTURE_TERM_PREFIX``), added in quadrature to the combined
+      standard error by :func:`pipeline.fit.nomoto_quality.judge_nomoto`.
+    - ``undecided``: the first order was kept on a near-tie: the same term, and when the two
+      structures' values also differ beyond their combined errors (``StructureGap.beyond_errors``)
+      the coefficient is marked unsure (``STRUCTURE_UNDECIDED``) with both values and what the
+      disagreement points to.
+
+    Parameters
+    ----------
+    gaps : sequence of StructureGap
+        From :func:`structure_gaps`.
+    decided : str
+        ``clear``, ``weak`` or ``undecided``.
+    why : str
+        How the structure was (not) decided, for the note.
+    """
+    if decided not in ("clear", "weak", "undecided"):
+        raise ValueError(f"decided: expected 'clear', 'weak' or 'undecided', found {decided!r}")
+    out = []
+    if decided == "clear":
+        return out
+    for g in gaps:
+        values = (f"first order {g.first:.4g}, second order {g.second:.4g} {g.unit} (difference {g.diff:+.3g} +- "
+                  f"{g.diff_se:.2g} on {g.n} segment(s) fitted with both)")
+        if decided == "undecided" and g.beyond_errors:
+            out.append(f"{STRUCTURE_UNDECIDED} {g.name}: the first- and second-order Nomoto values differ beyond "
+                       f"their errors, {values}, and {why}: the ship's response has a pole-zero pair (or "
+                       f"servo, speed or nonlinear dynamics) that a first-order {g.name} does not hold, and the "
+                       f"data cannot tell which value is the ship's")
+        out.append(f"{STRUCTURE_TERM_PREFIX} {g.name}: +-{g.term:.6g} {g.unit} added in quadrature to its "
+                   f"standard error, {values}, because {why}")
+    return out
+
+
+def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) -> dict[int, SegmentFit]:
+    """A lone whole-record segment: its own structure choice (:func:`pipeline.fit.nomoto_segment.fit_nomoto_window`)
+    plus the other structure fitted to the whole record for the model-structure term.
+
+    The per-segment choice holds out the record's end: a second order selected there is a ``weak``
+    decision, a first order kept an ``undecided`` one (:func:`structure_term_notes`). A zig-zag or a sinusoid
+    only (a rudder step keeps its own fitter and fallbacks): empty otherwise.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    seg : Segment
+        The segment.
+    index : int
+        Its index in the trial's segments.
+    win : NomotoWindow
+        Its prepared window.
+    """
+    if seg.kind not in ("zigzag", "sinusoid"):
+        return {}
+    try:
+        sf = fit_nomoto_window(trial, seg, seg.t_start, seg.t_end)
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return {}
+    if not sf.success:
+        return {index: sf}
+    chosen_second = "T3" in sf.params
+    why = ("the second order won on the held-out end of this one record only (no other manoeuvre confirms the "
+           "structure, and one record's end is a weak test of it)" if chosen_second else
+           "the record's held-out end kept the first order (one record's end is a weak test of the structure)")
+    try:
+        if chosen_second:
+            # The chosen second order is the segment fit itself; only the first order is added.
+            first, _ = fit_window_order(win, 1)
+            if not _usable(first):
+                return {index: sf}
+            pv = {"K": (first.K, first.error("K"), sf.params["K"], sf.stderr.get("K", math.nan)),
+                  "T": (first.T, first.error("T"), sf.params["T"], sf.stderr.get("T", math.nan))}
+        else:
+            cand = _fit_both(index, win)
+            if cand.first is None or cand.second is None:
+                return {index: sf}
+            pv = pair_values(cand.first, cand.second)
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return {index: sf}
+    notes = structure_term_notes(structure_gaps([pv]), "weak" if chosen_second else "undecided", why)
+    if not notes:
+        return {index: sf}
+    return {index: replace(sf, message="; ".join([sf.message] + notes) if sf.message else "; ".join(notes))}
 
 
 def undecided_note(cands: Sequence[_Candidate]) -> str:
@@ -353,9 +582,9 @@ def choose_structure(cands: Sequence[_Candidate]) -> StructureChoice:
             f"shrink >= {MIN_SHRINK:g} %)")
     if sig:
         return StructureChoice(ORDER2_SUM_PRODUCT, f"{head}: second-order Nomoto (T1, T2, T3) selected, the first "
-                                                   f"order loses, {text}")
+                                                   f"order loses, {text}", shrink=shrink, p_value=pv)
     return StructureChoice(1, f"{head}: first-order Nomoto selected, the second order loses (not significant), "
-                              f"{text}", near_tie=shrink > -MIN_SHRINK)
+                              f"{text}", near_tie=shrink > -MIN_SHRINK, shrink=shrink, p_value=pv)
 
 
 def _stack(rows: list[np.ndarray]) -> np.ndarray:
@@ -478,7 +707,7 @@ def structure_note_from_messages(fits: Sequence[SegmentFit]) -> list[str]:
     out: list[str] = []
     for f in fits:
         for part in f.message.split("; "):
-            if part.startswith((STRUCTURE_PREFIX, DISAGREEMENT_PREFIX, STRUCTURE_UNDECIDED)):
+            if part.startswith((STRUCTURE_PREFIX, DISAGREEMENT_PREFIX, STRUCTURE_UNDECIDED, STRUCTURE_TERM_PREFIX)):
                 base = part.split(", on this segment the second order was not fitted")[0]
                 if base not in out:
                     out.append(base)
