@@ -1266,6 +1266,9 @@ class DofSummary:
         the gaps (a gap of 1 is measurement noise, not model error).
     replay_gap : float
         Gap of the baseline replayed over the whole trial from its start [-].
+    heldout_floor : Mapping[str, float]
+        Per channel, the held-out gap a correct model would leave (noise plus the noise of its
+        fitted parameters, :mod:`pipeline.diagnose.floor`) [-, >= 1]; empty when not measured.
     """
 
     dof: str
@@ -1278,6 +1281,7 @@ class DofSummary:
     gap: float
     noise_floor: float
     replay_gap: float
+    heldout_floor: Mapping[str, float] = field(default_factory=dict)
 
 
 #: How the diagnosis ranks candidates (written into every GapReport and its JSON).

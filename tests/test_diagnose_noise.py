@@ -111,3 +111,31 @@ def test_interpolated_sensor_keeps_a_long_run_floor_when_noise_is_stated():
     # Stated per logged sample of the 5 Hz sensor: its interpolated block means are not 10 times
     # quieter than that.
     assert 0.7 < block_noise(e, w, 2, trapezoid=True, stated=0.02) / measured < 1.3
+
+
+def test_stated_compass_noise_reaches_the_heading_floor_of_a_slow_log(tmp_path):
+    # A Nomoto ship (T = 10 s) in 2 deg heading waves at 2 rad/s, logged at 2 Hz (6 samples per wave
+    # period): from the data alone the heading's floor is the wave's; with the compass noise stated
+    # in the vessel config it is the compass'.
+    from dataclasses import replace
+
+    from diagnose_synthetic import simulated_trial, waves_with_sigma
+    from pipeline.diagnose.gridfit import grid_data
+    from pipeline.diagnose.problem import build_problems
+    from pipeline.diagnose.segments import diagnose_segments
+    from pipeline.sim import Effects, sea_trial
+    from pipeline.vessel import parse_vessel
+
+    v = parse_vessel({"name": "ship", "nomoto": {"K": 0.2, "T": 10.0}})
+    trial, _ = simulated_trial(v, sea_trial(v), Effects(waves=waves_with_sigma(2.0, 0.1, np.radians(2.0))),
+                               tmp_path, "ship", noise="low", seed=4, dt=0.1, rate=2.0)
+    segs = diagnose_segments(trial)
+    compass = 0.002 * 0.3
+    floors = {}
+    for told in (False, True):
+        vessel = replace(v, sensor_noise={"psi": compass}) if told else v
+        p = next(q for q in build_problems(trial, segs, vessel) if q.dof == "yaw")
+        floors[told] = grid_data(p).sigma_angle
+        white = compass * np.sqrt((p.m - 0.5) / p.m) / np.sqrt(p.m)
+    assert floors[False] > 10 * white
+    assert 0.99 * white <= floors[True] <= 1.01 * compass
