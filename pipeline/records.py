@@ -1489,6 +1489,7 @@ class GapReport:
                 "dof": d.dof, "channels": list(d.channels), "inputs": list(d.inputs), "dt": num(d.dt),
                 "windows": d.n_windows, "folds": d.n_folds, "baseline": params(d.baseline), "gap": num(d.gap),
                 "noise_floor": num(d.noise_floor), "replay_gap": num(d.replay_gap),
+                "heldout_floor": {k: num(v) for k, v in d.heldout_floor.items()},
             } for d in self.dofs],
             "places": [{"category": p.category, "dof": p.dof, "name": p.name, "share": num(p.share),
                         "gap": num(p.gap), "n": p.n} for p in self.places],
