@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from .errors import ConfigError
-from .records import DOF_NAMES, INPUT_KINDS, INPUT_UNITS, SEGMENT_DOFS, SEGMENT_KINDS
+from .records import DOF_NAMES, INPUT_KINDS, INPUT_UNITS, SEGMENT_DOFS, SEGMENT_KINDS, STATE_UNITS
 
 DOF_WORDS = tuple(DOF_NAMES.values())
 _NUM = "number"
@@ -74,6 +74,9 @@ VESSEL_SCHEMA = ("table", {
     "topics": ("map", "string"),
     "sensors": ("map", SENSOR),
     "steady_state": ("table", {d: STEADY for d in STEADY_DOFS}, ()),
+    # Optional: white-noise standard deviation per logged sample of a sensor channel [SI unit of the
+    # channel] (pipeline.vessel docstring); the diagnosis' noise floor is at most this.
+    "sensor_noise": ("table", {c: _POS for c in STATE_UNITS}, ()),
 }, ("name",))
 
 #: A manifest's hand-named segment (``[[segments]]``).

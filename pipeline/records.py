@@ -1266,6 +1266,9 @@ class DofSummary:
         the gaps (a gap of 1 is measurement noise, not model error).
     replay_gap : float
         Gap of the baseline replayed over the whole trial from its start [-].
+    heldout_floor : Mapping[str, float]
+        Per channel, the held-out gap a correct model would leave (noise plus the noise of its
+        fitted parameters, :mod:`pipeline.diagnose.floor`) [-, >= 1]; empty when not measured.
     """
 
     dof: str
@@ -1278,6 +1281,7 @@ class DofSummary:
     gap: float
     noise_floor: float
     replay_gap: float
+    heldout_floor: Mapping[str, float] = field(default_factory=dict)
 
 
 #: How the diagnosis ranks candidates (written into every GapReport and its JSON).
@@ -1485,6 +1489,7 @@ class GapReport:
                 "dof": d.dof, "channels": list(d.channels), "inputs": list(d.inputs), "dt": num(d.dt),
                 "windows": d.n_windows, "folds": d.n_folds, "baseline": params(d.baseline), "gap": num(d.gap),
                 "noise_floor": num(d.noise_floor), "replay_gap": num(d.replay_gap),
+                "heldout_floor": {k: num(v) for k, v in d.heldout_floor.items()},
             } for d in self.dofs],
             "places": [{"category": p.category, "dof": p.dof, "name": p.name, "share": num(p.share),
                         "gap": num(p.gap), "n": p.n} for p in self.places],

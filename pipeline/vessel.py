@@ -15,6 +15,13 @@ Sections
 ``[nomoto]``      K [1/s], T [s]: the rudder ship's yaw model for the simulator.
 ``[rudder]``      max_angle [rad], max_rate [rad/s], yaw_moment [N m/rad], sway_force [N/rad].
 ``[[actuators]]`` map of MAVLink servo / RC channels to canonical inputs (see :class:`ActuatorMap`).
+``[sensor_noise]`` optional: standard deviation of a sensor's white noise per logged sample, by
+                  canonical channel, in its SI unit (``psi = 0.002`` rad, ``r = 0.002`` rad/s, ``sog``
+                  m/s), from a datasheet or a record at rest. Default: none, and the diagnosis
+                  estimates every noise floor from the data. Where given, the diagnosis takes the
+                  smaller of the two (:func:`pipeline.diagnose.problem.block_noise`): from the data
+                  alone a disturbance a few samples per period (waves on a heading logged at 1-3 Hz)
+                  cannot be told from sensor noise.
 """
 
 from __future__ import annotations
@@ -124,6 +131,9 @@ class Vessel:
         ``yaw_moment`` [N m/rad], ``sway_force`` [N/rad]).
     actuators : tuple[ActuatorMap, ...]
         PWM channel map for MAVLink / DataFlash logs.
+    sensor_noise : Mapping[str, float]
+        Stated white-noise standard deviation per logged sample, by canonical channel [SI]; empty
+        when not given (the noise is then estimated from the data).
     extra : Mapping[str, Any]
         Sections that later stages read themselves (``thrusters``, ``topics``, ``sensors``).
     path : str
@@ -141,6 +151,7 @@ class Vessel:
     nomoto: Mapping[str, float] = field(default_factory=dict)
     rudder: Mapping[str, float] = field(default_factory=dict)
     actuators: tuple[ActuatorMap, ...] = ()
+    sensor_noise: Mapping[str, float] = field(default_factory=dict)
     extra: Mapping[str, Any] = field(default_factory=dict)
     path: str = ""
 
@@ -292,6 +303,7 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
                                 pwm_trim=float(a.get("pwm_trim", trim)), pwm_span=float(a.get("pwm_span", span)),
                                 full_scale=fs, reverse_scale=float(a.get("reverse_scale", fs))))
     kw["actuators"] = tuple(acts)
+    kw["sensor_noise"] = {k: float(v) for k, v in doc.get("sensor_noise", {}).items()}
     kw["extra"] = {k: doc[k] for k in ("thrusters", "topics", "sensors", "steady_state") if k in doc}
     return Vessel(**kw)
 

@@ -253,3 +253,16 @@ def test_damping_matrix_wrong_type_is_config_error(matrix):
 def test_actuator_channel_wrong_type_is_config_error():
     with pytest.raises(ConfigError, match="channel"):
         parse_vessel({"name": "x", "actuators": [{"source": "servo", "channel": "one", "target": "delta"}]})
+
+
+def test_sensor_noise_is_optional_and_checked():
+    from pipeline.errors import ConfigError
+    from pipeline.vessel import parse_vessel
+
+    assert parse_vessel({"name": "x"}).sensor_noise == {}
+    v = parse_vessel({"name": "x", "sensor_noise": {"psi": 0.002, "r": 0.001}})
+    assert v.sensor_noise == {"psi": 0.002, "r": 0.001}
+    with pytest.raises(ConfigError, match="sensor_noise"):
+        parse_vessel({"name": "x", "sensor_noise": {"psi": -0.002}})
+    with pytest.raises(ConfigError, match="sensor_noise"):
+        parse_vessel({"name": "x", "sensor_noise": {"heading": 0.002}})

@@ -145,8 +145,12 @@ def _summary(report) -> str:
         if report.unexplained:
             lines.append("verdict: none of the library's effects is significant -- the model is NOT fine, see above")
         else:
-            lines.append(f"verdict: no effect, and nothing left above the sensor noise (trial gap "
-                         f"{report.gap_before:.3g} noise units)")
+            floors = [f"{d.dof} {ch} {f:.3g}" for d in report.dofs
+                      for ch, f in getattr(d, "heldout_floor", {}).items() if f >= 1.5]
+            lines.append(f"verdict: no effect, and nothing left above what a correct model leaves (trial gap "
+                         f"{report.gap_before:.3g} noise units"
+                         + (f"; held-out floor, the gap of a correct model whose fitted parameters carry the "
+                            f"noise: {', '.join(floors)}" if floors else "") + ")")
     for e in report.effects:
         params = ", ".join(f"{p.name} = {p.value:.4g} +- {p.stderr:.2g} {p.unit}" for p in e.params)
         head = "verdict" if e.step == 1 else f"effect {e.step}"

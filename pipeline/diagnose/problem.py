@@ -103,6 +103,9 @@ class DofProblem:
         angle and heading (unwrapped), regressors.
     noise : Mapping[str, float]
         White-noise standard deviation of each output channel at the trial rate [SI].
+    stated_noise : Mapping[str, float]
+        Output channels' white noise per sample stated in the vessel config (``[sensor_noise]``)
+        [SI]; empty when none is stated.
     derived_from : str or None
         For a body velocity that was not logged but derived from GNSS speed and course and the
         heading (:func:`derived_velocity`): the channels it came from; None for a measured one.
@@ -122,6 +125,7 @@ class DofProblem:
     raw: Mapping[str, np.ndarray] = field(repr=False)
     noise: Mapping[str, float] = field(default_factory=dict)
     derived_from: str | None = None
+    stated_noise: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def outputs(self) -> tuple[str, ...]:
@@ -320,7 +324,8 @@ def noise_scale(x: np.ndarray, windows: tuple[Window, ...]) -> tuple[float, int]
     return float("nan"), 1
 
 
-def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: bool = False) -> float:
+def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: bool = False,
+                stated: float | None = None) -> float:
     """White-noise standard deviation of an ``m``-sample block mean of ``x`` [SI].
 
     Blocks of ``mb = max(m, 8)`` samples are split in quarters and the contrast
@@ -348,6 +353,13 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: b
         The block means are trapezoidal (:func:`block_average` with ``trapezoid=True``): weights
         ``1/2, 1, ..., 1, 1/2`` over ``m + 1`` samples, variance ``(m - 1/2) s^2 / m^2`` instead
         of ``s^2 / m`` (half a sample's at ``m = 1``) for white noise.
+    stated : float, optional
+        The sensor's white noise per sample as stated in the vessel config (``[sensor_noise]``)
+        [unit of x]. The white part of the estimate is at most this: the contrast takes in
+        whatever moves within ``mb`` samples, and a wave a few samples per period (a heading logged
+        at 1-3 Hz) counts as noise there (a 1.3 deg heading wave at 1.1 Hz raised a 0.002 rad
+        compass to a floor of 0.026 rad). A sensor better than stated keeps its measured floor;
+        a noise correlated over several samples keeps its measured long-run level.
     """
     mb = max(m, 8)
     q = mb // 4
@@ -358,8 +370,16 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: b
     s_mb = _robust_sd(c) / 4.0
     s_m = s_mb * np.sqrt(4 * q / m)
     white = float(s_m * np.sqrt((m - 0.5) / m) if trapezoid else s_m)
+    told = stated is not None and np.isfinite(stated) and stated > 0
+    if told:
+        own = stated / np.sqrt(m)
+        white = min(white, float(own * np.sqrt((m - 0.5) / m) if trapezoid else own))
     s_inf, q_star = noise_scale(x, windows)
     if np.isfinite(s_inf):
+        if told:
+            # A sensor of that noise held or interpolated over about 0.75 q_star trial samples
+            # has the long-run level stated sqrt(0.75 q_star); more is not noise.
+            s_inf = min(s_inf, float(stated * np.sqrt(max(0.75 * q_star, 1.0))))
         coloured = float(s_inf / np.sqrt(max(m, 0.75 * q_star)))
         return max(white, coloured)
     return white
@@ -772,4 +792,6 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         regs.append(c)
     return DofProblem(dof=dof, channel=ch, angle=angle, heading=heading, inputs=inputs, regressors=tuple(regs),
                       fs=fs, m=m, dt=m / fs, windows=tuple(windows), t_guess=float(t_const), raw=raw, noise=noises,
-                      derived_from=derived_velocity(trial, ch))
+                      derived_from=derived_velocity(trial, ch),
+                      stated_noise={c: float(v) for c, v in getattr(vessel, "sensor_noise", {}).items()
+                                    if c in (ch, angle)})

@@ -19,17 +19,20 @@ different sensor group, shows no such delay, the delay is in the first channel's
 in the actuators: :func:`sensor_or_actuator` renames it ``sensor_delay``.
 
 Unexplained (:func:`unexplained`): a channel whose held-out gap ``g`` (noise units) after the
-selected effects fails the test "only noise is left", ``n_eff g^2 ~ chi^2(n_eff)``, at
-``ALPHA_UNEXPLAINED`` and exceeds ``UNEXPLAINED_GAP`` (a model error of at least
-``sqrt(UNEXPLAINED_GAP^2 - 1)`` noise units RMS) and ``MIN_UNEXPLAINED_SCALE`` of the channel's
-scale, is reported with where its gap lives, the
-frequency band holding its power and its correlation with speed, inputs and heading.
+selected effects fails the test "only what a correct model leaves is left",
+``n_eff (g / f)^2 ~ chi^2(n_eff)``, at ``ALPHA_UNEXPLAINED``, exceeds ``UNEXPLAINED_GAP f`` (a model
+error of at least ``sqrt(UNEXPLAINED_GAP^2 - 1) f`` noise units RMS), and whose model error
+``sqrt(g^2 - f^2)`` is at least ``MIN_UNEXPLAINED_SCALE`` of the channel's scale, is reported with
+where its gap lives, the frequency band holding its power and its correlation with speed, inputs and
+heading. ``f`` is the channel's held-out floor (:mod:`pipeline.diagnose.floor`): the gap a correct
+model leaves once its parameters carry the noise of their training windows (1 for a rate; several
+noise units for the heading of a slow ship, which integrates a gain error over a whole window).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping
 
 import numpy as np
@@ -101,6 +104,9 @@ class DofState:
     base_full : Mapping[str, numpy.ndarray] or None
         Outputs of the current baseline fitted on every window (one parameter set); the reference
         the next correction is taken from (None: ``base_heldout`` stands in).
+    channel_floor : dict[str, float]
+        Held-out gap per channel that a correct model leaves (:mod:`pipeline.diagnose.floor`);
+        missing channels: 1.
     """
 
     problem: DofProblem
@@ -111,6 +117,7 @@ class DofState:
     channel_neff: dict
     selected: list
     base_full: Mapping[str, np.ndarray] | None = None
+    channel_floor: dict = field(default_factory=dict)
 
 
 def corrected(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str, np.ndarray]) -> GridData:
@@ -435,9 +442,10 @@ def unexplained(states: Mapping[str, DofState], places: tuple[Place, ...], trial
             n_eff = s.channel_neff.get(ch, math.nan)
             if not (math.isfinite(g) and math.isfinite(n_eff) and n_eff > 1):
                 continue
-            pv = float(scipy.stats.chi2.sf(n_eff * g**2, n_eff))
-            rel = math.sqrt(max(g * g - 1.0, 0.0)) * units.get(key, math.nan)
-            if not (pv < ALPHA_UNEXPLAINED and g >= UNEXPLAINED_GAP and not rel < MIN_UNEXPLAINED_SCALE):
+            f = max(float(s.channel_floor.get(ch, 1.0)), 1.0)
+            pv = float(scipy.stats.chi2.sf(n_eff * (g / f) ** 2, n_eff))
+            rel = math.sqrt(max(g * g - f * f, 0.0)) * units.get(key, math.nan)
+            if not (pv < ALPHA_UNEXPLAINED and g >= UNEXPLAINED_GAP * f and not rel < MIN_UNEXPLAINED_SCALE):
                 continue
             r = resid.get(key)
             r = r / units[key] if r is not None and math.isfinite(units.get(key, math.nan)) else r
@@ -446,8 +454,8 @@ def unexplained(states: Mapping[str, DofState], places: tuple[Place, ...], trial
                 continue
             place = next((f"{pl.category} {pl.name}" for pl in places
                           if pl.dof == dof and pl.category not in ("channel", "frequency band") and pl.share > 0), "")
-            rows.append([dof, ch, g, pv, place, band, peak, corr, looks])
-    excess = np.array([max(r[2] ** 2 - 1.0, 0.0) for r in rows])
+            rows.append([dof, ch, g, pv, place, band, peak, corr, looks, f])
+    excess = np.array([max(r[2] ** 2 - r[9] ** 2, 0.0) for r in rows])
     tot = float(excess.sum())
     out = [Unexplained(dof=r[0], channel=r[1], gap=float(r[2]), share=float(e / tot) if tot > 0 else math.nan,
                        p_value=float(r[3]), place=r[4], band=r[5], peak_omega=float(r[6]), correlations=r[7],
@@ -457,9 +465,12 @@ def unexplained(states: Mapping[str, DofState], places: tuple[Place, ...], trial
 
 UNEXPLAINED_TEST = (
     f"a channel is unexplained when its held-out gap g after the selected effects fails the test 'only "
-    f"sensor noise is left' (n_eff g^2 against chi^2(n_eff), p < {ALPHA_UNEXPLAINED:g}, n_eff corrected for "
-    f"the residual's lag-1 autocorrelation), g >= {UNEXPLAINED_GAP:g} noise units, and the model error "
-    f"sqrt(g^2 - 1) noise units is at least {100 * MIN_UNEXPLAINED_SCALE:g}% of the channel's scale")
+    f"what a correct model leaves is left' (n_eff (g/f)^2 against chi^2(n_eff), p < {ALPHA_UNEXPLAINED:g}, "
+    f"n_eff corrected for the residual's lag-1 autocorrelation), g >= {UNEXPLAINED_GAP:g} f, and the model "
+    f"error sqrt(g^2 - f^2) noise units is at least {100 * MIN_UNEXPLAINED_SCALE:g}% of the channel's scale; "
+    f"f (>= 1) is the channel's held-out floor: the gap of the baseline cross-validated on synthetic "
+    f"data made from its own fit plus white noise at the measured floor (sensor noise plus the noise "
+    f"of fitted parameters)")
 
 
 def channel_gaps_of(base_score: sig.Score) -> tuple[dict, dict]:

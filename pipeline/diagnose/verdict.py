@@ -21,6 +21,7 @@ from . import oscillatory as osc
 from . import selection as sel
 from .candidates import Candidate, candidate_label, candidates_for
 from .crossval import CandidateRun, cross_validate, jackknife_stderr
+from .floor import heldout_floor
 from .gridfit import grid_data
 from .problem import DofProblem, build_problems
 from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
@@ -116,6 +117,7 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             notes.append(f"{p.dof}: inputs taken {adv:.3g} s earlier than logged (the log's timing of the commands: "
                          f"a command sampled by the log is recorded up to one sample after it switched); the "
                          f"baseline and every candidate use that timing")
+        notes += _stated_noise_notes(p)
     osc_problems = [q for q in (osc.build_oscillatory(trial, segs, dof) for dof in ("roll", "pitch")) if q is not None]
     if not problems and not osc_problems:
         raise DiagnoseError(f"{trial.name}: expected a DOF whose response (u, v or r, or sog) is measured and "
@@ -141,15 +143,18 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         gaps, neff = sel.channel_gaps_of(base_score)
         per_dof[p.dof] = {"problem": p, "data": d, "runs": runs, "scored": scored, "names": names,
                           "channel_gaps": dict(gaps)}
+        base_full = _full_outputs(base, len(p.windows))
+        floor_of = heldout_floor(p, d, base_full) if base_full is not None else {}
         states[p.dof] = sel.DofState(problem=p, data=d, results=[(res, r) for res, r, _ in scored],
                                      base_heldout=base.heldout, channel_gaps=dict(gaps), channel_neff=dict(neff),
-                                     selected=[], base_full=_full_outputs(base, len(p.windows)))
+                                     selected=[], base_full=base_full, channel_floor=dict(floor_of))
         resid = sig.heldout_residuals(d, base.heldout)
         floor = d.sigma_y
         summaries.append(DofSummary(
             dof=p.dof, channels=p.outputs, inputs=p.inputs, dt=p.dt, n_windows=len(p.windows),
             n_folds=int(base.fold_of.max()) + 1, baseline=_params(base, p, tuple(base.full.params)),
-            gap=base_score.gap_before, noise_floor=float(floor), replay_gap=math.nan))
+            gap=base_score.gap_before, noise_floor=float(floor), replay_gap=math.nan,
+            heldout_floor=dict(floor_of)))
         per_dof[p.dof]["resid"] = resid
 
     for q in osc_problems:
@@ -267,6 +272,28 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         dofs=tuple(summaries), traces=tuple(all_traces), spectra=tuple(spectra), thresholds=thresholds,
         notes=tuple(notes), effects=effects, gap_final=gap_final, unexplained=unexplained,
         ranking_rule=RANKING_RULE, unexplained_test=sel.UNEXPLAINED_TEST)
+
+
+def _stated_noise_notes(p: DofProblem) -> list[str]:
+    """Where the vessel config's ``[sensor_noise]`` capped a DOF's noise floor: the two floors."""
+    from .problem import block_noise
+
+    out = []
+    for ch in p.outputs:
+        s = p.stated_noise.get(ch)
+        if s is None:
+            continue
+        told = block_noise(p.raw[ch], p.windows, p.m, trapezoid=True, stated=s)
+        data = block_noise(p.raw[ch], p.windows, p.m, trapezoid=True)
+        unit = CHANNEL_UNITS.get(ch, "")
+        if told < data:
+            out.append(f"{p.dof}: noise floor of {ch} from the vessel config's [sensor_noise] ({s:.3g} {unit} per "
+                       f"sample): {told:.3g} {unit} per analysis step; the data alone gave {data:.3g} (what moves "
+                       f"within a few samples, a wave among it, counted as noise there)")
+        else:
+            out.append(f"{p.dof}: noise floor of {ch} measured in the data ({data:.3g} {unit} per analysis step), "
+                       f"below the vessel config's [sensor_noise] {s:.3g} {unit} per sample")
+    return out
 
 
 def _oscillatory_dof(q):
