@@ -33,9 +33,11 @@ plain library loop a user would write, collecting every field into lists:
   table as the parser floor, with the project's overhead over it; it is not a pass/fail target.
 
 Each reader is timed once (best of three when both take under ``QUICK_S``). The table gives the
-file size, both wall times, their ratio (plain / project: above 1 the project
-is faster) and the targets of issue 3: every format under 20 s for the hour, DataFlash and UBX at
-least 10x faster than the plain loop, no format slower than its plain loop (ratio >= 1).
+file size, both wall times, the project reader's CPU time, the wall-time ratio (plain / project:
+above 1 the project is faster) and the targets of issue 3: every format under 20 s for the hour
+(of CPU time, which other jobs on a shared machine do not inflate as they do the wall time),
+DataFlash and UBX at least 10x faster than the plain loop, no format slower than its plain loop
+(ratio >= 1).
 
 Usage::
 
@@ -297,6 +299,13 @@ def _timed(fn, *args) -> tuple[float, int]:
     return time.perf_counter() - t0, n
 
 
+def _timed_cpu(fn, *args) -> tuple[float, int, float]:
+    """Wall time [s], the function's result and this process's CPU time [s] (all threads)."""
+    c0 = time.process_time()
+    wall, n = _timed(fn, *args)
+    return wall, n, time.process_time() - c0
+
+
 def _size(paths) -> int:
     return sum(p.stat().st_size for p, _ in paths)
 
@@ -344,14 +353,16 @@ def main(argv=None) -> int:
         csv_note = None
         for fmt in formats:
             bar.set_postfix_str(f"time {fmt}")
-            t_proj, n_samples = _timed(project, files[fmt], vessel)
+            t_proj, n_samples, cpu_proj = _timed_cpu(project, files[fmt], vessel)
             t_plain, n_msgs = _timed(PLAIN[fmt], files[fmt])
             if max(t_proj, t_plain) < QUICK_S:
                 # Both quick: the best of three of each, so a first call's set-up (thread pools,
                 # imports, a cold page cache) does not decide the ratio.
-                t_proj = min([t_proj] + [_timed(project, files[fmt], vessel)[0] for _ in range(2)])
+                more = [_timed_cpu(project, files[fmt], vessel) for _ in range(2)]
+                t_proj = min([t_proj] + [m[0] for m in more])
+                cpu_proj = min([cpu_proj] + [m[2] for m in more])
                 t_plain = min([t_plain] + [_timed(PLAIN[fmt], files[fmt])[0] for _ in range(2)])
-            rows.append((fmt, _size(files[fmt]), t_proj, t_plain, n_samples, n_msgs))
+            rows.append((fmt, _size(files[fmt]), t_proj, t_plain, n_samples, n_msgs, cpu_proj))
             if fmt == "csv":
                 floor = min(_timed(lambda p: csv_parser_floor(p)[1], files[fmt])[0] for _ in range(3))
                 csv_note = (csv_parser_floor(files[fmt])[0], floor, t_proj)
@@ -365,23 +376,24 @@ def main(argv=None) -> int:
     print(f"Ingest benchmark: {args.minutes:g}-minute trial (IMU 100 Hz, two GPS 10 Hz, attitude and actuators "
           f"50 Hz), seed {args.seed}; {platform.machine()}, {os.cpu_count()} CPUs, Python "
           f"{platform.python_version()}; simulate {t_sim:.0f} s, write {t_write:.0f} s.")
-    print(f"Targets: every format < {MAX_SECONDS_PER_HOUR:g} s per hour (scaled x{scale:g} for this length), "
-          f"DataFlash and UBX >= 10x the plain loop, no format slower than its plain loop.")
+    print(f"Targets: every format < {MAX_SECONDS_PER_HOUR:g} s of CPU per hour (scaled x{scale:g} for this length; "
+          f"CPU time, so that other jobs on the machine do not decide it), DataFlash and UBX >= 10x the plain loop "
+          f"(wall time, same run), no format slower than its plain loop.")
     print()
-    print("| format | files | size [MB] | project ingest [s] | plain library loop [s] | plain loop | ratio "
-          "(plain/project) | samples (project) | messages (plain) | target |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| format | files | size [MB] | project ingest [s] | project CPU [s] | plain library loop [s] | plain loop | "
+          "ratio (plain/project) | samples (project) | messages (plain) | target |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     failed = []
-    for fmt, size, tp, tl, ns, nm in rows:
+    for fmt, size, tp, tl, ns, nm, cp in rows:
         ratio = tl / tp if tp > 0 else float("inf")
-        checks = [tp * scale < MAX_SECONDS_PER_HOUR, ratio >= MIN_SPEEDUP.get(fmt, 1.0)]
+        checks = [cp * scale < MAX_SECONDS_PER_HOUR, ratio >= MIN_SPEEDUP.get(fmt, 1.0)]
         ok = all(checks)
         if not checks[0]:
-            failed.append(f"{fmt} took {tp * scale:.1f} s per hour (target < {MAX_SECONDS_PER_HOUR:g} s)")
+            failed.append(f"{fmt} took {cp * scale:.1f} s of CPU per hour (target < {MAX_SECONDS_PER_HOUR:g} s)")
         if not checks[1]:
             failed.append(f"{fmt} at {ratio:.1f}x its plain loop (target >= {MIN_SPEEDUP.get(fmt, 1.0):g}x)")
         need = f">= {MIN_SPEEDUP.get(fmt, 1.0):g}x, < {MAX_SECONDS_PER_HOUR / scale:.3g} s"
-        print(f"| {fmt} | {len(files[fmt])} | {size / 1e6:.1f} | {tp:.2f} | {tl:.2f} | {PLAIN_TEXT[fmt]} | "
+        print(f"| {fmt} | {len(files[fmt])} | {size / 1e6:.1f} | {tp:.2f} | {cp:.2f} | {tl:.2f} | {PLAIN_TEXT[fmt]} | "
               f"{ratio:.1f}x | {ns} | {nm} | {'pass' if ok else 'FAIL'} ({need}) |")
     if csv_note is not None:
         engine, floor, tp = csv_note

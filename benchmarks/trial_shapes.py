@@ -23,9 +23,16 @@ steps and a zig-zag, written to CSV by this script (not by vesselid's writers) a
 one file and one file per run, and fitted; K and T at each rate are compared with the 50 Hz
 estimate (its peer in the same run) and with the frigate's own K and T.
 
+Several seeds (``--seeds 1-20``): every shape is simulated and fitted once per seed (the simulator's
+process and sensor noise differ, the manoeuvres do not), and a second table gives, per rate, sensor
+suite and coefficient, how often its error is within 2 standard errors (about 95 % expected by chance
+when the estimate is unbiased and its standard error right), with the mean and spread of the z values
+(a bias shows as a mean away from 0, a wrong standard error as a spread away from 1).
+
 Usage::
 
     .venv/bin/python benchmarks/trial_shapes.py [--rates 1 2 5 10 50] [--no-diagnose] [--out DIR]
+    .venv/bin/python benchmarks/trial_shapes.py --seeds 1-20 --no-diagnose --layouts "one file" --workers 2
 """
 
 from __future__ import annotations
@@ -36,6 +43,8 @@ import os
 import sys
 import tempfile
 import time
+from collections import defaultdict
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -251,29 +260,111 @@ def write_pvs(records, rate: float, layout: str, folder: Path, rng: np.random.Ge
 
 
 # --------------------------------------------------------------------------- main
+LAYOUTS = ("one file", "file per run")
+
+
+def seed_list(text: str) -> list[int]:
+    """Seeds from ``"5"``, ``"1,4,9"`` or ``"1-20"`` (ranges inclusive)."""
+    out: list[int] = []
+    for part in text.split(","):
+        a, _, b = part.strip().partition("-")
+        out.extend(range(int(a), int(b) + 1) if b else [int(a)])
+    return out
+
+
+def run_day(seed: int, rate: float, bv: bool, layouts: tuple[str, ...], diagnose_it: bool,
+            base: Path | None) -> list[dict]:
+    """Simulate one day (``seed``, ``rate``, sensor suite) and run it through every layout."""
+    res = simulate(VESSEL, sea_trial(VESSEL), sensors=sensors(rate, bv), seed=seed, actuator_rate=rate)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for layout in layouts:
+            folder = (base or Path(tmp)) / f"s{seed}_{'bv' if bv else 'gnss'}_{rate:g}_{layout[:3]}"
+            r = run_shape(write_shape(res, layout, bv, folder), diagnose_it)
+            r.update(seed=seed, rate=rate, layout=layout, sensors="body velocities" if bv else "GNSS only")
+            rows.append(r)
+    return rows
+
+
+def seed_summary(rows: list[dict]) -> list[str]:
+    """Markdown rows: per rate, sensors, layout and coefficient, the share within 2 SE over the seeds."""
+    groups: dict = defaultdict(lambda: defaultdict(list))
+    missing: dict = defaultdict(lambda: defaultdict(int))
+    for r in rows:
+        key = (r["rate"], r["sensors"], r["layout"])
+        for name, (z, _, _) in r.get("z", {}).items():
+            groups[key][name].append(z)
+        for name in r.get("missing", {}):
+            missing[key][name] += 1
+    lines = ["| rate Hz | sensors | layout | coefficient | seeds identified | within 2 SE | share | mean z | "
+             "sd z | worst z |", "|---|---|---|---|---|---|---|---|---|---|"]
+    totals: dict = defaultdict(lambda: [0, 0])
+    for key in sorted(groups):
+        for name in TRUTH:
+            zs = np.asarray(groups[key].get(name, []), float)
+            if not zs.size:
+                continue
+            k = int((np.abs(zs) < 2).sum())
+            totals[name][0] += k
+            totals[name][1] += zs.size
+            sd = f"{zs.std(ddof=1):.2f}" if zs.size > 1 else "-"
+            lines.append(f"| {key[0]:g} | {key[1]} | {key[2]} | {name} | {zs.size} (not: {missing[key][name]}) | "
+                         f"{k}/{zs.size} | {k / zs.size:.0%} | {zs.mean():+.2f} | {sd} | "
+                         f"{zs[np.argmax(np.abs(zs))]:+.1f} |")
+    lines += ["", "| coefficient | within 2 SE, all shapes and seeds | share |", "|---|---|---|"]
+    lines += [f"| {n} | {k}/{m} | {k / m:.0%} |" for n, (k, m) in totals.items()]
+    return lines
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rates", type=float, nargs="+", default=list(RATES))
     ap.add_argument("--no-diagnose", action="store_true")
     ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--seeds", type=seed_list, default=None,
+                    help="several seeds, e.g. 1-20 or 1,3,7: adds the share-within-2-SE table")
+    ap.add_argument("--layouts", nargs="+", choices=LAYOUTS, default=list(LAYOUTS))
+    ap.add_argument("--sensors", nargs="+", choices=("gnss", "bv"), default=["gnss", "bv"])
+    ap.add_argument("--workers", type=int, default=1, help="processes (at most 2 on a shared machine)")
+    ap.add_argument("--no-pvs", action="store_true", help="skip the PythonVehicleSimulator frigate")
     ap.add_argument("--out", type=Path, default=None, help="folder for the written logs (default: temporary)")
+    ap.add_argument("--json", type=Path, default=None, help="write every shape's z values here")
     args = ap.parse_args(argv)
     tmp = tempfile.TemporaryDirectory()
     base = args.out or Path(tmp.name)
-    schedule = sea_trial(VESSEL)
+    seeds = args.seeds or [args.seed]
     rows = []
-    print("| rate Hz | layout | sensors | runs | segs | within 2 SE | within 3 SE | worst (z) | not identified | "
+    print("| seed | rate Hz | layout | sensors | runs | segs | within 2 SE | within 3 SE | worst (z) | not identified | "
           "diagnosis | s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for bv in (False, True):
-        for rate in args.rates:
-            res = simulate(VESSEL, schedule, sensors=sensors(rate, bv), seed=args.seed, actuator_rate=rate)
-            for layout in ("one file", "file per run"):
-                files = write_shape(res, layout, bv, base / f"{'bv' if bv else 'gnss'}_{rate:g}_{layout[:3]}")
-                r = run_shape(files, not args.no_diagnose)
-                r.update(rate=rate, layout=layout, sensors="body velocities" if bv else "GNSS only")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    tasks = [(seed, rate, bv, tuple(args.layouts), not args.no_diagnose, args.out)
+             for seed in seeds for bv in (False, True) if ("bv" if bv else "gnss") in args.sensors
+             for rate in args.rates]
+    if args.workers > 1:
+        with ProcessPoolExecutor(max_workers=args.workers) as pool:
+            futures = [pool.submit(run_day, *task) for task in tasks]
+            for fut in futures:
+                for r in fut.result():
+                    rows.append(r)
+                    print(_row(r), flush=True)
+    else:
+        for task in tasks:
+            for r in run_day(*task):
                 rows.append(r)
                 print(_row(r), flush=True)
+    if args.json:
+        import json
+
+        from pipeline.atomic import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps(rows, indent=1, default=str))
+    if len(seeds) > 1:
+        print(f"\nSeeds {seeds[0]}..{seeds[-1]} ({len(seeds)}): share of seeds with the coefficient within 2 SE "
+              f"of the truth (about 95 % expected by chance)\n")
+        print("\n".join(seed_summary(rows)))
+    if args.no_pvs:
+        tmp.cleanup()
+        return 0
     pvs = pvs_frigate_day()
     if pvs is None:
         print(f"\nPVS frigate: skipped (PythonVehicleSimulator not found at PVS_PATH={PVS_PATH})")
@@ -305,14 +396,15 @@ def main(argv=None) -> int:
 
 def _row(r: dict) -> str:
     if r.get("error"):
-        return f"| {r['rate']:g} | {r['layout']} | {r['sensors']} | error: {r['error'][:120]} |||||||"
+        return (f"| {r['seed']} | {r['rate']:g} | {r['layout']} | {r['sensors']} | error: {r['error'][:120]} "
+                f"|||||||")
     z = r["z"]
     n2 = sum(abs(v[0]) < 2 for v in z.values())
     n3 = sum(abs(v[0]) < 3 for v in z.values())
     worst = max(z.items(), key=lambda kv: abs(kv[1][0]), default=None)
     worst_s = f"{worst[0]} {worst[1][0]:+.1f}" if worst else "-"
     miss = ", ".join(sorted(r["missing"])) or "-"
-    return (f"| {r['rate']:g} | {r['layout']} | {r['sensors']} | {r['runs']} | {r['segments']} | {n2}/{len(z)} | "
+    return (f"| {r['seed']} | {r['rate']:g} | {r['layout']} | {r['sensors']} | {r['runs']} | {r['segments']} | {n2}/{len(z)} | "
             f"{n3}/{len(z)} | {worst_s} | {miss} | {r['effect']} | {r['seconds']:.0f} |")
 
 

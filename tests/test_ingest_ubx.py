@@ -175,6 +175,42 @@ def test_heading_without_valid_flag_is_rejected_and_counted(sim, tmp_path):
 
 
 # ----------------------------------------------------------------------------- damaged files
+def _rtcm_frame(msg_no: int, payload_len: int = 19) -> bytes:
+    from pipeline.ingest.sniff import crc24q
+
+    body = bytes([msg_no >> 4, (msg_no & 0x0F) << 4]) + bytes(range(payload_len - 2))
+    head = b"\xd3" + bytes([payload_len >> 8, payload_len & 0xFF]) + body
+    return head + crc24q(head).to_bytes(3, "big")
+
+
+def test_damaged_frames_counted_once_where_their_length_leads_to_the_next_frame(files, tmp_path):
+    # pyubx2 (validation off) yields a frame whose checksum fails as one message and resumes after
+    # its declared length; a "b5 62" inside its payload is not a second frame. Same for an RTCM 3
+    # frame with a broken CRC that ends where the next frame starts. Junk elsewhere stays garbage.
+    data = files["plain"].read_bytes()
+    size = 100
+    frames = [data[i:i + size] for i in range(0, len(data), size)]
+    bad = bytearray(frames[10])
+    bad[40:42] = b"\xb5\x62"  # a sync pair inside the payload; the checksum no longer matches
+    rtcm_bad = bytearray(_rtcm_frame(1077))
+    rtcm_bad[10] ^= 0xFF
+    junk = b"\xd3\x00\x13junk"  # an RTCM-like header whose length leads nowhere
+    body = (b"".join(frames[:10]) + bytes(bad) + b"".join(frames[11:20]) + _rtcm_frame(1005) + bytes(rtcm_bad)
+            + b"".join(frames[20:30]) + junk + b"".join(frames[30:]))
+    p = tmp_path / "damaged.ubx"
+    p.write_bytes(body)
+    s = read_ubx(p).summary
+    assert s.skipped["BAD_CHECKSUM"] == 1
+    assert s.skipped["RTCM3-1005"] == 1 and s.skipped["RTCM3_BAD_CRC"] == 1
+    assert s.skipped["GARBAGE_BYTES"] == size + len(junk)  # the bad UBX frame's bytes and the junk
+    assert any(w == "bad CRC: 1 RTCM 3 frame(s) skipped" for w in s.warnings)
+    with open(p, "rb") as fh:
+        lib = sum(raw is not None for raw, _ in UBXReader(fh, protfilter=7, quitonerror=0, validate=0,
+                                                           msgmode=0, parsing=False))
+    ours = sum(s.read.values()) + sum(v for k, v in s.skipped.items() if k != "GARBAGE_BYTES")
+    assert ours == lib
+
+
 def test_crc_error_garbage_nmea_duplicate_and_truncation(files, tmp_path):
     data = files["plain"].read_bytes()
     clean = read_ubx(files["plain"])

@@ -19,7 +19,8 @@ from ..errors import FitError
 from ..records import DOF_CHANNELS, Segment, SegmentFit, Trial
 from .data import input_levels, noise_sigma, pick_channel, segment_label, segment_samples, steady_before
 from ..model.first_order import decay, guess_step, step_response
-from .least_squares import fit_least_squares
+from .least_squares import LeastSquaresResult, fit_least_squares
+from .robust_covariance import hac_covariance
 from .segment_fit import build_segment_fit
 
 #: Fewest samples a first-order fit accepts.
@@ -30,6 +31,10 @@ MIN_TIME_CONSTANTS = 0.5
 RECOMMENDED_TIME_CONSTANTS = 3.0
 #: Response (initial value or step size) needed, in multiples of the noise standard deviation.
 MIN_SNR = 5.0
+
+#: Lag-1 residual autocorrelation, in multiples of its white-noise spread ``1/sqrt(n)``, above which
+#: the standard errors come from the autocorrelation-consistent covariance (when it is the larger).
+HAC_SIGNIFICANCE = 3.0
 
 DECAY_PARAMS = ("y0", "T")
 STEP_PARAMS = ("y0", "y_ss", "T")
@@ -113,6 +118,47 @@ def guess_decay(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
             return {"y0": float(sign * math.exp(icpt)), "T": float(-1.0 / slope)}
     g = guess_step(t, y)
     return {"y0": g["y0"], "T": g["T"]}
+
+
+# --------------------------------------------------------------------------- coloured noise
+def coloured_noise_errors(res: LeastSquaresResult, jac: np.ndarray) -> tuple[LeastSquaresResult, str]:
+    """Standard errors that hold when neighbouring residuals are alike.
+
+    A channel logged slower than the trial grid (GNSS speed at 5 Hz on a 10 or 50 Hz grid, from
+    which align derives ``u`` and ``v``) is interpolated between its samples, so neighbouring
+    residuals share their noise and the white-noise covariance ``(J^T J)^-1 s^2`` is too small
+    (for linear interpolation at twice the rate, by a factor of about 1.6 in standard error). When
+    the residuals' lag-1 autocorrelation is significant (above ``HAC_SIGNIFICANCE / sqrt(n)``),
+    the Newey-West covariance (:func:`pipeline.fit.robust_covariance.hac_covariance`) replaces it
+    when it gives the larger error on ``T``; white residuals keep the classic covariance.
+
+    Parameters
+    ----------
+    res : LeastSquaresResult
+        The fit (parameters include ``T``), with its white-noise covariance.
+    jac : numpy.ndarray
+        Jacobian of the model at the estimate, shape (n, p).
+
+    Returns
+    -------
+    LeastSquaresResult
+        ``res``, or a copy with the HAC covariance and standard errors.
+    str
+        A note naming the correction ("" when none was made).
+    """
+    n = res.n
+    if not (n > len(res.names) + 2 and math.isfinite(res.lag1) and res.lag1 > HAC_SIGNIFICANCE / math.sqrt(n)
+            and np.all(np.isfinite(res.stderr))):
+        return res, ""
+    rob = hac_covariance(jac, res.residuals, np.zeros(n, int))
+    se = np.sqrt(np.clip(np.diag(rob.covariance), 0.0, None))
+    k = res.names.index("T")
+    if not (np.all(np.isfinite(se)) and se[k] > res.stderr[k]):
+        return res, ""
+    note = (f"standard errors from the autocorrelation-consistent (Newey-West) covariance: residual lag-1 "
+            f"autocorrelation {res.lag1:.2f} over {n} samples, {rob.bandwidth} lags, "
+            f"{' '.join(f'{nm} x{f:.2f}' for nm, f in zip(res.names, se / res.stderr))} the white-noise errors")
+    return replace(res, covariance=rob.covariance, stderr=se), note
 
 
 # --------------------------------------------------------------------------- segment checks
@@ -233,6 +279,8 @@ def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     lo_T, hi_T = time_constant_bounds(t)
     res = fit_least_squares(lambda tt, p: decay(tt, *p), lambda tt, p: decay_jacobian(tt, *p), t, y,
                             [p0["y0"], p0["T"]], DECAY_PARAMS, [-np.inf, lo_T], [np.inf, hi_T])
+    res, hac_note = coloured_noise_errors(res, decay_jacobian(t, *res.values))
+    notes += [hac_note] if hac_note else []
     return build_segment_fit(segment, "first_order_decay", channel, t, y, res, ("T",), notes)
 
 
@@ -272,6 +320,8 @@ def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
     res = fit_least_squares(lambda tt, p: step_response(tt, *p), lambda tt, p: step_jacobian(tt, *p), t, y,
                             [p0["y0"], p0["y_ss"], p0["T"]], STEP_PARAMS,
                             [-np.inf, -np.inf, lo_T], [np.inf, np.inf, hi_T])
+    res, hac_note = coloured_noise_errors(res, step_jacobian(t, *res.values))
+    notes += [hac_note] if hac_note else []
     sf = build_segment_fit(segment, "first_order_step", channel, t, y, res, ("T",), notes)
     _, steady_note = step_steadiness(trial, sf)
     return replace(sf, message="; ".join(m for m in (sf.message, steady_note) if m))

@@ -181,8 +181,8 @@ def _frames(buf: np.ndarray) -> dict[str, Any]:
         j = np.searchsorted(starts, pos, side="right") - 1
         return (j >= 0) & (pos < ends[np.maximum(j, 0)]) if len(starts) else np.zeros(len(pos), bool)
 
-    bad = cc[~good]
-    bad_crc = int((~inside(bad)).sum())
+    outside = ~inside(cc[~good])
+    bad_crc = _bad_checksum_frames(cc[~good][outside], (cc + 8 + pc)[~good][outside], starts, n)
     tail_from = int(ends[-1]) if len(ends) else 0
     truncated = 0
     # A cut frame at the end: the first candidate after the last frame runs past the end of
@@ -204,6 +204,34 @@ def _frames(buf: np.ndarray) -> dict[str, Any]:
     return {"starts": starts, "ends": ends, "cls": buf[starts + 2].astype(np.int64),
             "id": buf[starts + 3].astype(np.int64), "bad_crc": bad_crc, "truncated": truncated, "gaps": gaps,
             "size": n}
+
+
+def _bad_checksum_frames(bad: np.ndarray, bad_end: np.ndarray, starts: np.ndarray, n: int) -> int:
+    """How many bad-checksum frame candidates outside the valid frames are frames [count].
+
+    A candidate whose declared length ends where a valid frame starts, or at the end of the data,
+    is a framed message with a damaged payload (pyubx2, validation off, yields it as a message);
+    a candidate inside such a frame is part of its payload, not a frame of its own. Every other
+    candidate counts as one bad-checksum frame, as before.
+
+    Parameters
+    ----------
+    bad, bad_end : numpy.ndarray
+        Start and declared end offsets [bytes] of the candidates, in stream order.
+    starts : numpy.ndarray
+        Start offsets of the valid frames [bytes].
+    n : int
+        Length of the data [bytes].
+    """
+    framed = np.isin(bad_end, starts) | (bad_end == n)
+    count, covered_to = 0, -1
+    for a, e, whole in zip(bad.tolist(), bad_end.tolist(), framed.tolist()):
+        if a < covered_to:
+            continue
+        count += 1
+        if whole:
+            covered_to = e
+    return count
 
 
 def _nav_pvt(buf: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -505,6 +533,7 @@ def _between_frames(data: bytes, fr: Mapping[str, Any], chans: dict, read: Count
     garbage = 0
     nmea_lines: list[bytes] = []
     rtcm: Counter = Counter()
+    rtcm_bad = 0
     for a, b in fr["gaps"]:
         chunk = data[a:b]
         hits = _NMEA.findall(chunk)
@@ -512,12 +541,17 @@ def _between_frames(data: bytes, fr: Mapping[str, Any], chans: dict, read: Count
         rest = _NMEA.sub(b"", chunk) if hits else chunk
         frames = rtcm3_frames(rest) if b"\xd3" in rest else {}
         rtcm.update(frames)
-        garbage += len(rest) - _rtcm_bytes(rest, frames)
+        damaged, damaged_bytes = _rtcm_bad_crc(rest) if b"\xd3" in rest else (0, 0)
+        rtcm_bad += damaged
+        garbage += len(rest) - _rtcm_bytes(rest, frames) - damaged_bytes
     for msg_no, count in rtcm.items():
         skipped[f"RTCM3-{msg_no}"] += count
     if rtcm:
         warnings.append("RTCM 3 correction frames between UBX frames counted, not used: "
                         + ", ".join(f"{k} x{v}" for k, v in sorted(rtcm.items())))
+    if rtcm_bad:
+        skipped["RTCM3_BAD_CRC"] += rtcm_bad
+        warnings.append(f"bad CRC: {rtcm_bad} RTCM 3 frame(s) skipped")
     if nmea_lines:
         start_time = _nmea_inside(nmea_lines, chans, read, skipped, warnings, start_time, suffix)
     if garbage:
@@ -717,6 +751,57 @@ def _esf_channels(rows: np.ndarray, decoded: np.ndarray, esf_idx: np.ndarray, pv
         used_msgs[msg_no[sel][ok]] = True
     read[msg] += int(used_msgs.sum())
     skipped[msg] += int(n_msgs - used_msgs.sum())
+
+
+def _rtcm_spans(rest: bytes) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """Start and end offsets of RTCM 3 frame candidates in ``rest``: valid CRC, and bad CRC."""
+    from .sniff import crc24q
+
+    good, bad = [], []
+    i = rest.find(b"\xd3")
+    while 0 <= i < len(rest) - 5:
+        length = ((rest[i + 1] & 0x03) << 8) | rest[i + 2]
+        end = i + 6 + length
+        if rest[i + 1] & 0xFC == 0 and length >= 2 and end <= len(rest):
+            if crc24q(rest[i:end - 3]) == int.from_bytes(rest[end - 3:end], "big"):
+                good.append((i, end))
+                i = rest.find(b"\xd3", end)
+                continue
+            bad.append((i, end))
+        i = rest.find(b"\xd3", i + 1)
+    return good, bad
+
+
+def _rtcm_bad_crc(rest: bytes) -> tuple[int, int]:
+    """RTCM 3 frames with a damaged CRC in ``rest``: their count and bytes.
+
+    A candidate (sync byte, zero reserved bits, length) whose CRC fails is a frame only when its
+    declared end is where a valid RTCM 3 frame starts or where ``rest`` ends (the next UBX frame or
+    the end of the file), and it lies inside no valid frame; anything else stays garbage (a sync
+    byte followed by six zero bits occurs by chance in one byte of 64).
+
+    Parameters
+    ----------
+    rest : bytes
+        Bytes between UBX frames, NMEA sentences removed.
+
+    Returns
+    -------
+    tuple[int, int]
+        Damaged frames [count] and the bytes they span.
+    """
+    good, bad = _rtcm_spans(rest)
+    good_starts = {a for a, _ in good}
+    count = size = 0
+    covered_to = -1
+    for a, e in bad:
+        inside_good = any(ga <= a < ge for ga, ge in good)
+        if a < covered_to or inside_good or not (e == len(rest) or e in good_starts):
+            continue
+        count += 1
+        size += e - a
+        covered_to = e
+    return count, size
 
 
 def _rtcm_bytes(rest: bytes, frames: Mapping[int, int]) -> int:
