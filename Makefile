@@ -20,7 +20,7 @@ run: $(STAMP)
 
 ## make test: the test suite without the slow regression runs (under 5 minutes on 2 cores)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadgroup -m "not slow"
+	$(BIN)/python -m pytest -q -n 2 --dist loadscope -m "not slow"
 
 ## make test-all: the whole suite: make test, then the slow regression runs (pytest -m slow)
 test-all: test-ci

@@ -43,11 +43,6 @@ from pipeline.vessel import load_vessel
 ROOT = Path(__file__).resolve().parents[1]
 from conftest import AAUSHIP_TOML  # noqa: E402
 from conftest import AAUSHIP as VESSEL  # noqa: E402 - loaded once per session
-
-#: One worker runs this module (`make test` uses --dist loadgroup): its module fixtures write and
-#: read whole simulated days, which every worker would otherwise repeat.
-pytestmark = pytest.mark.xdist_group("align-multi-day")
-
 NAMES = ("X_u", "Y_v", "N_r", "K_p", "M_q", "K_nomoto", "T_nomoto")
 #: UTC of the simulated trial start (the writers' default).
 START_UNIX = 1714903200.0  # 2024-05-05 10:00:00 UTC

@@ -44,7 +44,9 @@ def test_every_virtualmass_run_gives_one_coast_down_at_the_cut(summary):
         # The authors picked the start of their deceleration interval by eye from the same data.
         assert abs(seg["t_start"] - seg["authors_cut"]) < 0.5, f["file"]
         assert seg["fit_success"] and seg["channel"] == "sog"
-        assert 2.0 < seg["T"] < 30.0 and 0 < seg["T_stderr"] < 0.1 * seg["T"]
+        # Newey-West standard errors where the residuals are serially correlated (1 Hz speed over
+        # ground; pipeline/fit/first_order.py): 11 % of T on the widest run, was under 10 % before.
+        assert 2.0 < seg["T"] < 30.0 and 0 < seg["T_stderr"] < 0.15 * seg["T"]
 
 
 def test_turning_runs_are_not_coast_downs(summary):

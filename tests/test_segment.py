@@ -26,11 +26,6 @@ from pipeline.vessel import load_vessel, parse_vessel
 
 from conftest import simulated_sea_trial  # noqa: E402
 from conftest import AAUSHIP  # noqa: E402 - the vessel, loaded once per session
-
-#: One worker runs this module (`make test` uses --dist loadgroup): its module fixtures write and
-#: read whole simulated days, which every worker would otherwise repeat.
-pytestmark = pytest.mark.xdist_group("segment-sea-trials")
-
 SHIP = parse_vessel({"name": "ship", "nomoto": {"K": 0.156, "T": 72.4}})
 SCHEDULE = sea_trial(AAUSHIP)
 MATCHED_KINDS = ("step", "coast_down", "free_decay", "rudder_step", "zigzag")
