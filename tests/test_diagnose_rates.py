@@ -115,6 +115,7 @@ def _gyro_biased(trial, bias):
     return replace(trial, data=data)
 
 
+@pytest.mark.slow  # 11-16 s on an idle core: run by make test-ci (make test stays under 5 min)
 def test_gyro_bias_is_a_sensor_bias_not_a_moment(tmp_path):
     # The gyro reads r + 0.01 rad/s; the compass sees the true heading. A yaw moment would turn
     # the boat, so the compass tells the two apart.
