@@ -194,27 +194,6 @@ def test_held_gnss_fixes_are_one_fix_each(yaw_sim, tmp_path):
     assert np.ptp(np.diff(sog[inside])) < 1e-9 or np.unique(np.round(sog[inside], 12)).size > 5
 
 
-def test_fixes_held_for_two_rows_are_one_fix_each_but_irregular_pairs_are_kept():
-    """A 10 Hz logger holding a 5 Hz fix repeats every other row: one fix each, at the row it appeared
-    (kept as rows, every other sample would be a fix 0.1 s late and a coast-down's T comes out long).
-    Identical pairs at irregular times (a boat at rest, quantised position) are measurements."""
-    from pipeline.align.gnss import collapse_held_fixes
-    from pipeline.records import Channel
-
-    t = np.arange(0.0, 30.0, 0.1)
-    fix_t = np.floor(t * 5 + 1e-9) / 5
-    chans = {n: Channel(n, t, np.sin(fix_t + k)) for k, n in enumerate(("lat", "lon", "sog", "cog"))}
-    out, notes = collapse_held_fixes(chans)
-    assert len(out["sog"].t) == 150 and np.allclose(out["sog"].t, np.arange(0.0, 30.0, 0.2))
-    assert "300 rows hold 150 fixes (about 5 Hz)" in notes[0]
-    rng = np.random.default_rng(1)
-    repeat = rng.random(t.size) < 0.45  # about every other row equal to the one before, at random
-    idx = np.maximum.accumulate(np.where(repeat, 0, np.arange(t.size)))
-    rest = {n: Channel(n, t, np.round(rng.normal(size=t.size), 3)[idx]) for n in ("lat", "lon", "sog", "cog")}
-    out, notes = collapse_held_fixes(rest)
-    assert notes == [] and len(out["sog"].t) == t.size
-
-
 # --------------------------------------------------------------------------- runs through the flow
 @pytest.fixture(scope="module")
 def day(tmp_path_factory):

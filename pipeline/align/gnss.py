@@ -20,43 +20,6 @@ from ..records import Channel
 GNSS_CHANNELS = ("lat", "lon", "sog", "cog")
 
 
-#: Rows per new fix from which repeats are held fixes whatever their timing.
-MIN_ROWS_PER_FIX = 3.0
-#: Rows per new fix from which repeats are held fixes when the new fixes come on a regular clock.
-MIN_REGULAR_ROWS_PER_FIX = 1.5
-#: Share of new-fix intervals that must lie within one row interval of their median to be regular.
-REGULAR_SHARE = 0.9
-
-
-def _held(t: np.ndarray, new: np.ndarray) -> bool:
-    """Whether the repeated rows of one receiver are a logger holding its fixes.
-
-    Parameters
-    ----------
-    t : numpy.ndarray
-        Row times [s].
-    new : numpy.ndarray
-        True where a row differs from the one before (a new fix).
-
-    Notes
-    -----
-    At three or more rows per fix the repeats are held fixes. From 1.5 rows per fix (a logger at
-    twice the fix rate repeats every other row, and keeping the repeats would put each fix a row
-    late half of the time, a staircase that lengthens every fitted time constant), they are when
-    the new fixes arrive on the receiver's clock: at least ``REGULAR_SHARE`` of the intervals
-    between new fixes within one row interval of their median. Identical rows of a boat at rest
-    (quantised position, zero speed) come at irregular times and are kept.
-    """
-    n_fix = int(new.sum())
-    if n_fix < 2 or n_fix * MIN_REGULAR_ROWS_PER_FIX > len(t):
-        return False
-    if n_fix * MIN_ROWS_PER_FIX <= len(t):
-        return True
-    row_dt = float(np.median(np.diff(t)))
-    fix_dt = np.diff(t[new])
-    return bool(np.mean(np.abs(fix_dt - np.median(fix_dt)) <= row_dt + 1e-9) >= REGULAR_SHARE)
-
-
 def collapse_held_fixes(channels: Mapping[str, Channel]) -> tuple[dict[str, Channel], list[str]]:
     """Drop repeated (held) GNSS fixes, keeping the first sample of each.
 
@@ -77,10 +40,8 @@ def collapse_held_fixes(channels: Mapping[str, Channel]) -> tuple[dict[str, Chan
     Channels of one receiver are grouped by their ``@sensor`` suffix; channels on the same sample
     times are tested together (a row repeats only when every one of them repeats), so a boat at
     rest whose speed reads exactly 0.0 twice is not mistaken for a held fix while its position
-    still moves. A receiver needs at least ``MIN_ROWS_PER_FIX`` rows per new fix on average (a
-    logger at three times the fix rate), or, from ``MIN_REGULAR_ROWS_PER_FIX`` (a logger at twice
-    the fix rate, e.g. a 10 Hz IMU with a 5 Hz receiver), new fixes on a regular clock (see
-    :func:`_held`) before anything is dropped: an occasional identical pair is noise.
+    still moves. A receiver needs at least 3 repeats per new fix on average (a logger at three
+    times the fix rate) before anything is dropped: an occasional identical pair is noise.
     """
     out = dict(channels)
     notes: list[str] = []
@@ -103,7 +64,7 @@ def collapse_held_fixes(channels: Mapping[str, Channel]) -> tuple[dict[str, Chan
             same = np.all(vals[:, 1:] == vals[:, :-1], axis=0)
             new = np.concatenate([[True], ~same])
             n_fix = int(new.sum())
-            if not _held(t, new):
+            if n_fix * 3 > len(t):
                 continue
             for n in group:
                 c = channels[n]
