@@ -12,7 +12,8 @@ import pipeline.autopilot as ap
 from pipeline.autopilot.config import (DEFAULT_MAX_ANGLE, DEFAULT_MAX_RATE, ardupilot_params,
                                        build_autopilot_config, read_autopilot_toml, read_coefficients_json,
                                        read_waves_json, write_ardupilot_params, write_autopilot_toml)
-from pipeline.autopilot.design import build_autopilot, nomoto_from_fits, write_autopilot_outputs
+from pipeline.autopilot.design import build_autopilot, nomoto_from_fits
+from pipeline.autopilot.outputs import write_autopilot_outputs
 from pipeline.errors import AutopilotError
 from pipeline.model.waves import WaveParams
 from pipeline.records import Estimate, Fits

@@ -43,10 +43,12 @@ def _imports(mod: str, path: Path, module_level: bool):
 
 
 def _graph() -> dict[str, set[str]]:
+    """Module -> modules it imports, at module level or inside a function (a deferred import that closes
+    a loop is still a cycle: it only hides it from the interpreter)."""
     mods = _modules()
     graph: dict[str, set[str]] = {m: set() for m in mods}
     for m, path in mods.items():
-        for target, names in _imports(m, path, module_level=True):
+        for target, names in _imports(m, path, module_level=False):
             for name in names or [""]:
                 full = f"{target}.{name}" if name else target
                 dest = full if full in mods else target

@@ -7,7 +7,8 @@ Modules
 ``kalman``       5-state model [xi_w, psi_w, psi, r, b], observability, Van Loan, the discrete filter.
 ``config``       :class:`AutopilotConfig`, ``AUTOPILOT.toml`` writer/reader, input readers, ArduPilot export.
 ``closed_loop``  Heading-loop simulation: PD alone, with wave filtering, with bias feed-forward.
-``design``       :func:`build_autopilot` and :func:`write_autopilot_outputs` (what the CLI and ``run`` call).
+``design``       :func:`build_autopilot` (what the CLI and ``run`` call).
+``outputs``      :func:`write_autopilot_outputs`: the config, ArduPilot parameters, check, figures, fragment.
 ``report_section`` :func:`autopilot_html_section` for the HTML report.
 ``figures``      Closed-loop and wave-fit figures (PNG bytes).
 ``cli``          ``vesselid waves`` and ``vesselid autopilot``.
@@ -33,7 +34,7 @@ _EXPORTS = {
     "loop_margins": ".pd", "margin_table": ".pd", "pd_gains": ".pd",
     "autopilot_html_section": ".report_section",
     "AutopilotResult": ".design", "build_autopilot": ".design", "nomoto_from_fits": ".design",
-    "write_autopilot_outputs": ".design",
+    "write_autopilot_outputs": ".outputs",
     "HeadingRecord": ".waves_fit", "WaveFit": ".waves_fit", "fit_wave_record": ".waves_fit",
     "fit_wave_spectrum": ".waves_fit", "read_heading_record": ".waves_fit", "welch_psd": ".waves_fit",
 }

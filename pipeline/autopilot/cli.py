@@ -178,7 +178,8 @@ def cmd_autopilot(args: argparse.Namespace) -> int:
     """
     from .config import (read_coefficients_json, read_waves_json, source_file, write_ardupilot_params,
                          write_autopilot_toml)
-    from .design import build_autopilot, write_autopilot_outputs
+    from .design import build_autopilot
+    from .outputs import write_autopilot_outputs
     from .kalman import sampled_noise_variance
     from .waves_fit import read_heading_record
 

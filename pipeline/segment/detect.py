@@ -18,6 +18,7 @@ from ..align.plausibility import check_segmentable, without_implausible
 from ..records import DOF_CHANNELS, INPUT_UNITS, Segment, Segments, Trial
 from .decays import equilibrium, release_decays, release_index
 from .inputs import Level, split_levels
+from .quality import detection_quality, noise_std
 from .rudder import RudderChange, classify_changes, find_holds, is_command_like, sine_fit_r2, zigzag_runs
 from .speed_events import coast_down_segments
 
@@ -28,25 +29,6 @@ INPUT_DOF = {
 }
 #: Attitude channel -> DOF for free decays.
 DECAY_DOF = {"phi": "roll", "theta": "pitch"}
-
-
-def noise_std(y: np.ndarray) -> float:
-    """Robust white-noise level of a signal [unit of y]: MAD of first differences / (0.6745 sqrt 2).
-
-    Parameters
-    ----------
-    y : numpy.ndarray
-        Uniformly sampled signal; non-finite samples are dropped first.
-
-    Returns
-    -------
-    float
-        Noise standard deviation [unit of y]; NaN with fewer than four finite samples.
-    """
-    d = np.diff(y[np.isfinite(y)])
-    if len(d) < 3:
-        return np.nan
-    return float(np.median(np.abs(d - np.median(d))) / 0.6745 / np.sqrt(2))
 
 
 def _settle_index(y: np.ndarray, fs: float, noise: float) -> tuple[int, float]:
@@ -68,22 +50,6 @@ def _settle_index(y: np.ndarray, fs: float, noise: float) -> tuple[int, float]:
     frac = np.convolve(np.nan_to_num(frac), np.ones(w) / w, mode="same")
     i63 = int(np.argmax(frac >= 0.632)) if np.any(frac >= 0.632) else n
     return n, (i63 / fs if i63 < n else np.nan)
-
-
-def detection_quality(snr: float, length_in_t: float) -> float:
-    """Quality of a detected segment in [0, 1]: saturating in SNR (good above ~50) and in length
-    (good above ~4 T).
-
-    Parameters
-    ----------
-    snr : float
-        Signal-to-noise ratio of the segment's response [-].
-    length_in_t : float
-        Segment length in time constants (or half cycles) [-].
-    """
-    if not np.isfinite(snr) or not np.isfinite(length_in_t):
-        return 0.0
-    return float(np.clip(1 - np.exp(-snr / 20), 0, 1) * np.clip(1 - np.exp(-length_in_t / 2), 0, 1))
 
 
 def _gap_cut(trial: Trial, t_start: float, t_end: float, channel: str) -> float:

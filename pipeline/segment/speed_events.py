@@ -31,6 +31,7 @@ import numpy as np
 
 from ..geo import wrap_pi
 from ..records import Segment, Trial
+from .quality import detection_quality, noise_std
 
 #: Lowest steady speed a coast-down starts from [m/s].
 V_MIN = 0.5
@@ -220,7 +221,6 @@ def find_coast_downs(trial: Trial, channel: str | None = None) -> tuple[list[Seg
     candidates : list[Candidate]
         Every deceleration examined, accepted or not, with the reason.
     """
-    from .detect import detection_quality, noise_std
 
     channel = channel or response_channel(trial)
     if channel is None or not trial.has(channel):
