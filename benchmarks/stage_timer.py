@@ -6,7 +6,9 @@ the costs are written as JSON (and after each stage, so a run stopped half-way s
 where its time went). ``benchmarks/scaling.py`` runs ``vesselid run`` through
 :func:`main` so that the 2-hour run, measured as a whole by ``os.wait4``, also says where its time
 went. The peak resident memory of each top-level stage is its own (Linux: ``/proc/self/clear_refs``
-resets it at the start of the stage).
+resets it at the start of the stage). CPU times include the worker processes a stage started and
+waited for (``RUSAGE_CHILDREN``); a function called inside a worker (``fit_nomoto`` in the whole-record
+fits when they run in workers) is timed in the worker and not reported (its stage is).
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from __future__ import annotations
 import atexit
 import functools
 import json
+import os
+import resource
 import sys
 import time
 from pathlib import Path
@@ -23,7 +27,9 @@ TARGETS = (
     ("pipeline.flow", "load_trial", "ingest + align", True),
     ("pipeline.flow", "segment_trial", "segment", True),
     ("pipeline.flow", "fit_segments", "fit", True),
+    ("pipeline.fit.trial", "fit_nomoto_trial", "fit: whole-record Nomoto (fit_nomoto_trial)", False),
     ("pipeline.fit.nomoto_segment", "fit_nomoto", "fit: whole-record Nomoto solves (fit_nomoto, summed)", False),
+    ("pipeline.fit.structure", "select_structures", "fit: damping-structure selection (select_structures)", False),
     ("pipeline.fit.structure", "select_structure", "fit: damping-structure selection (select_structure, summed)",
      False),
     ("pipeline.fit.extend", "extend_fits", "fit: grey-box (extend_fits)", False),
@@ -43,6 +49,14 @@ def _hwm() -> float:
     return float("nan")
 
 
+def _cpu() -> float:
+    """CPU time [s] of this process and of the child processes it has waited for (the worker
+    processes of :mod:`pipeline.parallel` are waited for when their pool closes, inside the stage)."""
+    own = time.process_time()
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own + kids.ru_utime + kids.ru_stime
+
+
 def _reset() -> bool:
     try:
         Path("/proc/self/clear_refs").write_text("5")
@@ -56,25 +70,32 @@ def install(out_json: str | Path) -> dict:
     import importlib
 
     costs: dict = {}
+    pid = os.getpid()
+
+    def record(label: str, t0: float, c0: float, own: bool) -> None:
+        entry = {"wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(_cpu() - c0, 2)}
+        if own:
+            entry["peak_gb"] = round(_hwm() / 1e9, 3)
+        if "summed" in label and label in costs:
+            # Called many times inside a stage: the total over the calls.
+            entry = {k: round(costs[label][k] + entry[k], 2) for k in ("wall_s", "cpu_s")}
+        costs[label] = entry
+        # Written after every stage too: a run stopped half-way still says where it got.
+        Path(out_json).write_text(json.dumps(costs, indent=1))
+
     for module, attr, label, top in TARGETS:
         mod = importlib.import_module(module)
         fn = getattr(mod, attr)
 
         def wrapped(*args, _fn=fn, _label=label, _top=top, **kwargs):
             own = _reset() if _top else False
-            t0, c0 = time.perf_counter(), time.process_time()
+            t0, c0 = time.perf_counter(), _cpu()
             try:
                 return _fn(*args, **kwargs)
             finally:
-                entry = {"wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(time.process_time() - c0, 2)}
-                if own:
-                    entry["peak_gb"] = round(_hwm() / 1e9, 3)
-                if "summed" in _label and _label in costs:
-                    # Called many times inside a stage: the total over the calls.
-                    entry = {k: round(costs[_label][k] + entry[k], 2) for k in ("wall_s", "cpu_s")}
-                costs[_label] = entry
-                # Written after every stage too: a run stopped half-way still says where it got.
-                Path(out_json).write_text(json.dumps(costs, indent=1))
+                # Inside a forked worker (pipeline.parallel) nothing is recorded: the parent times its stage.
+                if os.getpid() == pid:
+                    record(_label, t0, c0, own)
 
         setattr(mod, attr, functools.wraps(fn)(wrapped))
     atexit.register(lambda: Path(out_json).write_text(json.dumps(costs, indent=1)))

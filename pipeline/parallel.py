@@ -1,0 +1,124 @@
+"""Independent work units on the cores this process may use: how many workers, and an ordered map.
+
+The pipeline's long stages hold units that do not depend on each other (the whole-record Nomoto fit
+of each yaw segment's window, the report's figures). :func:`ordered_map` runs them in worker
+processes (``concurrent.futures.ProcessPoolExecutor``) and returns their results in input order, so
+that what follows is the same as a serial loop: each unit is computed by the same code on the same
+inputs, only in another process.
+
+How many workers: ``VESSELID_JOBS`` when set (``1`` forces every unit into this process), otherwise
+the cores this process may run on (``os.sched_getaffinity``), at most :data:`MAX_JOBS`. Workers are
+forked (Linux): the large inputs every unit reads (a trial) are handed to them through the fork,
+not pickled per unit. Where fork is not available, inside a worker, or in a daemonic process
+(which may not have children), the units run here, one after the other.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Callable, Iterable, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+#: Environment variable that sets the number of worker processes (``1``: no workers).
+JOBS_ENV = "VESSELID_JOBS"
+#: Most worker processes by default (each forked worker adds the pages it writes to the memory).
+MAX_JOBS = 2
+
+_CONTEXT: Any = None
+_IN_WORKER = False
+
+
+def available_cores() -> int:
+    """Cores this process may run on (``os.sched_getaffinity``; ``os.cpu_count`` where it is missing)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def worker_count(jobs: int | None = None) -> int:
+    """Number of worker processes to use.
+
+    Parameters
+    ----------
+    jobs : int, optional
+        Asked for explicitly; default ``VESSELID_JOBS``, else the available cores up to
+        :data:`MAX_JOBS`.
+
+    Returns
+    -------
+    int
+        At least 1 (1: run in this process).
+
+    Raises
+    ------
+    ValueError
+        ``jobs`` or ``VESSELID_JOBS`` is not a positive whole number.
+    """
+    if jobs is None:
+        text = os.environ.get(JOBS_ENV, "").strip()
+        if not text:
+            return min(available_cores(), MAX_JOBS)
+        try:
+            jobs = int(text)
+        except ValueError:
+            raise ValueError(f"{JOBS_ENV}: expected a positive whole number of worker processes, "
+                             f"found {text!r}") from None
+    if int(jobs) != jobs or jobs < 1:
+        raise ValueError(f"jobs: expected a positive whole number of worker processes, found {jobs!r}")
+    return int(jobs)
+
+
+def _can_fork() -> bool:
+    return ("fork" in multiprocessing.get_all_start_methods() and not _IN_WORKER
+            and not multiprocessing.current_process().daemon)
+
+
+def _init(context: Any) -> None:
+    global _CONTEXT, _IN_WORKER
+    _CONTEXT, _IN_WORKER = context, True
+
+
+def _call(fn: Callable[[Any, T], R], item: T) -> R:
+    return fn(_CONTEXT, item)
+
+
+def ordered_map(fn: Callable[[Any, T], R], items: Iterable[T], context: Any = None,
+                jobs: int | None = None) -> list[R]:
+    """``[fn(context, item) for item in items]``, the items spread over worker processes.
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(context, item)``; a module-level function (it is sent to the workers by name). It
+        should catch the errors it expects and return them as results: an exception raised in a
+        worker is raised here as it would be in a serial loop, but only after the units already
+        started have finished.
+    items : iterable
+        The units; each is pickled to its worker, so keep them small.
+    context : object, optional
+        What every unit reads (a trial): inherited by the forked workers, never pickled.
+    jobs : int, optional
+        Number of workers (:func:`worker_count`).
+
+    Returns
+    -------
+    list
+        The results in the order of ``items``.
+    """
+    items = list(items)
+    n = min(worker_count(jobs), len(items))
+    if n <= 1 or not _can_fork():
+        return [fn(context, x) for x in items]
+    try:
+        with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("fork"),
+                                 initializer=_init, initargs=(context,)) as pool:
+            return list(pool.map(_call, [fn] * len(items), items))
+    except BrokenProcessPool:
+        # A worker died (killed for memory, say): the same units in this process, one after the other.
+        return [fn(context, x) for x in items]
