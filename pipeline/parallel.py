@@ -9,14 +9,17 @@ inputs, only in another process.
 How many workers: ``VESSELID_JOBS`` when set (``1`` forces every unit into this process), otherwise
 the cores this process may run on (``os.sched_getaffinity``), at most :data:`MAX_JOBS`. Workers are
 forked (Linux): the large inputs every unit reads (a trial) are handed to them through the fork,
-not pickled per unit. Where fork is not available, inside a worker, or in a daemonic process
-(which may not have children), the units run here, one after the other.
+not pickled per unit. Where fork is not available, inside a worker, in a daemonic process (which
+may not have children: a Dask worker of ``vesselid batch``) or from a thread other than the main
+one, the units run here, one after the other.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import threading
+import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterable, TypeVar
@@ -28,6 +31,11 @@ R = TypeVar("R")
 JOBS_ENV = "VESSELID_JOBS"
 #: Most worker processes by default (each forked worker adds the pages it writes to the memory).
 MAX_JOBS = 2
+
+#: When a list (set by a benchmark, ``benchmarks/stage_timer.py``), every :func:`ordered_map` call appends
+#: ``{"jobs": workers, "unit_cpu_s": [CPU time of each unit, s]}``: what an idle machine's wall time of
+#: the call would be follows from it. None: nothing is measured.
+TRACE: list | None = None
 
 _CONTEXT: Any = None
 _IN_WORKER = False
@@ -75,8 +83,12 @@ def worker_count(jobs: int | None = None) -> int:
 
 
 def _can_fork() -> bool:
+    # Not from a thread other than the main one (a Dask worker thread of `vesselid batch --workers 1`):
+    # a fork there copies locks other threads may hold. Not in a daemonic process (Dask's worker
+    # processes): it may not have children, and the batch spreads its trials over the cores already.
     return ("fork" in multiprocessing.get_all_start_methods() and not _IN_WORKER
-            and not multiprocessing.current_process().daemon)
+            and not multiprocessing.current_process().daemon
+            and threading.current_thread() is threading.main_thread())
 
 
 def _init(context: Any) -> None:
@@ -84,8 +96,24 @@ def _init(context: Any) -> None:
     _CONTEXT, _IN_WORKER = context, True
 
 
-def _call(fn: Callable[[Any, T], R], item: T) -> R:
-    return fn(_CONTEXT, item)
+def _call(fn: Callable[[Any, T], R], item: T):
+    if TRACE is None:
+        return fn(_CONTEXT, item)
+    c0 = time.process_time()
+    out = fn(_CONTEXT, item)
+    return out, time.process_time() - c0
+
+
+def _serial(fn: Callable[[Any, T], R], items: list, context: Any) -> list[R]:
+    if TRACE is None:
+        return [fn(context, x) for x in items]
+    out, cpu = [], []
+    for x in items:
+        c0 = time.process_time()
+        out.append(fn(context, x))
+        cpu.append(time.process_time() - c0)
+    TRACE.append({"jobs": 1, "unit_cpu_s": cpu})
+    return out
 
 
 def ordered_map(fn: Callable[[Any, T], R], items: Iterable[T], context: Any = None,
@@ -114,11 +142,33 @@ def ordered_map(fn: Callable[[Any, T], R], items: Iterable[T], context: Any = No
     items = list(items)
     n = min(worker_count(jobs), len(items))
     if n <= 1 or not _can_fork():
-        return [fn(context, x) for x in items]
+        return _serial(fn, items, context)
     try:
         with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("fork"),
                                  initializer=_init, initargs=(context,)) as pool:
-            return list(pool.map(_call, [fn] * len(items), items))
+            out = list(pool.map(_call, [fn] * len(items), items))
     except BrokenProcessPool:
         # A worker died (killed for memory, say): the same units in this process, one after the other.
-        return [fn(context, x) for x in items]
+        return _serial(fn, items, context)
+    if TRACE is None:
+        return out
+    TRACE.append({"jobs": n, "unit_cpu_s": [c for _, c in out]})
+    return [r for r, _ in out]
+
+
+def makespan(unit_cpu_s: list[float], jobs: int) -> float:
+    """Wall time [s] of units of the given CPU times on ``jobs`` idle cores, handed out in order to
+    whichever worker is free first (as :func:`ordered_map`'s pool does).
+
+    Parameters
+    ----------
+    unit_cpu_s : list of float
+        CPU time of each unit, in order [s].
+    jobs : int
+        Workers.
+    """
+    free = [0.0] * max(1, int(jobs))
+    for c in unit_cpu_s:
+        k = free.index(min(free))
+        free[k] += c
+    return max(free)

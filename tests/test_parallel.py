@@ -82,3 +82,19 @@ def test_nested_maps_run_inside_the_worker(monkeypatch):
 def test_a_unit_error_is_raised_as_in_a_serial_loop():
     with pytest.raises(ValueError, match="three"):
         parallel.ordered_map(_fails_on_three, range(5), jobs=2)
+
+
+def test_units_stay_in_this_process_from_another_thread(monkeypatch):
+    monkeypatch.delenv(parallel.JOBS_ENV, raising=False)
+    out = []
+    th = threading.Thread(target=lambda: out.extend(parallel.ordered_map(_square_and_pid, range(3),
+                                                                         context={"scale": 1}, jobs=2)))
+    th.start()
+    th.join()
+    assert [v for v, _ in out] == [0, 1, 4] and {pid for _, pid in out} == {os.getpid()}
+
+
+def test_makespan_hands_units_out_in_order():
+    assert parallel.makespan([4.0, 1.0, 1.0, 1.0, 1.0], 2) == 4.0
+    assert parallel.makespan([1.0, 1.0, 4.0], 2) == 5.0
+    assert parallel.makespan([2.0, 3.0], 1) == 5.0
