@@ -131,6 +131,18 @@ def rss_of(pid: int) -> tuple[float, str]:
     return rss, name
 
 
+def pss_of(pid: int) -> float:
+    """Proportional set size [bytes] of one process (Linux ``/proc/<pid>/smaps_rollup``): pages shared with
+    other processes (a forked worker's copy-on-write pages of its parent) counted once over them; 0 when gone."""
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Pss:"):
+                return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0.0
+
+
 def descendants(pid: int) -> list[int]:
     """Child processes of ``pid``, recursively (Linux ``/proc/<pid>/task/*/children``)."""
     out, todo = [], [pid]
@@ -160,6 +172,7 @@ class TreeSampler:
         self.pid, self.interval = pid, interval
         self.t0 = time.perf_counter()
         self.peak_sum, self.peak_at = 0.0, math.nan
+        self.peak_pss = 0.0
         self.by_name: dict[str, float] = {}
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self.run, daemon=True)
@@ -167,19 +180,22 @@ class TreeSampler:
 
     def run(self) -> None:
         while not self.stop.wait(self.interval):
-            total = 0.0
+            total = pss = 0.0
             for p in [self.pid, *descendants(self.pid)]:
                 rss, name = rss_of(p)
                 total += rss
+                pss += pss_of(p)
                 if name:
                     self.by_name[name] = max(self.by_name.get(name, 0.0), rss)
             if total > self.peak_sum:
                 self.peak_sum, self.peak_at = total, time.perf_counter() - self.t0
+            self.peak_pss = max(self.peak_pss, pss)
 
     def result(self) -> dict:
         self.stop.set()
         self.thread.join()
         return {"tree_peak_gb": round(self.peak_sum / 1e9, 3), "tree_peak_at_s": round(self.peak_at, 1),
+                "tree_peak_pss_gb": round(self.peak_pss / 1e9, 3),
                 "peak_gb_by_command": {k: round(v / 1e9, 3) for k, v in sorted(self.by_name.items())}}
 
 
@@ -488,7 +504,7 @@ def main() -> int:
             run = measure_wait4([str(ROOT / "benchmarks" / "stage_timer.py"), str(folder / "run_stages.json"),
                                  "run", str(manifest), "--out", str(folder / "report")], folder)
             row["run"] = {k: run[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr", "tree_peak_gb",
-                                              "tree_peak_at_s", "peak_gb_by_command")}
+                                              "tree_peak_at_s", "tree_peak_pss_gb", "peak_gb_by_command")}
             if (folder / "run_stages.json").exists():
                 row["run"]["stages"] = json.loads((folder / "run_stages.json").read_text())
                 row["run"]["idle_2core_wall_s"] = idle_wall_estimate(row["run"])
@@ -501,14 +517,16 @@ def main() -> int:
                       flush=True)
             print(f"{minutes:5.0f} min  vesselid run    {run['wall_s']:7.1f} s wall {run['cpu_s']:7.1f} s cpu  "
                   f"{run['peak_gb']:6.2f} GB peak RSS (wait4), sampled tree peak {run['tree_peak_gb']:.2f} GB at "
-                  f"{run['tree_peak_at_s']} s, by command {run['peak_gb_by_command']}  rc={run['rc']} "
+                  f"{run['tree_peak_at_s']} s (proportional set size of the tree: {run['tree_peak_pss_gb']:.2f} GB), by command "
+                  f"{run['peak_gb_by_command']}  rc={run['rc']} "
                   f"{run['stderr'][-300:]}", flush=True)
         if args.compare_root and minutes <= args.compare_max and "run" in row:
             # The same vesselid run with another checkout's pipeline (the baseline of a speed change).
             cmp = measure_wait4([str(ROOT / "benchmarks" / "stage_timer.py"), str(folder / "compare_stages.json"),
                                  "run", str(manifest), "--out", str(folder / "report_compare")], folder,
                                 Path(args.compare_root))
-            row["compare"] = {k: cmp[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr")}
+            row["compare"] = {k: cmp[k] for k in ("wall_s", "cpu_s", "peak_gb", "rc", "stderr", "tree_peak_gb",
+                                                  "tree_peak_pss_gb")}
             row["compare"]["root"] = str(args.compare_root)
             if (folder / "compare_stages.json").exists():
                 row["compare"]["stages"] = json.loads((folder / "compare_stages.json").read_text())
