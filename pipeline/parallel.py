@@ -16,6 +16,7 @@ one, the units run here, one after the other.
 
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import os
 import threading
@@ -36,6 +37,9 @@ MAX_JOBS = 2
 #: ``{"jobs": workers, "unit_cpu_s": [CPU time of each unit, s]}``: what an idle machine's wall time of
 #: the call would be follows from it. None: nothing is measured.
 TRACE: list | None = None
+
+#: Freeze the collector's view of the parent's objects while workers run (see :func:`ordered_map`).
+FREEZE_GC = True
 
 _CONTEXT: Any = None
 _IN_WORKER = False
@@ -143,6 +147,11 @@ def ordered_map(fn: Callable[[Any, T], R], items: Iterable[T], context: Any = No
     n = min(worker_count(jobs), len(items))
     if n <= 1 or not _can_fork():
         return _serial(fn, items, context)
+    # The objects alive now are moved out of the collector's reach (gc.freeze) while the workers run: a
+    # forked worker's collections would otherwise walk, and so copy, every page of the inherited heap.
+    freeze = FREEZE_GC
+    if freeze:
+        gc.freeze()
     try:
         with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("fork"),
                                  initializer=_init, initargs=(context,)) as pool:
@@ -150,6 +159,9 @@ def ordered_map(fn: Callable[[Any, T], R], items: Iterable[T], context: Any = No
     except BrokenProcessPool:
         # A worker died (killed for memory, say): the same units in this process, one after the other.
         return _serial(fn, items, context)
+    finally:
+        if freeze:
+            gc.unfreeze()
     if TRACE is None:
         return out
     TRACE.append({"jobs": n, "unit_cpu_s": [c for _, c in out]})
