@@ -339,8 +339,10 @@ def diagnose_trial(trial: Trial, vessel: Vessel, fits: Fits):
         The trial holds nothing the diagnosis can replay.
     """
     from .diagnose import diagnose
+    from .parallel import worker_count
 
-    return diagnose(trial, vessel, fits=fits)
+    # The DOFs are cross-validated side by side when the cores allow (the results do not depend on it).
+    return diagnose(trial, vessel, fits=fits, jobs=worker_count())
 
 
 # --------------------------------------------------------------------------- provenance
@@ -516,6 +518,48 @@ def _run_steps(bar, steps, logs, vessel, out, load, model, manual_segments, segm
     return FlowResult(trial, segments, fits, autopilot, diagnosis, paths, skipped)
 
 
+@dataclass(frozen=True)
+class OutputInputs:
+    """What :func:`write_outputs`'s units read: the staging folder and the later stages' records."""
+
+    stage: Path
+    autopilot: AutopilotResult | None
+    diagnosis: Any
+    skipped: Mapping[str, str]
+    figures: Any
+
+
+def _output_unit(inputs: OutputInputs, unit) -> Any:
+    """One unit of :func:`write_outputs`: a report figure (:func:`pipeline.report.draw_figure`), or (``None``)
+    the autopilot's and the diagnosis's files, returning their report sections in flow order."""
+    import html as _html
+
+    if unit is not None:
+        from .report import draw_figure
+
+        return draw_figure(inputs.figures, unit)
+    from .autopilot import write_autopilot_outputs
+    from .autopilot.report_section import autopilot_html_section
+    from .diagnose.figures import write_figures as write_diagnosis_figures
+    from .diagnose.html import diagnose_html_section
+
+    sections = []
+    if inputs.autopilot is not None:
+        write_autopilot_outputs(inputs.autopilot, inputs.stage)
+        sections.append(autopilot_html_section(inputs.autopilot))
+    else:
+        sections.append(("Heading autopilot and Kalman filter",
+                         f"<p>No autopilot was designed: {_html.escape(inputs.skipped.get('autopilot', ''))}</p>"))
+    if inputs.diagnosis is not None:
+        write_json(inputs.diagnosis.to_dict(), inputs.stage / DIAGNOSIS_NAME)
+        write_diagnosis_figures(inputs.diagnosis, inputs.stage)
+        sections.append(diagnose_html_section(inputs.diagnosis))
+    else:
+        sections.append(("Sim-to-real gap",
+                         f"<p>No diagnosis: {_html.escape(inputs.skipped.get('diagnose', ''))}</p>"))
+    return sections
+
+
 def write_outputs(out: str | Path, trial: Trial, segments: Segments, fits: Fits,
                   autopilot: AutopilotResult | None, diagnosis, skipped: Mapping[str, str],
                   provenance: Provenance | None = None, vessel: Vessel | None = None) -> ReportPaths:
@@ -541,31 +585,24 @@ def write_outputs(out: str | Path, trial: Trial, segments: Segments, fits: Fits,
     vessel : Vessel, optional
         Its ``[added_mass]`` marks derivatives fitted with the added mass taken as zero.
     """
-    import html as _html
+    from .parallel import ordered_map
+    from .report import FigureInputs, figure_plan, write_report
+    from .report.quality import segment_quality
+    from .report.rows import check_fits, segment_list
 
-    from .autopilot import write_autopilot_outputs
-    from .autopilot.report_section import autopilot_html_section
-    from .diagnose.figures import write_figures as write_diagnosis_figures
-    from .diagnose.html import diagnose_html_section
-    from .report import write_report
-
+    check_fits(fits)
     with atomic_folder(out) as stage:
         write_json(segments_to_json(segments), stage / SEGMENTS_NAME)
-        sections = []
-        if autopilot is not None:
-            write_autopilot_outputs(autopilot, stage)
-            sections.append(autopilot_html_section(autopilot))
-        else:
-            sections.append(("Heading autopilot and Kalman filter",
-                             f"<p>No autopilot was designed: {_html.escape(skipped.get('autopilot', ''))}</p>"))
-        if diagnosis is not None:
-            write_json(diagnosis.to_dict(), stage / DIAGNOSIS_NAME)
-            write_diagnosis_figures(diagnosis, stage)
-            sections.append(diagnose_html_section(diagnosis))
-        else:
-            sections.append(("Sim-to-real gap",
-                             f"<p>No diagnosis: {_html.escape(skipped.get('diagnose', ''))}</p>"))
+        qualities = [segment_quality(sf, trial) for sf in fits.segment_fits]
+        inputs = OutputInputs(stage, autopilot, diagnosis, dict(skipped),
+                              FigureInputs(fits, qualities, trial, segment_list(fits, segments), stage))
+        # The autopilot's and the diagnosis's outputs (their figures) and each report figure are
+        # independent units: worker processes draw them side by side when the cores allow, the
+        # largest unit first. The report page, which embeds them all, is written after.
+        units = [None, *figure_plan(fits, qualities, trial)]
+        sections = ordered_map(_output_unit, units, context=inputs)[0]
         added = dict(vessel.added_mass) if vessel is not None and vessel.has_rigid_body else None
         paths = write_report(fits, stage, trial=trial, segments=segments, extra_sections=sections,
-                             diagnosis=diagnosis, provenance=provenance, added_mass=added)
+                             diagnosis=diagnosis, provenance=provenance, added_mass=added,
+                             qualities=qualities, figures_written=True)
     return paths.moved_to(Path(out))

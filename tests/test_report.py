@@ -655,3 +655,16 @@ def test_report_lists_the_runs_with_files_offsets_and_spans(trial):
     assert ">55.00<" in table and ">109.90<" in table
     one = html_mod.trial_section_html(trial)
     assert "1 run(s)" in one and "one run (no grouping recorded)" in one
+
+
+def test_figures_drawn_in_worker_processes_equal_a_serial_report(fits, trial, tmp_path):
+    """The figures drawn side by side in worker processes (pipeline.parallel) are the serial ones, byte for byte,
+    and a caller that drew them already (figures_written) gets the same report."""
+    one = write_report(fits, tmp_path / "one", trial=trial, jobs=1)
+    two = write_report(fits, tmp_path / "two", trial=trial, jobs=2)
+    assert [p.name for p in one.files] == [p.name for p in two.files]
+    for a, b in zip(one.files, two.files):
+        assert a.read_bytes() == b.read_bytes(), a.name
+    qual = [quality.segment_quality(sf, trial) for sf in fits.segment_fits]
+    again = write_report(fits, tmp_path / "two", trial=trial, qualities=qual, figures_written=True)
+    assert again.fit_figures == two.fit_figures and again.html.read_bytes() == two.html.read_bytes()

@@ -24,6 +24,7 @@ from typing import Mapping
 
 import numpy as np
 
+from ..parallel import ordered_map
 from .candidates import Candidate
 from .crossval import cross_validate
 from .gridfit import GridData
@@ -61,13 +62,13 @@ def heldout_floor(p: DofProblem, d: GridData, full: Mapping[str, np.ndarray],
     dict[str, float]
         Channel -> floor; empty when the noise floor is unknown or a replicate cannot be fitted.
     """
-    from . import significance as sig
-
     if not (np.isfinite(d.sigma_y) and d.sigma_y > 0):
         return {}
     names = {"y": p.channel, "angle": p.angle}
     rng = np.random.default_rng(SEED)
-    sums: dict[str, list[float]] = {}
+    # The replicates' noise is drawn here, in turn (the same draws whatever runs them); each
+    # replicate's cross-validation is independent (worker processes when the cores allow).
+    synthetic = []
     for _ in range(replicates):
         y = np.where(d.mask, np.nan_to_num(full["y"]) + rng.normal(0.0, d.sigma_y, d.y.shape), np.nan)
         # The measured start of each window is a line's end through a few samples: about twice a
@@ -80,17 +81,32 @@ def heldout_floor(p: DofProblem, d: GridData, full: Mapping[str, np.ndarray],
                                    np.nan)
         elif d.angle is not None:
             kw["angle"] = None
-        ds = replace(d, **kw)
-        try:
-            runs = cross_validate(p, ds, [Candidate(p, ds)])
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
-            return {}
-        if not runs:
-            return {}
-        sc = sig.score(ds, runs[0].heldout, runs[0].heldout, 1, {k: v for k, v in names.items() if v})
-        for c in sc.channels:
-            sums.setdefault(c.channel, []).append(float(c.gap_before) ** 2)
+        synthetic.append(kw)
+    gaps = ordered_map(_replicate_gaps, synthetic, context=(p, d, names))
+    if any(g is None for g in gaps):
+        return {}
+    sums: dict[str, list[float]] = {}
+    for g in gaps:
+        for channel, gap in g:
+            sums.setdefault(channel, []).append(float(gap) ** 2)
     return {ch: float(max(np.sqrt(np.mean(v)), 1.0)) for ch, v in sums.items() if np.all(np.isfinite(v))}
+
+
+def _replicate_gaps(inputs: tuple, kw: dict) -> list[tuple[str, float]] | None:
+    """Held-out gap per channel of one synthetic replicate (``inputs``: problem, data, channel
+    names; ``kw``: the replicate's outputs); None when it cannot be fitted."""
+    from . import significance as sig
+
+    p, d, names = inputs
+    ds = replace(d, **kw)
+    try:
+        runs = cross_validate(p, ds, [Candidate(p, ds)])
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
+    if not runs:
+        return None
+    sc = sig.score(ds, runs[0].heldout, runs[0].heldout, 1, {k: v for k, v in names.items() if v})
+    return [(c.channel, c.gap_before) for c in sc.channels]
 
 
 __all__ = ["heldout_floor", "REPLICATES"]

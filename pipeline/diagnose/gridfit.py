@@ -98,6 +98,12 @@ class GridData:
         return self.mask & np.isfinite(self.angle) if self.angle is not None else self.mask
 
     @cached_property
+    def y_weighted(self) -> np.ndarray:
+        """Measured response times ``w_y``, zero off-window and where not finite (what every solve
+        of these windows compares with)."""
+        return np.where(self.mask, np.nan_to_num(self.y), 0.0) * self.w_y
+
+    @cached_property
     def angle_demeaned(self) -> np.ndarray:
         """Measured heading minus its per-window mean (zero off-window)."""
         return _demean(np.nan_to_num(self.angle), self.angle_mask)
@@ -292,16 +298,18 @@ def _normal(d: GridData, spec: LinearSpec, t_const: float) -> _Normal:
     """
     cols, h0, cols_w, h0_w = _columns(d, spec, t_const)
     m = d.mask
-    hy = np.where(m, h0[None, :], 0.0) * d.w_y
-    cy = np.where(m, cols, 0.0) * d.w_y
-    by = np.where(m, np.nan_to_num(d.y), 0.0) * d.w_y
-    chans = [(cy, hy, by)]
+    # Each masked array once (the response and the heading channels both use it).
+    h0m = np.where(m, h0[None, :], 0.0)
+    cm = np.where(m, cols, 0.0)
+    hy = h0m * d.w_y
+    cy = cm * d.w_y
+    chans = [(cy, hy, d.y_weighted)]
     if d.angle is not None:
         am = d.angle_mask
-        ca = _demean(integrate_blocks(np.where(m, cols, 0.0), d.dt, cols_w), am) * d.w_angle
+        ca = _demean(integrate_blocks(cm, d.dt, cols_w), am) * d.w_angle
         if spec.sensor_offsets:
             ca[-len(spec.sensor_offsets):] = 0.0  # the response sensor's bias is not in the heading
-        ha = _demean(integrate_blocks(np.where(m, h0[None, :], 0.0), d.dt, h0_w[None, :]), am) * d.w_angle
+        ha = _demean(integrate_blocks(h0m, d.dt, h0_w[None, :]), am) * d.w_angle
         chans.append((ca, ha, d.angle_demeaned * d.w_angle))
     k, w = cols.shape[0], d.y.shape[0]
     g_tt, g_yt, g_yy = np.zeros((k, k)), np.zeros((w, k)), np.zeros(w)

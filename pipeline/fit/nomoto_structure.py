@@ -50,6 +50,7 @@ from scipy import stats
 
 from ..errors import FitError
 from ..model.nomoto import ORDER2_SUM_PRODUCT
+from ..parallel import ordered_map
 from ..records import Segment, SegmentFit, Trial
 from .combine import CONSISTENCY_ALPHA
 from .nomoto_quality import STRUCTURE_TERM, STRUCTURE_UNDECIDED
@@ -123,22 +124,24 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
         its own held-out end (:func:`lone_segment_fit`, with the model-structure term); empty when
         fewer than two can be fitted whole otherwise (the per-segment fitter then serves them).
     """
-    wins: list[tuple[int, NomotoWindow]] = []
+    spans = []
     for i, seg in enumerate(segments):
         if seg.dof != "yaw" or seg.kind not in ("rudder_step", "zigzag", "sinusoid"):
             continue
         span = whole_record_window(trial, seg)
-        if span is None:
-            continue
-        try:
-            wins.append((i, prepare_window(trial, seg, *span)))
-        except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
-            continue  # the per-segment fitter reports it (or falls back to the step response)
+        if span is not None:
+            spans.append((i, seg, span))
+    # Each window is prepared and fitted with both structures on its own (worker processes when the
+    # cores allow: pipeline.parallel); the structure is then chosen across them here.
+    # A lone window is only prepared: it gets its own structure choice (lone_segment_fit).
+    job = _prepare_and_fit if len(spans) > 1 else _prepare
+    prepared = [p for p in ordered_map(job, spans, context=trial) if p is not None]
+    wins = [(i, w) for i, w, _ in prepared]
     if len(wins) == 1:
         return lone_segment_fit(trial, segments[wins[0][0]], wins[0][0], wins[0][1])
     if len(wins) < 2:
         return {}
-    cands = [_fit_both(i, w) for i, w in wins]
+    cands = [c for _, _, c in prepared]
     usable = [c for c in cands if c.first is not None]
     if len(usable) < 2:
         return {}
@@ -411,6 +414,27 @@ def undecided_note(cands: Sequence[_Candidate]) -> str:
     return (f"{STRUCTURE_UNDECIDED} {' and '.join(names)}: the held-out data do not decide between first- and "
             f"second-order Nomoto (near-tie across the segments) and their {' and '.join(names)} differ materially "
             f"on most segments (e.g. {', '.join(example.values())})")
+
+
+def _prepare(trial: Trial, job: tuple[int, Segment, tuple[float, float]]
+             ) -> tuple[int, NomotoWindow, None] | None:
+    """One yaw segment's window prepared (:func:`prepare_window`); None when it cannot be (the
+    per-segment fitter then reports it, or falls back to the step response)."""
+    index, seg, span = job
+    try:
+        return index, prepare_window(trial, seg, *span), None
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
+
+
+def _prepare_and_fit(trial: Trial, job: tuple[int, Segment, tuple[float, float]]
+                     ) -> tuple[int, NomotoWindow, _Candidate] | None:
+    """One yaw segment's window prepared and both structures fitted to it (:func:`_fit_both`), in one
+    unit so that the preparation's fits are reused by the same process; None as :func:`_prepare`.
+    (When all but one window fail to prepare, that one's candidate is not used: it gets its own
+    structure choice, :func:`lone_segment_fit`.)"""
+    prepared = _prepare(trial, job)
+    return None if prepared is None else (prepared[0], prepared[1], _fit_both(prepared[0], prepared[1]))
 
 
 def _fit_both(index: int, win: NomotoWindow) -> _Candidate:

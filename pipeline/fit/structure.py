@@ -20,6 +20,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import FitError
+from ..parallel import ordered_map
 from ..records import DOF_NAMES, DOFS, DampingFit, DecayAnalysis, Estimate, Fits, Segment, StructureChoice, Trial
 from ..vessel import Vessel
 from .coupling import coupling_note
@@ -198,27 +199,34 @@ def select_structures(trial: Trial, segments: Sequence[Segment], vessel: Vessel,
     dict[str, StructureChoice]
         DOF -> choice; a DOF whose joint fit fails is left out (the single-DOF fits still stand).
     """
-    out = {}
+    # The DOFs are independent: worker processes choose them side by side when the cores allow.
+    dofs = ("surge", "sway", "roll", "pitch", "yaw")
+    chosen = ordered_map(_select_dof, dofs, context=(trial, segments, vessel, model, steady or {}))
+    return {dof: c for dof, c in zip(dofs, chosen) if c is not None}
+
+
+def _select_dof(inputs: tuple, dof: str) -> StructureChoice | None:
+    """:func:`select_structure` of one DOF with its notes (``inputs``: trial, segments, vessel, model,
+    steady points by DOF); None when it has no records or its joint fit fails."""
+    trial, segments, vessel, model, steady = inputs
     dt = 1.0 / trial.fs
-    for dof in ("surge", "sway", "roll", "pitch", "yaw"):
-        recs = dof_records(trial, segments, dof)
-        if not recs:
-            continue
-        mass = vessel.effective_mass(dof) if vessel.has_rigid_body else math.nan
-        try:
-            out[dof] = select_structure(recs, dof, dt, mass, model, (steady or {}).get(dof, ()))
-        except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
-            continue
-        notes = [coupling_note(vessel, dof, out[dof].fits[out[dof].selected])]
-        try:
-            notes.append(check_current(trial, recs, dof, dt, mass, out[dof], select_structure,
-                                       (steady or {}).get(dof, ())))
-        except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
-            pass
-        notes.append(start_transient_note(out[dof], recs, dt))
-        if any(notes):
-            out[dof] = replace(out[dof], message="; ".join([out[dof].message] + [n for n in notes if n]))
-    return out
+    recs = dof_records(trial, segments, dof)
+    if not recs:
+        return None
+    mass = vessel.effective_mass(dof) if vessel.has_rigid_body else math.nan
+    try:
+        choice = select_structure(recs, dof, dt, mass, model, steady.get(dof, ()))
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
+    notes = [coupling_note(vessel, dof, choice.fits[choice.selected])]
+    try:
+        notes.append(check_current(trial, recs, dof, dt, mass, choice, select_structure, steady.get(dof, ())))
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        pass
+    notes.append(start_transient_note(choice, recs, dt))
+    if any(notes):
+        choice = replace(choice, message="; ".join([choice.message] + [n for n in notes if n]))
+    return choice
 
 
 def _joint_estimate(fit: DampingFit, name: str, choice: StructureChoice, n_segments: int) -> Estimate:

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from ..atomic import atomic_write_text
+from ..parallel import ordered_map
 from ..errors import ReportError
 from ..records import Fits, Provenance, Segment, Segments, Trial
 from . import figures as report_figures
@@ -42,7 +43,8 @@ from .summary import diagnosis_headline, findings, summary_rows
 from .tables import latex_tables, markdown_tables
 
 __all__ = ["ReportPaths", "write_report", "fits_to_dict", "load_coefficients", "damping_from_dict",
-           "latex_tables", "markdown_tables", "plot_segment_fit", "plot_trial_overview"]
+           "latex_tables", "markdown_tables", "plot_segment_fit", "plot_trial_overview", "FigureJob", "FigureInputs",
+           "figure_plan", "draw_figure"]
 
 JSON_NAME = "coefficients.json"
 TEX_NAME = "coefficients.tex"
@@ -102,11 +104,110 @@ class ReportPaths:
                 *self.fit_figures, *extra)
 
 
+@dataclass(frozen=True)
+class FigureJob:
+    """One report figure: the fit or residual-analysis figure of a segment fit, or the trial overview.
+
+    Attributes
+    ----------
+    kind : str
+        ``fit``, ``resid`` or ``overview``.
+    index : int
+        Position of the fit in ``Fits.segment_fits`` (-1 for the overview).
+    name : str
+        File name in the report folder.
+    """
+
+    kind: str
+    index: int
+    name: str
+
+
+@dataclass(frozen=True)
+class FigureInputs:
+    """What the report's figures are drawn from (every :class:`FigureJob` reads it).
+
+    Attributes
+    ----------
+    fits : Fits
+        Fit results.
+    qualities : sequence of SegmentQuality
+        Per segment fit (:func:`pipeline.report.quality.segment_quality`), residual tests included.
+    trial : Trial or None
+        For the overview.
+    segments : tuple of Segment
+        Shaded in the overview.
+    out : pathlib.Path
+        Report folder.
+    """
+
+    fits: Fits
+    qualities: Sequence
+    trial: Trial | None
+    segments: tuple[Segment, ...]
+    out: Path
+
+
+def figure_plan(fits: Fits, qualities: Sequence, trial: Trial | None) -> tuple[FigureJob, ...]:
+    """The figures a report draws, in the order they are listed: per drawn fit (at most
+    ``MAX_FIT_FIGURES``, :func:`pipeline.report.figures.figure_selection`) its fit figure and, when it has
+    a residual test, its residual-analysis figure; then the overview when a trial is given.
+
+    Parameters
+    ----------
+    fits : Fits
+        Fit results.
+    qualities : sequence of SegmentQuality
+        Per segment fit, in the same order.
+    trial : Trial or None
+        The trial (the overview is drawn only with one).
+    """
+    drawn = set(figure_selection(fits.segment_fits, [q.fit_percent for q in qualities],
+                                 report_figures.MAX_FIT_FIGURES))
+    jobs: list[FigureJob] = []
+    for i, (sf, q) in enumerate(zip(fits.segment_fits, qualities)):
+        if i not in drawn:
+            continue
+        jobs.append(FigureJob("fit", i, fit_figure_name(i, sf)))
+        if q.resid is not None:
+            jobs.append(FigureJob("resid", i, resid_figure_name(i, sf)))
+    if trial is not None:
+        jobs.append(FigureJob("overview", -1, OVERVIEW_NAME))
+    return tuple(jobs)
+
+
+def draw_figure(inputs: FigureInputs, job: FigureJob) -> Path:
+    """Draw one report figure and write it into ``inputs.out`` (atomically).
+
+    Parameters
+    ----------
+    inputs : FigureInputs
+        What it is drawn from.
+    job : FigureJob
+        Which figure.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
+    if job.kind == "fit":
+        fig = plot_segment_fit(inputs.fits.segment_fits[job.index], index=job.index)
+    elif job.kind == "resid":
+        fig = plot_residual_analysis(inputs.qualities[job.index].resid, index=job.index)
+    elif job.kind == "overview":
+        fig = plot_trial_overview(inputs.trial, inputs.segments)
+    else:
+        raise ReportError(f"figure {job.name}: expected kind fit, resid or overview, found {job.kind!r}")
+    return save_figure(fig, inputs.out / job.name)
+
+
 def write_report(fits: Fits, out_dir: str | os.PathLike, trial: Trial | None = None,
                  segments: Segments | Sequence[Segment] | None = None,
                  extra_sections: Sequence[tuple[str, str]] = (), *, diagnosis=None,
                  provenance: Provenance | None = None,
-                 added_mass: Mapping[str, float] | None = None) -> ReportPaths:
+                 added_mass: Mapping[str, float] | None = None, jobs: int | None = None,
+                 qualities: Sequence | None = None, figures_written: bool = False) -> ReportPaths:
     """Write the coefficient contract, tables, figures and the self-contained HTML report.
 
     Parameters
@@ -131,6 +232,15 @@ def write_report(fits: Fits, out_dir: str | os.PathLike, trial: Trial | None = N
     added_mass : Mapping[str, float], optional
         The vessel config's ``[added_mass]``; derivatives of DOFs without one are marked
         "added mass taken as zero". None: not known.
+    jobs : int, optional
+        Worker processes that draw the figures (:func:`pipeline.parallel.worker_count`; 1: this
+        process). The figures do not depend on it.
+    qualities : sequence of SegmentQuality, optional
+        Per segment fit, when the caller has them already (:func:`pipeline.report.quality.segment_quality`
+        with the same ``trial``); computed otherwise.
+    figures_written : bool
+        The figures of :func:`figure_plan` are already in ``out_dir`` (drawn by the caller beside
+        other outputs, as :func:`pipeline.flow.write_outputs` does): they are listed, not drawn again.
 
     Returns
     -------
@@ -157,28 +267,28 @@ def write_report(fits: Fits, out_dir: str | os.PathLike, trial: Trial | None = N
     except OSError as exc:
         raise ReportError(f"cannot create report folder {out}: {exc}") from exc
 
-    qualities = [segment_quality(sf, trial) for sf in fits.segment_fits]
+    if qualities is None:
+        qualities = [segment_quality(sf, trial) for sf in fits.segment_fits]
+    elif len(qualities) != len(fits.segment_fits):
+        raise ReportError(f"qualities: expected one per segment fit ({len(fits.segment_fits)}), found {len(qualities)}")
     problems = []
-    fit_paths, fig_names = [], []
-    drawn = set(figure_selection(fits.segment_fits, [q.fit_percent for q in qualities],
-                                 report_figures.MAX_FIT_FIGURES))
-    for i, (sf, q) in enumerate(zip(fits.segment_fits, qualities)):
-        name = fit_figure_name(i, sf)
+    for i, sf in enumerate(fits.segment_fits):
         problem = figure_problem(sf)
         if problem:
-            problems.append(f"figure {name}: {problem}")
-        if i not in drawn:
-            fig_names.append((None, None))
-            continue
-        fit_paths.append(save_figure(plot_segment_fit(sf, index=i), out / name))
-        rname = None
-        if q.resid is not None:
-            rname = resid_figure_name(i, sf)
-            fit_paths.append(save_figure(plot_residual_analysis(q.resid, index=i), out / rname))
-        fig_names.append((name, rname))
-    overview = None
-    if trial is not None:
-        overview = save_figure(plot_trial_overview(trial, segs), out / OVERVIEW_NAME)
+            problems.append(f"figure {fit_figure_name(i, sf)}: {problem}")
+    plan = figure_plan(fits, qualities, trial)
+    if figures_written:
+        written = [out / job.name for job in plan]
+    else:
+        # Each figure on its own (worker processes when the cores allow), in plan order.
+        written = ordered_map(draw_figure, plan, context=FigureInputs(fits, qualities, trial, segs, out), jobs=jobs)
+    by_fit: dict[int, dict[str, str]] = {}
+    for job in plan:
+        by_fit.setdefault(job.index, {})[job.kind] = job.name
+    fig_names = [(by_fit[i]["fit"], by_fit[i].get("resid")) if "fit" in by_fit.get(i, {}) else (None, None)
+                 for i in range(len(fits.segment_fits))]
+    fit_paths = [p for job, p in zip(plan, written) if job.kind != "overview"]
+    overview = next((p for job, p in zip(plan, written) if job.kind == "overview"), None)
     found = findings(fits, qualities, problems, added_mass)
 
     json_path = write_coefficients_json(fits, out / JSON_NAME)

@@ -18,6 +18,7 @@ from typing import Sequence
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 from matplotlib.transforms import blended_transform_factory
@@ -399,16 +400,23 @@ def plot_trial_overview(trial: Trial, segments: Sequence[Segment]) -> Figure:
         ax.tick_params(labelsize=8)
         ax.grid(True, alpha=0.3)
     kinds_seen = []
+    spans: dict[str, list[tuple[float, float]]] = {}
+    trans = blended_transform_factory(axes[0].transData, axes[0].transAxes)
     for k, seg in enumerate(segments):
         color = _KIND_COLORS.get(seg.kind, "0.5")
         if seg.kind not in kinds_seen:
             kinds_seen.append(seg.kind)
-        for ax in axes:
-            ax.axvspan(seg.t_start, seg.t_end, color=color, alpha=0.18, lw=0)
+        spans.setdefault(color, []).append((seg.t_start, seg.t_end))
         # Label at the top of the first panel: number and kind, so the shading maps to the table.
-        trans = blended_transform_factory(axes[0].transData, axes[0].transAxes)
         axes[0].text(0.5 * (seg.t_start + seg.t_end), 0.97, f"{k}: {seg.kind}", transform=trans,
                      ha="center", va="top", fontsize=7, rotation=90, color=color, clip_on=True)
+    for ax in axes:
+        # Each kind's spans as one collection per panel, full height (what an axvspan per segment
+        # draws, without one artist per segment and panel: a 2-hour trial has hundreds of segments).
+        for color, ranges in spans.items():
+            ax.add_collection(PolyCollection([[(a, 0.0), (a, 1.0), (b, 1.0), (b, 0.0)] for a, b in ranges],
+                                             transform=ax.get_xaxis_transform(), facecolors=color, alpha=0.18,
+                                             linewidths=0), autolim=False)
     for gap in trial.gaps:
         for ax in axes:
             ax.axvspan(gap.t_start, gap.t_end, facecolor="none", edgecolor="0.5", hatch="///", lw=0)
@@ -420,6 +428,8 @@ def plot_trial_overview(trial: Trial, segments: Sequence[Segment]) -> Figure:
     axes[-1].set_xlabel("time from trial start [s]", fontsize=9)
     if t.size:
         axes[-1].set_xlim(float(np.nanmin(t)), float(np.nanmax(t)))
+    elif segments:
+        axes[-1].set_xlim(min(s.t_start for s in segments), max(s.t_end for s in segments))
     return fig
 
 
