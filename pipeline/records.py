@@ -1290,7 +1290,9 @@ RANKING_RULE = (
     "the channels of the DOF they act on, each step refitted on training windows and scored on held-out "
     "ones; only significant candidates (held-out F test below alpha, shrink and explained error above "
     "their minimums) can be selected; forward selection takes the best, refits the rest on top of it, "
-    "and stops when none is significant")
+    "and stops when none is significant; where none is significant alone but the DOF's gap stays above "
+    "what a correct model leaves, two candidates that are each significant on top of the other are "
+    "selected together (two effects that hide each other)")
 
 
 @dataclass(frozen=True)

@@ -155,3 +155,91 @@ def test_next_step_works_on_the_candidate_residual_over_one_baseline_fit():
     np.testing.assert_allclose(seen[0].y, full["y"] + y - cand["y"])
     # The correction cand - full is 0.5 + 0.1 t at block middles t = 0, 1, ...: 0.45 at the start.
     np.testing.assert_allclose(seen[0].y0, y[:, 0] - 0.45)
+
+
+def _pair_state(gap, sig_a=False, b_on_a=True, a_on_b=True):
+    """A one-DOF state whose two candidates, A (current) and B (rate limit), are not significant
+    alone; a stub rescore says which becomes significant once the other is taken off."""
+    from types import SimpleNamespace
+
+    from pipeline.diagnose.gridfit import GridData
+    from pipeline.diagnose.selection import DofState
+    from pipeline.records import CandidateResult, ChannelGap
+
+    w, n = 8, 20
+    y = np.random.default_rng(1).standard_normal((w, n))
+    data = GridData(dt=1.0, y=y, y0=y[:, 0].copy(), angle=None, mask=np.ones((w, n), bool), sigma_y=1.0)
+    full = {"y": np.zeros((w, n))}
+
+    def res(label, effect, shrink, significant, p=0.05):
+        return CandidateResult(effect=effect, dof="yaw", label=label, input_channel=None, gap_before=gap,
+                               gap_after=gap * (1 - shrink / 100), shrink=shrink, explained=0.1, p_value=p,
+                               significant=significant, channels=(ChannelGap("r", gap, gap * (1 - shrink / 100),
+                                                                             p, 8.0),))
+
+    a = (res("current", "current", 32.0, sig_a), SimpleNamespace(heldout={"y": np.full((w, n), 1.0)}))
+    b = (res("actuator_rate_limit[delta]", "actuator_rate_limit", 20.0, False),
+         SimpleNamespace(heldout={"y": np.full((w, n), 2.0)}))
+    state = DofState(problem=SimpleNamespace(channel="r", angle=None), data=data, results=[a, b], base_heldout=full,
+                     channel_gaps={"r": gap}, channel_neff={"r": 8.0 * n}, selected=[], base_full=full)
+    calls = []
+
+    def rescore(s):
+        # Which correction was taken off: the mean shift of the data tells A (1) from B (2).
+        shift = round(float(np.mean(y - s.data.y)))
+        calls.append(shift)
+        if shift == 1:      # A off: B on top of A
+            s.results = [(res("actuator_rate_limit[delta]", "actuator_rate_limit", 60.0, b_on_a, 1e-6), b[1])]
+        elif shift == 2:    # B off: A on top of B
+            s.results = [(res("current", "current", 70.0, a_on_b, 1e-6), a[1])]
+        else:
+            s.results = []
+        s.base_full = full
+    return state, rescore, calls
+
+
+@pytest.mark.parametrize("gap, b_on_a, a_on_b, selected", [
+    (40.0, True, True, ["current", "actuator_rate_limit[delta]"]),
+    (40.0, True, False, []),       # A not significant on top of B: no pair
+    (40.0, False, True, []),       # nothing significant on top of A or B
+    (1.0, True, True, []),         # the gap is what a correct model leaves: nothing is tried
+])
+def test_two_effects_that_hide_each_other_are_selected_only_when_each_holds_on_top_of_the_other(
+        gap, b_on_a, a_on_b, selected):
+    from pipeline.diagnose.selection import forward_select, selected_effects
+
+    state, rescore, calls = _pair_state(gap, b_on_a=b_on_a, a_on_b=a_on_b)
+    chosen = forward_select({"yaw": state}, rescore)
+    assert [c[0].label for c in chosen] == selected
+    if gap <= 1.0:
+        assert calls == []
+    if selected:
+        eff = selected_effects(chosen, {"yaw": state})
+        assert eff[0].p_value == pytest.approx(1e-6) and "jointly" in eff[0].why
+        assert state.selected == selected
+
+
+@pytest.mark.parametrize("signal, expected", [(1.0, True), (0.0, False)])
+def test_a_sway_speed_within_a_few_noise_units_per_sample_is_a_coupling_regressor(tmp_path, signal, expected):
+    """The coupling regressor enters as block means over the analysis step, so its variation is
+    compared with a block mean's noise: a sway speed that moves 2.5 per-sample noise units (a small
+    boat's N_v v at 25 Hz) is a regressor; pure noise is not."""
+    from pipeline.diagnose.problem import build_problems
+    from pipeline.diagnose.segments import diagnose_segments
+
+    rng = np.random.default_rng(3)
+    fs, n = 25.0, int(8 * 60 * 25)
+    t = np.arange(n) / fs
+    hold = int(25 * fs)
+    tau_n = np.repeat(rng.uniform(-1, 1, n // hold + 1), hold)[:n]
+    r = np.zeros(n)
+    for k in range(n - 1):
+        r[k + 1] = r[k] + (-r[k] + 0.2 * tau_n[k]) / fs / 8.0
+    v_true = -signal * r / np.std(r) * 2.5 * 0.01
+    pd.DataFrame({"t": t, "tau_n": tau_n, "r": r + 0.002 * rng.standard_normal(n),
+                  "psi": np.angle(np.exp(1j * (np.cumsum(r) / fs + 0.003 * rng.standard_normal(n)))),
+                  "v": v_true + 0.01 * rng.standard_normal(n)}).to_csv(tmp_path / "trial.csv", index=False)
+    trial = load_trial([tmp_path / "trial.csv"], None)
+    p = next(q for q in build_problems(trial, diagnose_segments(trial)) if q.dof == "yaw")
+    assert p.m >= 4
+    assert ("v" in p.regressors) is expected

@@ -785,8 +785,11 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         if len(vals) < 10:
             continue
         # A regressor that barely varies is a constant bias in disguise: the current and
-        # bias candidates cover that more simply.
-        if np.std(vals) < 0.05 * np.sqrt(np.mean(vals**2)) or np.std(vals) < 5 * noise_std(x):
+        # bias candidates cover that more simply. It enters as block means over the analysis
+        # step (m samples), so its variation is compared with the white noise of a block mean:
+        # a sway speed of a few noise units per sample, integrated by the yaw dynamics, is a
+        # clear regressor (N_v v on a small boat: v within 5 per-sample noise units).
+        if np.std(vals) < 0.05 * np.sqrt(np.mean(vals**2)) or np.std(vals) < 5 * noise_std(x) / np.sqrt(m):
             continue
         raw[c] = x
         regs.append(c)

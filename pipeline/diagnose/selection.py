@@ -11,7 +11,11 @@ cross-validated and significance-tested again on top of it; the candidates of ot
 scored on separate problems and keep their scores. The next best significant candidate is
 selected, and so on, until none is significant (at most :data:`MAX_EFFECTS`). Working on the
 corrected measurements (backfitting; Hastie and Tibshirani 1990) lets any two effects of the
-library be stacked without writing every pair as one model.
+library be stacked without writing every pair as one model. Two strong effects can hide each other:
+each alone leaves the other's slow error in its residual, which leaves the F test few effective
+samples. Where no candidate is significant and a DOF's gap fails the "only what a correct model
+leaves" test, :func:`pair_step` takes each of the best two candidates off in turn and selects a
+pair only when each is significant on top of the other.
 
 Sensor or actuator: an input delay and an output (sensor) delay look the same in one channel of a
 linear model. When another DOF, driven by inputs that change at the same instants and measured by a
@@ -56,6 +60,8 @@ UNEXPLAINED_GAP = 1.5
 #: the signal, so that a first-order baseline's slight misfit of a large, clean heading record
 #: (statistically visible at low noise) is not called a gap.
 MIN_UNEXPLAINED_SCALE = 0.01
+#: Candidates tried as the first of a pair that hide each other (:func:`pair_step`).
+PAIR_TRIES = 2
 #: Sensor groups by channel: a delay in one group that another group does not show is the sensor's.
 SENSOR_GROUPS: Mapping[str, str] = {
     "sog": "gnss", "cog": "gnss", "x_n": "gnss", "y_e": "gnss", "lat": "gnss", "lon": "gnss",
@@ -204,10 +210,12 @@ def forward_select(states: dict[str, DofState], rescore: Callable[[DofState], No
         The selected candidates in order, each with the trial gap after it.
     """
     chosen: list[tuple[CandidateResult, object, float]] = []
-    for _ in range(max_effects):
+    while len(chosen) < max_effects:
         pool = [(res, run, s) for s in states.values() for res, run in s.results
                 if res.significant and res.label not in s.selected]
         if not pool:
+            if len(chosen) + 2 <= max_effects and pair_step(states, rescore, chosen):
+                continue
             break
         res, run, s = min(pool, key=lambda x: rank_key(x[0]))
         for cg in res.channels:
@@ -219,6 +227,104 @@ def forward_select(states: dict[str, DofState], rescore: Callable[[DofState], No
         s.data = corrected(s.data, s.base_full if s.base_full is not None else s.base_heldout, run.heldout)
         rescore(s)
     return chosen
+
+
+def excess_gap(s: DofState) -> bool:
+    """True when a channel of the DOF fails the "only what a correct model leaves is left" test
+    (the test of :func:`unexplained`, without describing the residual).
+
+    Parameters
+    ----------
+    s : DofState
+        The DOF's current state.
+    """
+    units = sig.noise_units(s.data)
+    names = {"y": s.problem.channel, "angle": getattr(s.problem, "angle", None)}
+    for key, ch in names.items():
+        if ch is None or ch not in s.channel_gaps:
+            continue
+        g = s.channel_gaps[ch]
+        n_eff = s.channel_neff.get(ch, math.nan)
+        if not (math.isfinite(g) and math.isfinite(n_eff) and n_eff > 1):
+            continue
+        f = max(float(s.channel_floor.get(ch, 1.0)), 1.0)
+        pv = float(scipy.stats.chi2.sf(n_eff * (g / f) ** 2, n_eff))
+        rel = math.sqrt(max(g * g - f * f, 0.0)) * units.get(key, math.nan)
+        if pv < ALPHA_UNEXPLAINED and g >= UNEXPLAINED_GAP * f and not rel < MIN_UNEXPLAINED_SCALE:
+            return True
+    return False
+
+
+def _tentative(s: DofState, base, heldout, rescore: Callable[[DofState], None]) -> DofState:
+    """A copy of ``s`` with a correction taken off and cross-validated again (``s`` unchanged)."""
+    t = replace(s, data=corrected(s.data, base, heldout), results=list(s.results), channel_gaps=dict(s.channel_gaps),
+                channel_neff=dict(s.channel_neff), selected=list(s.selected))
+    rescore(t)
+    return t
+
+
+def pair_step(states: dict[str, DofState], rescore: Callable[[DofState], None], chosen: list) -> bool:
+    """Two effects that hide each other: a joint step when no candidate is significant alone.
+
+    Each of two strong effects, tested alone, leaves the other's slow error in its residual; the
+    F test's effective sample size then falls to about the number of windows and neither is
+    significant, though each removes a large share of the gap. In a DOF whose gap fails the
+    "only what a correct model leaves" test (:func:`excess_gap`; on a clean trial the gap sits at
+    its floor and nothing is tried), the :data:`PAIR_TRIES` candidates with the largest shrink
+    (at least ``MIN_SHRINK``) are each taken off in turn (backfitting, as a selection step does);
+    the best candidate significant on top of it (``B``) is taken off the original data instead,
+    and the first (``A``) is tested again on top of ``B``. Both are selected, ``A`` first (it ranks
+    higher alone), only when each is significant on top of the other.
+
+    Parameters
+    ----------
+    states : dict[str, DofState]
+        Per-DOF state; the DOF of a selected pair is updated in place.
+    rescore : callable
+        As in :func:`forward_select`.
+    chosen : list
+        The selection so far; the pair is appended.
+
+    Returns
+    -------
+    bool
+        True when a pair was selected.
+    """
+    for s in states.values():
+        if s.base_full is None or not s.results or not excess_gap(s):
+            continue
+        tries = sorted((x for x in s.results if x[0].label not in s.selected and math.isfinite(x[0].shrink)
+                        and x[0].shrink >= sig.MIN_SHRINK), key=lambda x: rank_key(x[0]))[:PAIR_TRIES]
+        for res_a, run_a in tries:
+            t = _tentative(s, s.base_full, run_a.heldout, rescore)
+            ontop = [(r, u) for r, u in t.results if r.significant and r.label != res_a.label]
+            if not ontop:
+                continue
+            res_b, run_b = min(ontop, key=lambda x: rank_key(x[0]))
+            ref = t.base_full if t.base_full is not None else t.base_heldout
+            t2 = _tentative(s, ref, run_b.heldout, rescore)
+            again = next((r for r, _ in t2.results if r.label == res_a.label), None)
+            if again is None or not again.significant:
+                continue
+            why = (f"significant only jointly with {res_b.label}: alone p = {res_a.p_value:.2g}; on top of "
+                   f"{res_b.label} p = {again.p_value:.2g} (shrink {again.shrink:.1f}%), {res_b.label} on top of "
+                   f"it p = {res_b.p_value:.2g}")
+            a_sel = replace(res_a, significant=True, p_value=again.p_value)
+            for cg in res_a.channels:
+                s.channel_gaps[cg.channel] = cg.gap_after
+            chosen.append((a_sel, run_a, trial_gap(states), why))
+            s.selected.append(res_a.label)
+            s.data, s.results, s.base_heldout, s.base_full = t.data, t.results, t.base_heldout, t.base_full
+            s.channel_neff = t.channel_neff
+            for cg in res_b.channels:
+                s.channel_gaps[cg.channel] = cg.gap_after
+            chosen.append((res_b, run_b, trial_gap(states)))
+            s.selected.append(res_b.label)
+            if len(chosen) < MAX_EFFECTS:
+                s.data = corrected(s.data, ref, run_b.heldout)
+                rescore(s)
+            return True
+    return False
 
 
 # --------------------------------------------------------------------------- sensor or actuator
@@ -332,8 +438,9 @@ def selected_effects(chosen, states: Mapping[str, DofState],
         Parameters to report for a candidate (default its own).
     """
     out = []
-    for i, (res, _run, tg) in enumerate(chosen):
+    for i, (res, _run, tg, *joint) in enumerate(chosen):
         effect, inp, why = sensor_or_actuator(res, states)
+        why = "; ".join(w for w in (why, *joint) if w)
         label = res.label if effect == res.effect else f"{effect}[{inp}]"
         out.append(SelectedEffect(step=i + 1, effect=effect, dof=res.dof, label=label, input_channel=inp,
                                   gap_before=res.gap_before, gap_after=res.gap_after, shrink=res.shrink,
