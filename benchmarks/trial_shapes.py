@@ -107,14 +107,20 @@ def _piece(log, a: float, b: float, name: str):
 GNSS = ("lat", "lon", "sog", "cog")
 
 
-def _held_csv(log, path: Path) -> Path:
-    """One IMU-rate CSV in which the logger repeats the last GNSS fix in every row."""
+def _held_csv(log, path: Path, fix_time: bool = True) -> Path:
+    """One IMU-rate CSV in which the logger repeats the last GNSS fix in every row.
+
+    With ``fix_time`` the logger also writes the receiver's time of the fix held in each row
+    (column ``t_fix``, as a GPS time of week would be), which tells held copies from new fixes.
+    """
     imu_t = log.channels["r"].t
     cols = {"t": imu_t}
     for n, c in log.channels.items():
         if n in GNSS:
             idx = np.searchsorted(c.t, imu_t + 1e-9, side="right") - 1
             cols[n] = np.where(idx >= 0, c.values[np.clip(idx, 0, None)], np.nan)
+            if fix_time and "t_fix" not in cols:
+                cols["t_fix"] = np.where(idx >= 0, c.t[np.clip(idx, 0, None)], np.nan)
         else:
             cols[n] = np.interp(imu_t, c.t, c.values) if not n.startswith(("delta", "tau")) else \
                 c.values[np.clip(np.searchsorted(c.t, imu_t + 1e-9, side="right") - 1, 0, None)]

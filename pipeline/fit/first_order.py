@@ -24,7 +24,7 @@ from .robust_covariance import hac_covariance
 from .segment_fit import build_segment_fit
 
 #: Fewest samples a first-order fit accepts.
-MIN_SAMPLES = 20
+MIN_SAMPLES = 15
 #: A segment shorter than this many time constants (of the start guess) cannot be fitted at all.
 MIN_TIME_CONSTANTS = 0.5
 #: Time constants a segment should span for a well-determined T and steady state.
@@ -237,6 +237,43 @@ def _velocity_channel(trial: Trial, segment: Segment) -> str:
     return pick_channel(trial, segment, [DOF_CHANNELS[segment.dof][0]] + extra)
 
 
+def measured_samples(trial: Trial, segment: Segment, channel: str, t: np.ndarray,
+                     y: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
+    """Keep only the real measurements of a channel measured slower than the trial grid.
+
+    A GNSS logged at 5 Hz on a 10 Hz grid (and ``u``, ``v`` derived from it) is interpolated
+    between fixes; those values are not measurements. Fitted as if they were, they draw chords
+    across the exponential (which lengthens ``T``) and make neighbouring residuals alike (which
+    shrinks its standard error). ``Trial.sample_times`` names the real samples
+    (:meth:`pipeline.records.Trial.measured_rows`); a channel measured at every grid sample is
+    returned unchanged.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    segment : Segment
+        The segment (``t`` is relative to its ``t_start``).
+    channel : str
+        The fitted channel.
+    t, y : numpy.ndarray
+        Segment samples: time since ``segment.t_start`` [s] and values.
+
+    Returns
+    -------
+    t, y : numpy.ndarray
+        The real measurements only.
+    str
+        A note saying how many interpolated samples were left out ("" when none).
+    """
+    keep = trial.measured_rows(channel, t + segment.t_start)
+    if keep.all():
+        return t, y, ""
+    note = (f"{int((~keep).sum())} of {t.size} samples of {channel} are interpolated between its real measurements "
+            f"({int(keep.sum())}, {channel} is measured slower than the {trial.fs:g} Hz grid) and are not fitted")
+    return t[keep], y[keep], note
+
+
 # --------------------------------------------------------------------------- segment fits
 def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     """Fit ``y = y0 exp(-t/T)`` to a coast-down (input cut to zero at ``segment.t_start``).
@@ -267,6 +304,7 @@ def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     """
     channel = _velocity_channel(trial, segment)
     t, y, dropped = segment_samples(trial, segment, channel)
+    t, y, real_note = measured_samples(trial, segment, channel, t, y)
     if t.size < MIN_SAMPLES:
         check_first_order_length(segment, t, math.nan, math.nan, math.nan)
     p0 = guess_decay(t, y)
@@ -276,6 +314,7 @@ def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     notes += check_first_order_length(segment, t, p0["T"], p0["y0"], sigma)
     if dropped:
         notes.append(f"{dropped} non-finite samples dropped")
+    notes += [real_note] if real_note else []
     lo_T, hi_T = time_constant_bounds(t)
     res = fit_least_squares(lambda tt, p: decay(tt, *p), lambda tt, p: decay_jacobian(tt, *p), t, y,
                             [p0["y0"], p0["T"]], DECAY_PARAMS, [-np.inf, lo_T], [np.inf, hi_T])
@@ -306,6 +345,7 @@ def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
     """
     channel = _velocity_channel(trial, segment)
     t, y, dropped = segment_samples(trial, segment, channel)
+    t, y, real_note = measured_samples(trial, segment, channel, t, y)
     if t.size < MIN_SAMPLES:
         check_first_order_length(segment, t, math.nan, math.nan, math.nan)
     p0 = guess_step(t, y)
@@ -315,7 +355,7 @@ def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
     notes += check_first_order_length(segment, t, p0["T"], p0["y_ss"] - p0["y0"], sigma)
     notes += [SOG_NOTE] if channel == "sog" else []
     _, _, level_note = input_levels(trial, segment)
-    notes += [n for n in (level_note, f"{dropped} non-finite samples dropped" if dropped else "") if n]
+    notes += [n for n in (level_note, f"{dropped} non-finite samples dropped" if dropped else "", real_note) if n]
     lo_T, hi_T = time_constant_bounds(t)
     res = fit_least_squares(lambda tt, p: step_response(tt, *p), lambda tt, p: step_jacobian(tt, *p), t, y,
                             [p0["y0"], p0["y_ss"], p0["T"]], STEP_PARAMS,
