@@ -335,6 +335,7 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="processes (at most 2 on a shared machine)")
     ap.add_argument("--no-fix-time", action="store_true",
                     help="GNSS-only one file: the logger writes no t_fix column (held fixes told by their values only)")
+    ap.add_argument("--pvs-only", action="store_true", help="only the PythonVehicleSimulator frigate")
     ap.add_argument("--no-pvs", action="store_true", help="skip the PythonVehicleSimulator frigate")
     ap.add_argument("--out", type=Path, default=None, help="folder for the written logs (default: temporary)")
     ap.add_argument("--json", type=Path, default=None, help="write every shape's z values here")
@@ -348,7 +349,7 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     tasks = [(seed, rate, bv, tuple(args.layouts), not args.no_diagnose, args.out, not args.no_fix_time)
              for seed in seeds for bv in (False, True) if ("bv" if bv else "gnss") in args.sensors
-             for rate in args.rates]
+             for rate in args.rates] if not args.pvs_only else []
     if args.workers > 1:
         with ProcessPoolExecutor(max_workers=args.workers) as pool:
             futures = [pool.submit(run_day, *task) for task in tasks]
