@@ -100,3 +100,20 @@ def test_a_command_stamped_a_microsecond_after_a_grid_point_acts_at_that_grid_po
     d = trial.data.set_index("t")["delta"]
     assert d.iloc[10] == 0.2 and d.iloc[9] == 0.0
     assert math.isclose(trial.t[10], 1.0)
+
+
+def test_a_time_constant_shorter_than_the_sample_interval_is_not_identified():
+    """A 0.4 s response sampled at 2 Hz settles between two samples: refused, not a confident T."""
+    t = np.arange(0.0, 20.0 + 1e-9, 0.5)
+    rng = np.random.default_rng(3)
+    u = np.where(t < 1.0, 1.0, np.exp(-(t - 1.0) / T_SWAY)) + rng.normal(0, 0.005, t.size)
+    log = RawLog("slow", "sim", {"u": Channel("u", t, u), "r": Channel("r", t, np.zeros_like(t))},
+                 IngestSummary("slow", "sim"))
+    fit = fit_coast_down(align([log], fs=2.0), Segment("coast_down", "surge", 1.0, 20.0))
+    assert not fit.success and "time constant not resolved" in fit.message
+    # At 10 Hz the same response is resolved.
+    t10 = np.arange(0.0, 20.0 + 1e-9, 0.1)
+    u10 = np.where(t10 < 1.0, 1.0, np.exp(-(t10 - 1.0) / T_SWAY)) + rng.normal(0, 0.005, t10.size)
+    log10 = RawLog("fast", "sim", {"u": Channel("u", t10, u10), "r": Channel("r", t10, np.zeros_like(t10))},
+                   IngestSummary("fast", "sim"))
+    assert fit_coast_down(align([log10], fs=10.0), Segment("coast_down", "surge", 1.0, 20.0)).success

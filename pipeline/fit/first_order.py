@@ -274,6 +274,37 @@ def measured_samples(trial: Trial, segment: Segment, channel: str, t: np.ndarray
     return t[keep], y[keep], note
 
 
+#: Shortest fitted time constant, in sample intervals, that the samples resolve.
+MIN_T_SAMPLES = 1.0
+
+
+def resolution_failures(t: np.ndarray, res: LeastSquaresResult) -> list[str]:
+    """A failure when the fitted ``T`` is shorter than ``MIN_T_SAMPLES`` sample intervals.
+
+    A response that settles between two samples (a 0.4 s sway time constant in a 2 Hz log) puts
+    one or two samples on the transient: ``T`` then comes from where those happen to fall, and
+    its linearised standard error is far too small (measured: Y_v +3 standard errors at 2 Hz).
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Fitted sample times [s].
+    res : LeastSquaresResult
+        The fit (parameters include ``T``).
+
+    Returns
+    -------
+    list[str]
+        One failure message, or none.
+    """
+    dt = float(np.median(np.diff(t))) if t.size > 1 else math.nan
+    T = float(res.values[res.names.index("T")])
+    if math.isfinite(dt) and T < MIN_T_SAMPLES * dt:
+        return [f"time constant not resolved: expected T of at least {MIN_T_SAMPLES:g} sample interval(s) "
+                f"({MIN_T_SAMPLES * dt:.3g} s), found T = {T:.3g} s"]
+    return []
+
+
 # --------------------------------------------------------------------------- segment fits
 def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     """Fit ``y = y0 exp(-t/T)`` to a coast-down (input cut to zero at ``segment.t_start``).
@@ -320,7 +351,8 @@ def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
                             [p0["y0"], p0["T"]], DECAY_PARAMS, [-np.inf, lo_T], [np.inf, hi_T])
     res, hac_note = coloured_noise_errors(res, decay_jacobian(t, *res.values))
     notes += [hac_note] if hac_note else []
-    return build_segment_fit(segment, "first_order_decay", channel, t, y, res, ("T",), notes)
+    return build_segment_fit(segment, "first_order_decay", channel, t, y, res, ("T",), notes,
+                             resolution_failures(t, res))
 
 
 def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
@@ -362,7 +394,8 @@ def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
                             [-np.inf, -np.inf, lo_T], [np.inf, np.inf, hi_T])
     res, hac_note = coloured_noise_errors(res, step_jacobian(t, *res.values))
     notes += [hac_note] if hac_note else []
-    sf = build_segment_fit(segment, "first_order_step", channel, t, y, res, ("T",), notes)
+    sf = build_segment_fit(segment, "first_order_step", channel, t, y, res, ("T",), notes,
+                           resolution_failures(t, res))
     _, steady_note = step_steadiness(trial, sf)
     return replace(sf, message="; ".join(m for m in (sf.message, steady_note) if m))
 
