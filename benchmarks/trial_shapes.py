@@ -9,7 +9,8 @@ and 50 Hz, is written in every combination of
 - sensor suite: ``body velocities`` (IMU, attitude, a DVL-like u and v, GNSS) or ``GNSS only``
   (IMU and attitude at the logging rate, GNSS lat/lon/sog/cog at min(rate, 5) Hz with no body
   velocity: u and v are derived from GNSS and heading. In one file the logger holds the last
-  fix in every IMU row; per run the GNSS is in its own file next to the IMU file, each stamped
+  fix in every IMU row and writes the receiver's fix time in a ``t_fix`` column (``--no-fix-time``
+  leaves it out: held fixes are then told by their values only); per run the GNSS is in its own file next to the IMU file, each stamped
   with ISO UTC times);
 
 and read back with ``load_trial`` -> ``segment_trial`` -> ``fit_trial`` -> ``diagnose``. For every
@@ -107,14 +108,20 @@ def _piece(log, a: float, b: float, name: str):
 GNSS = ("lat", "lon", "sog", "cog")
 
 
-def _held_csv(log, path: Path) -> Path:
-    """One IMU-rate CSV in which the logger repeats the last GNSS fix in every row."""
+def _held_csv(log, path: Path, fix_time: bool = True) -> Path:
+    """One IMU-rate CSV in which the logger repeats the last GNSS fix in every row.
+
+    With ``fix_time`` the logger also writes the receiver's time of the fix held in each row
+    (column ``t_fix``, as a GPS time of week would be), which tells held copies from new fixes.
+    """
     imu_t = log.channels["r"].t
     cols = {"t": imu_t}
     for n, c in log.channels.items():
         if n in GNSS:
             idx = np.searchsorted(c.t, imu_t + 1e-9, side="right") - 1
             cols[n] = np.where(idx >= 0, c.values[np.clip(idx, 0, None)], np.nan)
+            if fix_time and "t_fix" not in cols:
+                cols["t_fix"] = np.where(idx >= 0, c.t[np.clip(idx, 0, None)], np.nan)
         else:
             cols[n] = np.interp(imu_t, c.t, c.values) if not n.startswith(("delta", "tau")) else \
                 c.values[np.clip(np.searchsorted(c.t, imu_t + 1e-9, side="right") - 1, 0, None)]
@@ -136,14 +143,14 @@ def _iso_csv(log, names, path: Path, start: pd.Timestamp) -> Path:
     return path
 
 
-def write_shape(res, layout: str, body_velocities: bool, folder: Path) -> list[Path]:
-    """Write one simulated day in one shape; returns the files."""
+def write_shape(res, layout: str, body_velocities: bool, folder: Path, fix_time: bool = True) -> list[Path]:
+    """Write one simulated day in one shape; returns the files (``fix_time``: see :func:`_held_csv`)."""
     folder.mkdir(parents=True, exist_ok=True)
     log = res.log
     if layout == "one file":
         if body_velocities:
             return [write_log(log, folder / "day.csv")]
-        return [_held_csv(log, folder / "day.csv")]
+        return [_held_csv(log, folder / "day.csv", fix_time)]
     cuts = [0.0] + _split_times(res) + [math.inf]
     out = []
     for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
@@ -273,14 +280,14 @@ def seed_list(text: str) -> list[int]:
 
 
 def run_day(seed: int, rate: float, bv: bool, layouts: tuple[str, ...], diagnose_it: bool,
-            base: Path | None) -> list[dict]:
+            base: Path | None, fix_time: bool = True) -> list[dict]:
     """Simulate one day (``seed``, ``rate``, sensor suite) and run it through every layout."""
     res = simulate(VESSEL, sea_trial(VESSEL), sensors=sensors(rate, bv), seed=seed, actuator_rate=rate)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for layout in layouts:
             folder = (base or Path(tmp)) / f"s{seed}_{'bv' if bv else 'gnss'}_{rate:g}_{layout[:3]}"
-            r = run_shape(write_shape(res, layout, bv, folder), diagnose_it)
+            r = run_shape(write_shape(res, layout, bv, folder, fix_time), diagnose_it)
             r.update(seed=seed, rate=rate, layout=layout, sensors="body velocities" if bv else "GNSS only")
             rows.append(r)
     return rows
@@ -326,6 +333,9 @@ def main(argv=None) -> int:
     ap.add_argument("--layouts", nargs="+", choices=LAYOUTS, default=list(LAYOUTS))
     ap.add_argument("--sensors", nargs="+", choices=("gnss", "bv"), default=["gnss", "bv"])
     ap.add_argument("--workers", type=int, default=1, help="processes (at most 2 on a shared machine)")
+    ap.add_argument("--no-fix-time", action="store_true",
+                    help="GNSS-only one file: the logger writes no t_fix column (held fixes told by their values only)")
+    ap.add_argument("--pvs-only", action="store_true", help="only the PythonVehicleSimulator frigate")
     ap.add_argument("--no-pvs", action="store_true", help="skip the PythonVehicleSimulator frigate")
     ap.add_argument("--out", type=Path, default=None, help="folder for the written logs (default: temporary)")
     ap.add_argument("--json", type=Path, default=None, help="write every shape's z values here")
@@ -337,9 +347,9 @@ def main(argv=None) -> int:
     print("| seed | rate Hz | layout | sensors | runs | segs | within 2 SE | within 3 SE | worst (z) | not identified | "
           "diagnosis | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    tasks = [(seed, rate, bv, tuple(args.layouts), not args.no_diagnose, args.out)
+    tasks = [(seed, rate, bv, tuple(args.layouts), not args.no_diagnose, args.out, not args.no_fix_time)
              for seed in seeds for bv in (False, True) if ("bv" if bv else "gnss") in args.sensors
-             for rate in args.rates]
+             for rate in args.rates] if not args.pvs_only else []
     if args.workers > 1:
         with ProcessPoolExecutor(max_workers=args.workers) as pool:
             futures = [pool.submit(run_day, *task) for task in tasks]

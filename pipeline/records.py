@@ -275,6 +275,12 @@ class Trial:
         The recordings, in trial-clock order (see :class:`Run`); each is followed in ``data`` by
         a NaN gap. Empty for a Trial built by hand: then the whole of ``data`` is one run
         (:meth:`run_list` says so).
+    sample_times : Mapping[str, numpy.ndarray]
+        Channels measured slower than the grid (a 5 Hz GNSS on a 10 Hz grid, and ``u``, ``v``
+        derived from it) -> the trial-clock times [s] of their real measurements; between them
+        ``data`` holds interpolated values, which are not measurements. A channel not named here
+        is measured at every grid sample (or the Trial was built by hand). See
+        :meth:`measured_rows`.
     """
 
     name: str
@@ -285,6 +291,40 @@ class Trial:
     notes: tuple[str, ...] = ()
     summaries: tuple[IngestSummary, ...] = ()
     runs: tuple[Run, ...] = ()
+    sample_times: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    def measured_rows(self, channel: str, t: np.ndarray) -> np.ndarray:
+        """Which of the grid times ``t`` hold a real measurement of ``channel``.
+
+        Parameters
+        ----------
+        channel : str
+            Channel name (a column of ``data``).
+        t : numpy.ndarray
+            Grid times [s, trial clock], increasing.
+
+        Returns
+        -------
+        numpy.ndarray
+            Boolean mask over ``t``: all True when the channel is measured at every grid sample;
+            else True at the grid sample nearest to each real measurement within half a grid
+            step (a measurement between grid samples marks the nearer one).
+        """
+        t = np.asarray(t, float)
+        times = self.sample_times.get(channel)
+        if times is None or not len(t):
+            return np.ones(t.shape, bool)
+        times = np.asarray(times, float)
+        times = times[(times >= t[0] - 0.5 / self.fs) & (times <= t[-1] + 0.5 / self.fs)]
+        mask = np.zeros(t.shape, bool)
+        if not len(times):
+            return mask
+        j = np.clip(np.searchsorted(t, times), 1, len(t) - 1) if len(t) > 1 else np.zeros(len(times), int)
+        if len(t) > 1:
+            j = np.where(np.abs(t[j - 1] - times) <= np.abs(t[j] - times), j - 1, j)
+        near = np.abs(t[j] - times) <= 0.5 / self.fs + 1e-9
+        mask[j[near]] = True
+        return mask
 
     def run_list(self) -> tuple[Run, ...]:
         """The runs; a Trial without ``runs`` is one run spanning all of ``data``."""

@@ -165,7 +165,7 @@ def test_too_short_segment_raises_naming_expected_and_found():
     with pytest.raises(FitError) as err:
         fit_coast_down(trial, seg)
     msg = str(err.value)
-    assert "coast_down surge" in msg and "expected at least 20 samples" in msg and "found 10 samples" in msg
+    assert "coast_down surge" in msg and "expected at least 15 samples" in msg and "found 10 samples" in msg
 
 
 def test_segment_shorter_than_half_a_time_constant_raises():

@@ -133,14 +133,17 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
         raise AlignError(f"align: expected a positive sample rate [Hz], found {fs}")
     fs = float(fs)
     frames, gaps, run_records = [], [], []
+    sample_times: dict[str, list[np.ndarray]] = {}
     index = 0
     gap_rows = max(int(np.ceil(RUN_GAP_S * fs)), 2)
     for k, g in enumerate(groups):
         multi = len(groups) > 1
         tag = f"run {g.name}: " if multi else ""
-        frame, run_gaps, run_notes, kinds, t_first = _align_run([by_source[s] for s in g.sources], g, fs,
-                                                               gap_threshold, vessel, input_kinds or {})
+        frame, run_gaps, run_notes, kinds, t_first, run_times = _align_run(
+            [by_source[s] for s in g.sources], g, fs, gap_threshold, vessel, input_kinds or {})
         shift = index / fs
+        for key, times in run_times.items():
+            sample_times.setdefault(key, []).append(times + shift)
         frame["t"] = frame["t"].to_numpy() + shift
         gaps += [Gap(x.channel, x.t_start + shift, x.t_end + shift) for x in run_gaps]
         notes += [tag + n for n in run_notes]
@@ -160,7 +163,8 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
     data = pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
     data = as_float64_block(data[_ordered(data.columns)])
     return Trial(name=name, data=data, fs=fs, gaps=tuple(gaps), sources=tuple(l.source for l in logs),
-                 notes=tuple(notes), summaries=tuple(l.summary for l in logs), runs=tuple(run_records))
+                 notes=tuple(notes), summaries=tuple(l.summary for l in logs), runs=tuple(run_records),
+                 sample_times={k: np.concatenate(v) for k, v in sample_times.items() if k in data.columns})
 
 
 def as_float64_block(frame: pd.DataFrame) -> pd.DataFrame:
@@ -211,8 +215,10 @@ def _run_tod(logs: Sequence[RawLog], group: RunGroup, t_first: float) -> float:
 
 def _align_run(logs: Sequence[RawLog], group: RunGroup, fs: float, gap_threshold: float | None,
                vessel: Vessel | None, input_kinds: Mapping[str, str]
-               ) -> tuple[pd.DataFrame, list[Gap], list[str], dict[str, str], float]:
-    """One run on its own uniform grid from its first sample: frame, gaps, notes, input kinds, t0."""
+               ) -> tuple[pd.DataFrame, list[Gap], list[str], dict[str, str], float, dict[str, np.ndarray]]:
+    """One run on its own uniform grid from its first sample: frame, gaps, notes, input kinds, t0, and the
+    real sample times [s from the run's start] of the channels measured slower than the grid
+    (:func:`slow_sample_times`)."""
     notes: list[str] = []
     if len(logs) > 1:
         for src in group.sources:
@@ -267,11 +273,65 @@ def _align_run(logs: Sequence[RawLog], group: RunGroup, fs: float, gap_threshold
     if vessel is not None:
         frame, sensor_notes = apply_sensors(frame, vessel)
         notes += sensor_notes
-    frame, derived = _derive(frame, {k: _native_rate(c) for k, c in chans.items()})
+    rates = {k: _native_rate(c) for k, c in chans.items()}
+    frame, derived = _derive(frame, rates)
     notes += derived
     notes += plausibility_notes(frame, fs)
     shifted = [Gap(g.channel, g.t_start - t0, g.t_end - t0) for g in gaps]
-    return frame, shifted, notes, kinds, t0
+    times = slow_sample_times(chans, fs, t0)
+    times.update(_derived_sample_times(frame, chans, times, rates))
+    if times:
+        notes.append("measured slower than the grid (real samples recorded, values between them interpolated): "
+                     + ", ".join(f"{k} {len(v)} samples" for k, v in sorted(times.items())))
+    return frame, shifted, notes, kinds, t0, times
+
+
+#: A channel whose median sample interval exceeds this many grid steps is "slower than the grid":
+#: its real sample times are kept on the Trial (``Trial.sample_times``).
+SLOW_FACTOR = 1.5
+
+
+def slow_sample_times(chans: Mapping[str, Channel], fs: float, t0: float) -> dict[str, np.ndarray]:
+    """Real sample times of the state channels measured slower than the grid.
+
+    Parameters
+    ----------
+    chans : Mapping[str, Channel]
+        One run's channels (held GNSS fixes already collapsed to one sample per fix).
+    fs : float
+        Grid rate [Hz].
+    t0 : float
+        The run's first sample time [s, run clock].
+
+    Returns
+    -------
+    dict[str, numpy.ndarray]
+        Channel -> its sample times [s from ``t0``], for every state channel (not an input) whose
+        median sample interval is above ``SLOW_FACTOR`` grid steps.
+    """
+    out = {}
+    for key, ch in chans.items():
+        if key.split("@")[0] in INPUT_UNITS or len(ch.t) < 2:
+            continue
+        if float(np.median(np.diff(ch.t))) * fs > SLOW_FACTOR:
+            out[key] = np.asarray(ch.t, float) - t0
+    return out
+
+
+def _derived_sample_times(frame: pd.DataFrame, chans: Mapping[str, Channel], times: Mapping[str, np.ndarray],
+                          rates: Mapping[str, float]) -> dict[str, np.ndarray]:
+    """Sample times of ``x_n, y_e`` and ``u, v`` derived from slow GNSS: those of the fixes they came from."""
+    out = {}
+    lat, lon = _first_present(frame, "lat"), _first_present(frame, "lon")
+    if "x_n" not in chans and lat in times and lon in times and np.array_equal(times[lat], times[lon]):
+        out["x_n"] = out["y_e"] = times[lat]
+    sog, cog = _fastest_velocity(frame, rates)
+    psi = _first_present(frame, "psi")
+    if sog in times and cog in times and np.array_equal(times[sog], times[cog]) and psi not in times:
+        for k in ("u", "v"):
+            if k not in chans and k in frame:
+                out[k] = times[sog]
+    return out
 
 
 def _ordered(columns) -> list[str]:

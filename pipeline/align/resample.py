@@ -38,6 +38,11 @@ def find_gaps(channel: Channel, threshold: float | None = None) -> tuple[Gap, ..
     return tuple(Gap(channel.name, float(channel.t[i]), float(channel.t[i + 1])) for i in idx)
 
 
+#: A held command stamped within this fraction of a grid step after a grid point takes effect at
+#: that grid point.
+HOLD_TOLERANCE = 1e-3
+
+
 def resample_channel(channel: Channel, grid: np.ndarray, gaps: tuple[Gap, ...]) -> np.ndarray:
     """Channel values on ``grid`` [s]; NaN outside its span and inside its gaps.
 
@@ -68,9 +73,13 @@ def resample_channel(channel: Channel, grid: np.ndarray, gaps: tuple[Gap, ...]) 
     if len(t) == 0:
         return np.full(len(grid), np.nan)
     if channel.held:
-        idx = np.searchsorted(t, grid + 1e-9, side="right") - 1
+        # A command stamped a hair after a grid point (a clock offset, or times written with
+        # microseconds, as ISO stamps are) is that grid point's command, not the next one's: held
+        # from the next grid point it would act a whole step late.
+        tol = max(1e-9, HOLD_TOLERANCE * float(np.min(np.diff(grid)))) if len(grid) > 1 else 1e-9
+        idx = np.searchsorted(t, grid + tol, side="right") - 1
         out = np.where(idx >= 0, v[np.clip(idx, 0, len(v) - 1)], np.nan)
-        out[grid > t[-1] + 1e-9] = np.nan
+        out[grid > t[-1] + tol] = np.nan
     else:
         if base in ANGLE_CHANNELS:
             out = np.interp(grid, t, np.unwrap(v))

@@ -24,7 +24,7 @@ from .robust_covariance import hac_covariance
 from .segment_fit import build_segment_fit
 
 #: Fewest samples a first-order fit accepts.
-MIN_SAMPLES = 20
+MIN_SAMPLES = 15
 #: A segment shorter than this many time constants (of the start guess) cannot be fitted at all.
 MIN_TIME_CONSTANTS = 0.5
 #: Time constants a segment should span for a well-determined T and steady state.
@@ -237,6 +237,75 @@ def _velocity_channel(trial: Trial, segment: Segment) -> str:
     return pick_channel(trial, segment, [DOF_CHANNELS[segment.dof][0]] + extra)
 
 
+def measured_samples(trial: Trial, segment: Segment, channel: str, t: np.ndarray,
+                     y: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
+    """Keep only the real measurements of a channel measured slower than the trial grid.
+
+    A GNSS logged at 5 Hz on a 10 Hz grid (and ``u``, ``v`` derived from it) is interpolated
+    between fixes; those values are not measurements. Fitted as if they were, they draw chords
+    across the exponential (which lengthens ``T``) and make neighbouring residuals alike (which
+    shrinks its standard error). ``Trial.sample_times`` names the real samples
+    (:meth:`pipeline.records.Trial.measured_rows`); a channel measured at every grid sample is
+    returned unchanged.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    segment : Segment
+        The segment (``t`` is relative to its ``t_start``).
+    channel : str
+        The fitted channel.
+    t, y : numpy.ndarray
+        Segment samples: time since ``segment.t_start`` [s] and values.
+
+    Returns
+    -------
+    t, y : numpy.ndarray
+        The real measurements only.
+    str
+        A note saying how many interpolated samples were left out ("" when none).
+    """
+    keep = trial.measured_rows(channel, t + segment.t_start)
+    if keep.all():
+        return t, y, ""
+    note = (f"{int((~keep).sum())} of {t.size} samples of {channel} are interpolated between its real measurements "
+            f"({int(keep.sum())}, {channel} is measured slower than the {trial.fs:g} Hz grid) and are not fitted")
+    return t[keep], y[keep], note
+
+
+#: Fewest samples a fit needs on its transient (the first three fitted time constants).
+MIN_TRANSIENT_SAMPLES = 5
+
+
+def resolution_failures(t: np.ndarray, res: LeastSquaresResult) -> list[str]:
+    """A failure when fewer than ``MIN_TRANSIENT_SAMPLES`` samples lie on the transient.
+
+    ``T`` is determined by the samples taken while the response still moves, within about three
+    time constants of the start. A response that settles within two or three samples (a 0.4 s sway
+    time constant in a 2 Hz log) leaves ``T`` to where those few happen to fall, and its linearised
+    standard error is then far too small (measured: Y_v +3 standard errors at 2 Hz, 3 of 12 seeds).
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Fitted sample times, from the segment start [s].
+    res : LeastSquaresResult
+        The fit (parameters include ``T``).
+
+    Returns
+    -------
+    list[str]
+        One failure message, or none.
+    """
+    T = float(res.values[res.names.index("T")])
+    n = int(np.count_nonzero(np.asarray(t, float) < 3.0 * T)) if math.isfinite(T) else 0
+    if n < MIN_TRANSIENT_SAMPLES:
+        return [f"time constant not resolved: expected at least {MIN_TRANSIENT_SAMPLES} samples within 3 T of the "
+                f"start, found {n} (T = {T:.3g} s)"]
+    return []
+
+
 # --------------------------------------------------------------------------- segment fits
 def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     """Fit ``y = y0 exp(-t/T)`` to a coast-down (input cut to zero at ``segment.t_start``).
@@ -267,6 +336,7 @@ def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     """
     channel = _velocity_channel(trial, segment)
     t, y, dropped = segment_samples(trial, segment, channel)
+    t, y, real_note = measured_samples(trial, segment, channel, t, y)
     if t.size < MIN_SAMPLES:
         check_first_order_length(segment, t, math.nan, math.nan, math.nan)
     p0 = guess_decay(t, y)
@@ -276,12 +346,14 @@ def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     notes += check_first_order_length(segment, t, p0["T"], p0["y0"], sigma)
     if dropped:
         notes.append(f"{dropped} non-finite samples dropped")
+    notes += [real_note] if real_note else []
     lo_T, hi_T = time_constant_bounds(t)
     res = fit_least_squares(lambda tt, p: decay(tt, *p), lambda tt, p: decay_jacobian(tt, *p), t, y,
                             [p0["y0"], p0["T"]], DECAY_PARAMS, [-np.inf, lo_T], [np.inf, hi_T])
     res, hac_note = coloured_noise_errors(res, decay_jacobian(t, *res.values))
     notes += [hac_note] if hac_note else []
-    return build_segment_fit(segment, "first_order_decay", channel, t, y, res, ("T",), notes)
+    return build_segment_fit(segment, "first_order_decay", channel, t, y, res, ("T",), notes,
+                             resolution_failures(t, res))
 
 
 def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
@@ -306,6 +378,7 @@ def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
     """
     channel = _velocity_channel(trial, segment)
     t, y, dropped = segment_samples(trial, segment, channel)
+    t, y, real_note = measured_samples(trial, segment, channel, t, y)
     if t.size < MIN_SAMPLES:
         check_first_order_length(segment, t, math.nan, math.nan, math.nan)
     p0 = guess_step(t, y)
@@ -315,14 +388,15 @@ def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
     notes += check_first_order_length(segment, t, p0["T"], p0["y_ss"] - p0["y0"], sigma)
     notes += [SOG_NOTE] if channel == "sog" else []
     _, _, level_note = input_levels(trial, segment)
-    notes += [n for n in (level_note, f"{dropped} non-finite samples dropped" if dropped else "") if n]
+    notes += [n for n in (level_note, f"{dropped} non-finite samples dropped" if dropped else "", real_note) if n]
     lo_T, hi_T = time_constant_bounds(t)
     res = fit_least_squares(lambda tt, p: step_response(tt, *p), lambda tt, p: step_jacobian(tt, *p), t, y,
                             [p0["y0"], p0["y_ss"], p0["T"]], STEP_PARAMS,
                             [-np.inf, -np.inf, lo_T], [np.inf, np.inf, hi_T])
     res, hac_note = coloured_noise_errors(res, step_jacobian(t, *res.values))
     notes += [hac_note] if hac_note else []
-    sf = build_segment_fit(segment, "first_order_step", channel, t, y, res, ("T",), notes)
+    sf = build_segment_fit(segment, "first_order_step", channel, t, y, res, ("T",), notes,
+                           resolution_failures(t, res))
     _, steady_note = step_steadiness(trial, sf)
     return replace(sf, message="; ".join(m for m in (sf.message, steady_note) if m))
 

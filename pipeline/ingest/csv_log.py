@@ -17,6 +17,13 @@ CSV as people write it is read too, and every guess is named in the summary:
 - units by suffix of a canonical name: ``psi_deg``, ``r_degs``/``r_dps`` [deg/s], ``sog_kn``/``sog_kts``
   [knots], ``sog_kmh``, ``u_ms``/``u_mps`` [m/s], ``phi_rad``; a ``units`` entry overrides it.
 
+A logger that writes one row per IMU sample and repeats the last GNSS fix in every row can say which
+rows hold a new fix: a column ``t_fix`` (any unit suffix, e.g. ``t_fix_ms``; ``t_fix@sensor`` for the
+GNSS channels ``lat@sensor`` ...) holding the receiver's own time of the fix in each row (GPS time of
+week, fix time, fix counter: any number that changes with every new fix). Rows where it repeats are
+held copies: ``lat``, ``lon``, ``sog`` and ``cog`` keep only the row where each fix first appears.
+Without it, held fixes are recognised from their values in :mod:`pipeline.align.gnss`.
+
 Inputs (``delta``, ``tau_*``) are commands by default, held until the next sample; a rudder-angle
 sensor or other measured actuator state is declared ``measured`` (``input_kinds``, or a
 manifest's ``[inputs]`` table) and is then interpolated like a state.
@@ -62,6 +69,34 @@ EPOCH_MIN_S = 1e8
 
 def _base(name: str) -> str:
     return name.split("@", 1)[0]
+
+
+#: Name of the column holding each row's GNSS fix time (see the module notes).
+FIX_TIME = "t_fix"
+#: Channels of a GNSS receiver, held together by a logger between fixes.
+GNSS_BASES = ("lat", "lon", "sog", "cog")
+
+
+def _fix_time_columns(p: Path, df: pd.DataFrame, columns: Mapping[str, str]) -> dict[str, tuple[str, np.ndarray]]:
+    """Sensor suffix ("" for none) -> (raw column, True on the rows where a new GNSS fix appears)."""
+    out = {}
+    for raw in df.columns:
+        name = columns.get(raw, raw)
+        base, _, sensor = name.partition("@")
+        if base != FIX_TIME and not (base.startswith(FIX_TIME + "_") and base[len(FIX_TIME) + 1:].lower()
+                                     in TIME_SUFFIX_UNITS):
+            continue
+        stamp = pd.to_numeric(df[raw], errors="coerce").to_numpy(float)
+        if not np.isfinite(stamp).any():
+            # ISO times of the fix: compare them as text.
+            text = df[raw].astype(str).to_numpy()
+            stamp = pd.factorize(text)[0].astype(float)
+            stamp[df[raw].isna().to_numpy()] = np.nan
+        ok = np.isfinite(stamp)
+        prev = pd.Series(stamp).ffill().shift(1).to_numpy()
+        new = ok & ~(stamp == prev)
+        out[sensor] = (raw, new)
+    return out
 
 
 def _split_suffix(raw: str, table: Mapping[str, str]) -> tuple[str, str] | None:
@@ -291,8 +326,13 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
     read: dict[str, int] = {}
     skipped: dict[str, int] = {}
     warnings: list[str] = []
+    fix_rows = _fix_time_columns(p, df, columns)
+    for sensor, (raw, new) in fix_rows.items():
+        notes.append(f"GNSS fixes: column {raw!r} gives the fix time of each row: {int(new.sum())} fixes in "
+                     f"{len(new)} rows; GNSS channels{' @' + sensor if sensor else ''} keep the row where each "
+                     f"fix first appears (the others are held copies)")
     for raw in df.columns:
-        if raw == time_column:
+        if raw == time_column or any(raw == r for r, _ in fix_rows.values()):
             continue
         name, unit = _name_and_unit(raw, columns, units, notes)
         if _base(name) not in CHANNEL_UNITS:
@@ -302,6 +342,9 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
             continue
         values = _numbers(p, df[raw], raw) * UNIT_FACTORS[unit or ""]
         ok = np.isfinite(values)
+        base, _, sensor = name.partition("@")
+        if base in GNSS_BASES and sensor in fix_rows:
+            ok &= fix_rows[sensor][1]
         n_inf = int(np.isinf(values).sum())
         if n_inf:
             # 'inf' cells are numbers to pandas; they are dropped, but counted, not silently.
