@@ -617,6 +617,27 @@ def rudder_step_lead_in(trial: Trial, segment: Segment) -> float:
     return float(t[min(k + 1, i0)]) if i0 > 0 else float(segment.t_start)
 
 
+def samples_window(sf: SegmentFit) -> tuple[float, float] | None:
+    """Start and end [s, trial clock] of the samples a whole-record Nomoto fit used (None for other fits).
+
+    A rudder step's window reaches back over the steady hold before it
+    (:func:`rudder_step_lead_in`), which is the previous step's new level: consecutive steps share
+    samples, and their combination treats them as correlated
+    (:func:`pipeline.fit.combine.overlap_correlation`).
+
+    Parameters
+    ----------
+    sf : SegmentFit
+        A segment fit; its ``t`` is relative to the segment's start.
+    """
+    if not sf.model.startswith(("nomoto_oe", "nomoto_pem")) or sf.t is None or len(sf.t) < 2:
+        return None
+    t = np.asarray(sf.t, float)
+    if not (math.isfinite(t[0]) and math.isfinite(t[-1])):
+        return None
+    return float(sf.segment.t_start + t[0]), float(sf.segment.t_start + t[-1])
+
+
 #: Extra Nomoto coefficients a segment fit may carry: parameter -> (estimate name, unit).
 EXTRA_COEFFICIENTS = {"T1": ("T1_nomoto", "s"), "T2": ("T2_nomoto", "s"), "T3": ("T3_nomoto", "s"),
                       "T12": ("T12_nomoto", "s"), "T1T2": ("T1T2_nomoto", "s^2"),
