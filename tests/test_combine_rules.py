@@ -49,7 +49,7 @@ def test_coverage_of_the_rules_under_a_between_segment_spread():
 def test_values_from_overlapping_windows_are_combined_as_correlated():
     # Four estimates, each the mean of 100 white samples, consecutive windows sharing 50 samples
     # (rudder steps sharing the hold between them). Combined as independent, their mean's z spreads
-    # by about 1.4 over draws; with the windows given, the generalised least-squares error holds it.
+    # by about 1.4 over draws; with the windows given, the correlated error of the mean holds it.
     from pipeline.fit.combine import overlap_correlation
 
     windows = [(50.0 * i, 50.0 * i + 100.0) for i in range(4)]
@@ -68,7 +68,7 @@ def test_values_from_overlapping_windows_are_combined_as_correlated():
         z_windows.append(with_w.value / with_w.stderr)
     assert np.std(z_indep) > 1.25
     assert 0.93 < np.std(z_windows) < 1.07
-    assert "share samples" in with_w.message and "generalised least-squares" in with_w.method
+    assert "share samples" in with_w.message and "overlapping windows correlated" in with_w.method
 
 
 def test_prediction_error_keeps_the_spread_of_disagreeing_segments():

@@ -18,8 +18,8 @@ normal for a combination.
 
 Segments whose fits used overlapping sample windows (consecutive rudder steps share the steady hold
 between them: the hold is the first step's new level and the second step's lead-in) are not
-independent: their values are combined by generalised least squares with the correlation of
-:func:`overlap_correlation`, and the chi-square uses the same covariance.
+independent: their inverse-variance mean gets the error of a weighted mean of correlated values, with the
+correlation of :func:`overlap_correlation`, and the chi-square uses the same covariance.
 
 References
 ----------
@@ -226,11 +226,11 @@ def prediction_stderr(se_re: float, tau2: float, unit: str) -> tuple[float, str]
 
 def _combine_correlated(name: str, unit: str, method: str, used: Sequence[Contribution], rho: np.ndarray,
                         messages: list[str], left_out: list[str], prediction: bool = False) -> Estimate:
-    """:func:`combine` for values whose windows overlap: the generalised least-squares mean.
+    """:func:`combine` for values whose windows overlap: the inverse-variance mean with its correlated error.
 
-    ``C = diag(se) R diag(se)`` with ``R`` from :func:`overlap_correlation`; mean
-    ``1' C^-1 x / 1' C^-1 1``, variance ``1 / (1' C^-1 1)``, ``Q = (x - m)' C^-1 (x - m)`` on ``k - 1``
-    degrees of freedom. When ``Q`` says the segments disagree, the DerSimonian-Laird spread ``tau^2``
+    ``C = diag(se) R diag(se)`` with ``R`` from :func:`overlap_correlation`; mean ``w' x / sum w``
+    with ``w = 1/se^2`` (always inside the values' range, unlike full GLS weights), variance
+    ``w' C w / (sum w)^2``, ``Q = (x - m)' C^-1 (x - m)`` on ``k - 1`` degrees of freedom. When ``Q`` says the segments disagree, the DerSimonian-Laird spread ``tau^2``
     (from the diagonal weights) is added to the diagonal of ``C`` and the mean taken again.
     """
     x = np.array([c.value for c in used])
@@ -240,9 +240,12 @@ def _combine_correlated(name: str, unit: str, method: str, used: Sequence[Contri
     one = np.ones(k)
 
     def gls(c: np.ndarray) -> tuple[float, float, np.ndarray]:
-        ci = np.linalg.pinv(c)
-        info = float(one @ ci @ one)
-        return float(one @ ci @ x) / info, 1.0 / math.sqrt(info), ci
+        # Inverse-variance weights from the diagonal (a mean inside the values' range, which full
+        # GLS weights do not promise when correlated values have unequal errors), and the variance
+        # of that weighted mean under the correlated covariance: w' C w / (sum w)^2.
+        w = 1.0 / np.diag(c)
+        var = float(w @ c @ w) / float(w.sum()) ** 2
+        return float(w @ x) / float(w.sum()), math.sqrt(var), np.linalg.pinv(c)
 
     mean, se, cinv = gls(cov)
     chi2 = float((x - mean) @ cinv @ (x - mean))
@@ -250,14 +253,14 @@ def _combine_correlated(name: str, unit: str, method: str, used: Sequence[Contri
     n_pairs = int(np.sum(np.triu(rho, 1) > 0))
     note = (f"{n_pairs} pair(s) of segments share samples (overlapping windows, correlation up to "
             f"{float(np.max(np.triu(rho, 1))):.2f} from the shared share of their samples): "
-            f"generalised least-squares mean")
-    rule = f"generalised least-squares mean of {k} segments, overlapping windows correlated"
+            f"inverse-variance mean with the correlated error")
+    rule = f"inverse-variance mean of {k} segments, overlapping windows correlated"
     if p_value < CONSISTENCY_ALPHA:
         w = 1.0 / sd**2
         s1, s2 = float(w.sum()), float((w**2).sum())
         tau2 = max(0.0, (chi2 - (k - 1)) / (s1 - s2 / s1))
         mean, se, _ = gls(cov + tau2 * np.eye(k))
-        rule = f"random-effects generalised least-squares mean of {k} segments, overlapping windows correlated"
+        rule = f"random-effects mean of {k} segments, overlapping windows correlated"
         messages.insert(0, f"segments disagree (chi2 = {chi2:.3g} on {k - 1} dof, p = {p_value:.2g} "
                            f"< {CONSISTENCY_ALPHA}): random-effects combination, between-segment spread "
                            f"tau = {math.sqrt(tau2):.3g} {unit} added to every segment's error")
