@@ -159,12 +159,16 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
 #: Words of the disagreement note (:func:`pipeline.fit.nomoto_structure.disagreement_note`) that name
 #: a trend of a coefficient with the rudder amplitude, after the coefficient's name.
 AMPLITUDE_TREND = "changes with the rudder amplitude"
+#: Range of the segments' values, relative to the combined value, that makes an amplitude trend
+#: material [-] (a trend of 0.1 % on a nearly linear ship is real but harmless).
+AMPLITUDE_MATERIAL = 0.02
 
 
 def nonlinear_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) -> list[str]:
     """Why K or T is unsure when the segments' values trend with the rudder amplitude (empty otherwise).
 
-    A linear Nomoto K or T that changes with the amplitude is the ship's at one amplitude only: the
+    A linear Nomoto K or T that changes with the amplitude (and whose segment values range over more
+    than ``AMPLITUDE_MATERIAL`` of the combined value) is the ship's at one amplitude only: the
     combined value is an average over the amplitudes tried, and the small-rudder (linearised) value
     lies off it by more than the segments' spread shows (measured: PythonVehicleSimulator's tanker at
     25 m, steps of 5 and 10 deg, every step's K 3-9 % above the linearisation, combined +5 % marked
@@ -179,7 +183,9 @@ def nonlinear_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) -> l
     short : str
         ``K`` or ``T``.
     """
-    if not est.success:
+    x = np.asarray(est.per_segment, float)
+    x = x[np.isfinite(x)]
+    if not est.success or x.size < 2 or not np.ptp(x) > AMPLITUDE_MATERIAL * abs(est.value):
         return []
     head = f"{short} {AMPLITUDE_TREND}"
     for f in fits:
