@@ -729,7 +729,7 @@ def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
              "", "Truth (the simulator's own linearisation at its straight-line steady state):", ""] + truth_lines + [
              "", HEADER] + [format_row(r) for r in rows]
     lines += ["", "Combination rules on the same per-segment fits (every run with a usable segment, marked success "
-              "or not; `dersimonian_laird` is what vesselid reports, pipeline/fit/combine.py `combination_rules`): "
+              "or not; `dl_prediction` is what vesselid reports for K and T (windows not overlapping), pipeline/fit/combine.py `combination_rules`): "
               "95 % CI coverage of the linearisation, K / T, in % (runs):", "",
               "| ship | manoeuvre | rudder log | waves | " + " | ".join(COMBINATION_RULES) + " |",
               "|---|---|---|---|" + "---|" * len(COMBINATION_RULES)]

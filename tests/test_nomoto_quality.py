@@ -179,3 +179,28 @@ def test_sinusoid_k_unsure_when_their_t_spread_shows_a_structure_error():
     # K values that agree within their errors stay.
     k_ok = combine("K_nomoto", "1/s", "m", [Contribution(-0.0200, 1e-4, "fast"), Contribution(-0.0201, 1e-4, "slow")])
     assert sinusoid_k_reason(k_ok, ["sinusoid", "sinusoid"], t_why) == []
+
+
+def test_k_trending_with_the_rudder_amplitude_is_unsure():
+    # Steps of 5 and 10 deg whose K grows with the amplitude beyond their errors (a nonlinear ship,
+    # as PythonVehicleSimulator's tanker at 25 m): the trend note of the structure stage makes the
+    # combined K unsure; T, which does not trend, stays; no trend, no reason.
+    from types import SimpleNamespace
+
+    from pipeline.fit.nomoto_quality import nonlinear_reason
+    from pipeline.fit.nomoto_structure import disagreement_note
+
+    amps = np.radians([10.0, 10.0, 10.0, 10.0, 5.0, 5.0])
+    ks = [0.0231, 0.0232, 0.0230, 0.0233, 0.0220, 0.0221]
+    fits = [SimpleNamespace(params={"K": k, "T": 50.0 + 0.1 * i}, stderr={"K": 2e-5, "T": 1.0},
+                            segment=SimpleNamespace(kind="rudder_step"), message="")
+            for i, k in enumerate(ks)]
+    note = disagreement_note(fits, amps)
+    assert "K changes with the rudder amplitude" in note
+    fits = [SimpleNamespace(**{**vars(f), "message": note}) for f in fits]
+    k = combine("K_nomoto", "1/s", "m", [Contribution(v, 2e-5, f"s{i}") for i, v in enumerate(ks)])
+    why = nonlinear_reason(k, fits, "K")
+    assert why and why[0].startswith("unsure: nonlinear: K changes with the rudder amplitude")
+    assert nonlinear_reason(k, fits, "T") == []
+    plain = [SimpleNamespace(**{**vars(f), "message": ""}) for f in fits]
+    assert nonlinear_reason(k, plain, "K") == []

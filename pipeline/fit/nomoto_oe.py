@@ -74,8 +74,8 @@ from ..model.waves import WaveParams
 from .data import noise_sigma
 from .nomoto_pem import guess_wave_noise
 from .nomoto_problem import (COLLAPSE_WEIGHT, DYNAMIC_PARAMS, MIN_SAMPLES, NOISE_MODELS, NOISE_PARAMS, Problem,
-                             cancelled_mode, finish, plausible_ranges, prepare, reweighted_solve, start_vector,
-                             unwrap_heading)
+                             cancelled_mode, concentrated_nll, finish, plausible_ranges, prepare, reweighted_solve,
+                             start_vector, unwrap_heading)
 from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_start import first_order_start, guess_nomoto
 from .nomoto_zoh import simulate_zoh, zoh_discretise
@@ -188,13 +188,16 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
             if gain_floor is not None and order != 1:
                 watch_gain(prob, gain_floor)
             res = reweighted_solve(prob, start_vector(prob, dyn, b0, ics, (), start), max_nfev, _collapse_stop(prob))
-            if best is None or res.cost < best[1].cost:
-                best = (prob, res)
+            # Starts are compared by the likelihood with the channel variances concentrated out: each
+            # solve's cost is weighted by variances re-estimated from its own start, so costs are not.
+            crit = concentrated_nll(prob, res.x)
+            if best is None or crit < best[2]:
+                best = (prob, res, crit)
             # A first-order fit that converged inside the plausible ranges needs no other start; the
             # second-order one can stop in a local minimum, so every start is tried.
-            if order == 1 and _plausible(*best):
+            if order == 1 and _plausible(*best[:2]):
                 break
-        prob, res = best
+        prob, res, _ = best
         oe = finish(prob, res, [res.stopped] if res.stopped else [])
         if key is not None:
             prob.clear_caches()

@@ -744,6 +744,35 @@ def reweighted_solve(prob: Problem, x0: np.ndarray, max_nfev: int, stop=None) ->
     return res
 
 
+def concentrated_nll(prob: Problem, x: np.ndarray) -> float:
+    """``sum_ch n_ch log(mse_ch)`` of the unweighted residuals at ``x`` [-].
+
+    The Gaussian negative log-likelihood with every channel's variance concentrated out (up to a
+    constant and a factor 2). Unlike the solver's weighted cost, it does not depend on the channel
+    weights, which :func:`reweighted_solve` re-estimates from each start's own residuals (and, for a
+    single channel, sets once from the start): costs of solves from different starts are not
+    comparable, this criterion is.
+
+    Parameters
+    ----------
+    prob : Problem
+        The problem.
+    x : numpy.ndarray
+        Solver vector.
+    """
+    per = prob.channel_residuals(x)
+    total = 0.0
+    for ch in prob.channels:
+        e = np.concatenate([q[ch] for q in per])
+        if not e.size:
+            continue
+        ms = float(np.mean(e**2))
+        if not (ms > 0 and math.isfinite(ms)):
+            return math.inf if not ms == 0 else -math.inf
+        total += e.size * math.log(ms)
+    return total
+
+
 def start_vector(prob: Problem, dyn: Sequence[float], b: float, ics: Sequence[Sequence[float]],
                   noise0: Sequence[float], servo0: Mapping[str, float] | None = None) -> np.ndarray:
     """Solver vector from SI start values.

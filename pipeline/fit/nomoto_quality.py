@@ -23,6 +23,9 @@ report, coefficients.json and the CLI show what was found and why it is not trus
   too when that T spread is flagged and the K values disagree beyond their errors
   (:func:`sinusoid_k_reason`).
 
+- the segments' values trend with the rudder amplitude (:func:`nonlinear_reason`): the ship is
+  nonlinear, and a linear K or T holds for one amplitude only.
+
 - the structure chosen across the trial's segments is a near-tie whose first- and second-order
   values of this coefficient differ materially on most segments (``STRUCTURE_UNDECIDED`` in the
   segment fits' messages, :func:`pipeline.fit.nomoto_structure.undecided_note`), or the held-out
@@ -144,12 +147,53 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if name == "K_nomoto":
             why += sinusoid_k_reason(est, kinds, t_why)
         short = name.split("_")[0]
+        why += nonlinear_reason(est, fits, short)
         for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
             if est.success and f" {short} " in part.split(":")[1] + " ":
                 why.insert(0, part)
         if why:
             out[name] = replace(est, success=False, message="; ".join(why + ([est.message] if est.message else [])))
     return out
+
+
+#: Words of the disagreement note (:func:`pipeline.fit.nomoto_structure.disagreement_note`) that name
+#: a trend of a coefficient with the rudder amplitude, after the coefficient's name.
+AMPLITUDE_TREND = "changes with the rudder amplitude"
+#: Range of the segments' values, relative to the combined value, that makes an amplitude trend
+#: material [-] (a trend of 0.1 % on a nearly linear ship is real but harmless).
+AMPLITUDE_MATERIAL = 0.02
+
+
+def nonlinear_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) -> list[str]:
+    """Why K or T is unsure when the segments' values trend with the rudder amplitude (empty otherwise).
+
+    A linear Nomoto K or T that changes with the amplitude (and whose segment values range over more
+    than ``AMPLITUDE_MATERIAL`` of the combined value) is the ship's at one amplitude only: the
+    combined value is an average over the amplitudes tried, and the small-rudder (linearised) value
+    lies off it by more than the segments' spread shows (measured: PythonVehicleSimulator's tanker at
+    25 m, steps of 5 and 10 deg, every step's K 3-9 % above the linearisation, combined +5 % marked
+    success with 0 % coverage).
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K or T.
+    fits : sequence of SegmentFit
+        The segment fits behind it (their disagreement notes are read).
+    short : str
+        ``K`` or ``T``.
+    """
+    x = np.asarray(est.per_segment, float)
+    x = x[np.isfinite(x)]
+    if not est.success or x.size < 2 or not np.ptp(x) > AMPLITUDE_MATERIAL * abs(est.value):
+        return []
+    head = f"{short} {AMPLITUDE_TREND}"
+    for f in fits:
+        for part in f.message.split("; "):
+            if head in part:
+                tail = part[part.index(head):].split(", and ")[0]
+                return [f"unsure: nonlinear: {tail}"]
+    return []
 
 
 def sinusoid_k_reason(est: Estimate, kinds: Sequence[str], t_reasons: Sequence[str]) -> list[str]:

@@ -22,7 +22,9 @@ What the log holds decides the model, by the data:
   (error from the covariance).
 - Unsure: a near-tie between the structures whose K or T differ materially
   (:func:`structure_ambiguity`), or a second order called for whose fit failed, marks the
-  segment fit failed with a message starting ``unsure:``.
+  segment fit failed with a message starting ``unsure:``. A wave noise model whose fitted peak
+  lies below the ship's corner frequency (:func:`slow_noise_note`) leaves K and T undecided for
+  the combined estimates (:func:`pipeline.fit.nomoto_quality.judge_nomoto`).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
 from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
 from .nomoto_oe import GainFloor, SecondOrderNoGain, fit_nomoto
 from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
+from .nomoto_quality import STRUCTURE_UNDECIDED
 from .nomoto_records import NomotoFit, NomotoRecord
 from .segment_fit import MAX_RELATIVE_STDERR
 
@@ -544,6 +547,9 @@ def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: 
             fail.append(f"{name} = {v:.4g} +- {se:.2g} has a relative standard error above "
                         f"{MAX_RELATIVE_STDERR:.0%}: not identified")
     notes = [fit.message] + notes
+    slow = slow_noise_note(fit)
+    if slow:
+        notes.append(slow)
     if segment.kind == "zigzag" and not all(t.independent for t in fit.residual_tests):
         notes.append("a zig-zag switches the rudder on the heading, so residuals that lead the rudder "
                      "(negative lags) are the expected feedback, not a model error")
@@ -554,6 +560,34 @@ def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: 
     return SegmentFit(segment=segment, model=model, channel=main, param_names=fit.names, params=params,
                       stderr=stderr, covariance=fit.covariance, t=t_rel, y=y, y_fit=fit.y_fit[0][main], rmse=rmse,
                       aic=fit.aic, bic=fit.bic, success=not fail, message="; ".join(fail + notes))
+
+
+def slow_noise_note(fit: NomotoFit) -> str:
+    """Why K and T are undecided when the wave noise model sits on the ship's own time scale ('' otherwise).
+
+    The wave PEM's coloured noise stands for wave-induced yaw, which is separable from the ship's
+    response to its rudder only at frequencies above the ship's corner frequency ``1/T`` (waves are
+    fast, the manoeuvre is slow). A fitted peak ``omega0 < 1/T`` is the first-order model's own
+    misfit of the manoeuvre (a servo, a pole-zero pair, nonlinearity) taken up as "noise": K and T
+    are then biased by what the noise absorbs and their errors do not show it (measured on
+    PythonVehicleSimulator's tanker at 20 m, zig-zag with the command logged and no waves:
+    ``omega0`` = 0.0085 rad/s against ``1/T`` = 0.13 rad/s, K -5.5 % +- 0.35 %). The note starts with
+    ``STRUCTURE_UNDECIDED`` and names K and T.
+
+    Parameters
+    ----------
+    fit : NomotoFit
+        A whole-record fit.
+    """
+    if fit.noise_model != "waves" or "omega0" not in fit.names:
+        return ""
+    omega0, T = fit.value("omega0"), fit.T
+    if not (math.isfinite(omega0) and math.isfinite(T) and T > 0 and omega0 < 1.0 / T):
+        return ""
+    return (f"{STRUCTURE_UNDECIDED} K T: the wave noise model's peak, omega0 = {omega0:.3g} rad/s, lies below the "
+            f"ship's corner frequency 1/T = {1.0 / T:.3g} rad/s, where the rudder drives the heading: the 'noise' "
+            f"is the model's misfit of the manoeuvre (servo, pole-zero pair or nonlinear dynamics the structure "
+            f"lacks), and K and T carry a bias their errors do not show")
 
 
 def rudder_step_lead_in(trial: Trial, segment: Segment) -> float:
@@ -581,6 +615,27 @@ def rudder_step_lead_in(trial: Trial, segment: Segment) -> float:
             not any(g.t_start <= t[k] <= g.t_end for g in trial.gaps):
         k -= 1
     return float(t[min(k + 1, i0)]) if i0 > 0 else float(segment.t_start)
+
+
+def samples_window(sf: SegmentFit) -> tuple[float, float] | None:
+    """Start and end [s, trial clock] of the samples a whole-record Nomoto fit used (None for other fits).
+
+    A rudder step's window reaches back over the steady hold before it
+    (:func:`rudder_step_lead_in`), which is the previous step's new level: consecutive steps share
+    samples, and their combination treats them as correlated
+    (:func:`pipeline.fit.combine.overlap_correlation`).
+
+    Parameters
+    ----------
+    sf : SegmentFit
+        A segment fit; its ``t`` is relative to the segment's start.
+    """
+    if not sf.model.startswith(("nomoto_oe", "nomoto_pem")) or sf.t is None or len(sf.t) < 2:
+        return None
+    t = np.asarray(sf.t, float)
+    if not (math.isfinite(t[0]) and math.isfinite(t[-1])):
+        return None
+    return float(sf.segment.t_start + t[0]), float(sf.segment.t_start + t[-1])
 
 
 #: Extra Nomoto coefficients a segment fit may carry: parameter -> (estimate name, unit).

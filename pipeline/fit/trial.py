@@ -19,7 +19,7 @@ from .data import gain_formulation, input_levels, segment_label
 from .first_order import fit_coast_down, fit_step, step_steadiness
 from .nomoto import fit_rudder_step
 from .nomoto_quality import judge_nomoto
-from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment
+from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment, samples_window
 from .nomoto_structure import fit_nomoto_trial, structure_note
 from .second_order import fit_free_decay
 from .segment_fit import failed_segment_fit
@@ -117,7 +117,7 @@ class _Collector:
         value = sf.params.get(name, math.nan)
         se = sf.stderr.get(name, math.nan)
         dof = max(sf.y.size - len(sf.param_names), 1)
-        return Contribution(value, se, label, dof, sf.success, sf.message)
+        return Contribution(value, se, label, dof, sf.success, sf.message, samples_window(sf))
 
     def _derived(self, sf: SegmentFit, value_se: Callable[[], tuple[float, float]], sign: float = 1.0,
                  missing: str = "") -> Contribution:
@@ -251,7 +251,8 @@ class _Collector:
         for name in ("K_nomoto", "T_nomoto"):
             if note and name in self.pools:
                 self.pools[name].notes.append(note)
-        out = {name: combine(name, pool.unit, pool.method_text(), pool.items, pool.notes)
+        out = {name: combine(name, pool.unit, pool.method_text(), pool.items, pool.notes,
+                             prediction=name in ("K_nomoto", "T_nomoto"))
                for name, pool in self.pools.items()}
         if "b_nomoto" in out:
             out["b_nomoto"] = _bias_estimate(out["b_nomoto"])
