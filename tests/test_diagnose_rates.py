@@ -16,7 +16,7 @@ import pytest
 from pipeline.diagnose import diagnose
 from pipeline.diagnose.problem import Window, block_average, block_noise
 from diagnose_synthetic import simulated_trial
-from pipeline.diagnose.waves import fit_wave_spectrum
+from pipeline.diagnose.waves import fit_residual_spectrum
 from pipeline.sim import Effects, sea_trial
 from pipeline.vessel import parse_vessel
 
@@ -64,7 +64,7 @@ def test_coloured_noise_is_no_wave():
     for _ in range(12):
         e = rng.normal(0.0, 1.0, 201)
         rows.append(0.5 * (e[:-1] + e[1:]))
-    spec = fit_wave_spectrum(np.array(rows), 0.5, (0.5, 0.8 * np.pi / 0.5))
+    spec = fit_residual_spectrum(np.array(rows), 0.5, (0.5, 0.8 * np.pi / 0.5))
     assert spec.sigma == 0.0 or not np.isfinite(spec.omega0)
 
 

@@ -16,7 +16,7 @@ from pipeline.diagnose.gridfit import GridData, LinearSpec, predict_linear, solv
 from pipeline.model.first_order_blocks import effective_forcing
 from pipeline.diagnose.problem import Window, block_average, block_noise, input_moments
 from pipeline.records import CandidateResult, EffectParam, GapReport
-from pipeline.diagnose.waves import fit_wave_spectrum, smooth_waves
+from pipeline.diagnose.waves import fit_residual_spectrum, smooth_waves
 from pipeline.model import integrate_rk4
 from pipeline.model.nomoto import NomotoParams, nomoto_rhs
 from pipeline.model.waves import WaveParams, simulate_waves
@@ -90,14 +90,14 @@ def test_wave_spectrum_fit_and_smoother_recover_a_wave():
     wave = simulate_waves(t, WaveParams(omega0=1.5, lam=0.1, kw=2 * 0.1 * 1.5 * 0.05), rng)
     noise = 0.002 * rng.standard_normal(len(t))
     rows = (wave + noise).reshape(8, -1)
-    spec = fit_wave_spectrum(rows, dt, (0.3, 6.0))
+    spec = fit_residual_spectrum(rows, dt, (0.3, 6.0))
     assert spec.omega0 == pytest.approx(1.5, rel=0.1)
     est = smooth_waves(rows, dt, spec)
     before = np.sqrt(np.mean(rows**2))
     after = np.sqrt(np.mean((rows - est) ** 2))
     assert after < 0.4 * before
     # White noise alone: no wave is claimed.
-    null = fit_wave_spectrum(noise.reshape(8, -1), dt, (0.3, 6.0))
+    null = fit_residual_spectrum(noise.reshape(8, -1), dt, (0.3, 6.0))
     assert null.sigma == 0.0 or np.nanmax(np.abs(smooth_waves(noise.reshape(8, -1), dt, null))) < 0.5 * 0.002
 
 

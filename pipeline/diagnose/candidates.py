@@ -682,7 +682,7 @@ class Waves(Candidate):
         specs = {}
         for key in self.keys:
             resid = np.where(d.mask, self._meas(d, key) - pred[key], np.nan)
-            specs[key] = wave_model.fit_wave_spectrum(resid, d.dt, self._band())
+            specs[key] = wave_model.fit_residual_spectrum(resid, d.dt, self._band())
         spec = specs[self.key]
         if self.key == "angle" and "y" in specs:
             # The rate's wave is the heading's wave differentiated: smoothed only when the heading
@@ -691,7 +691,7 @@ class Waves(Candidate):
             same = (spec.sigma > 0 and ry.sigma > 0 and np.isfinite(spec.omega0) and np.isfinite(ry.omega0)
                     and abs(np.log(ry.omega0 / spec.omega0)) < np.log(WAVE_RATE_MATCH))
             if not same:
-                specs["y"] = wave_model.fit_wave_spectrum(np.zeros((0, 1)), d.dt, self._band())
+                specs["y"] = wave_model.fit_residual_spectrum(np.zeros((0, 1)), d.dt, self._band())
         params = {**base.params, "omega0": spec.omega0, "lambda": spec.lam, "sigma_w": spec.sigma}
         return Fitted(params, self.param_names, base.sse, (base, specs))
 

@@ -514,7 +514,21 @@ def _blocks(windows: list[Window], own: list[Window], t_const: float, t: np.ndar
     return out
 
 
-def _channel(trial: Trial, names: tuple[str, ...]) -> str | None:
+def first_present_channel(trial: Trial, names: tuple[str, ...]) -> str | None:
+    """First of ``names`` that the trial holds.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    names : tuple of str
+        Canonical channel names in order of preference.
+
+    Returns
+    -------
+    str or None
+        The channel name; None when the trial holds none of them.
+    """
     for c in names:
         if trial.has(c):
             return c
@@ -708,7 +722,7 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
              t_const: float | None) -> DofProblem | None:
     fs = trial.fs
     t = trial.t
-    ch = _channel(trial, RESPONSE[dof])
+    ch = first_present_channel(trial, RESPONSE[dof])
     if ch is None:
         return None
     inputs = dof_inputs(trial, vessel, dof)

@@ -22,7 +22,7 @@ import scipy.ndimage
 from ..flow import segment_trial
 from ..records import INPUT_UNITS, Segment, Segments, Trial
 from ..segment import noise_std
-from .problem import FORCE, RESPONSE, _channel, dof_inputs
+from .problem import FORCE, RESPONSE, dof_inputs, first_present_channel
 
 #: Smallest free decay: its peak over the noise, and its length in samples.
 DECAY_SNR = 8.0
@@ -191,7 +191,7 @@ def diagnose_segments(trial: Trial) -> Segments:
     detected = segment_trial(trial)
     items = extend_segments(trial, list(detected.items))
     for dof in ("surge", "sway", "yaw"):
-        ch = _channel(trial, RESPONSE[dof])
+        ch = first_present_channel(trial, RESPONSE[dof])
         if ch is None:
             continue
         inputs = dof_inputs(trial, None, dof)

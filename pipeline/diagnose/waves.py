@@ -215,7 +215,7 @@ def residual_psd(resid: np.ndarray, dt: float, omega_lo: float, n_omega: int = 2
     return omega, var * dt / np.pi / den, int(len(b))
 
 
-def fit_wave_spectrum(resid: np.ndarray, dt: float, band: tuple[float, float]) -> WaveSpectrum:
+def fit_residual_spectrum(resid: np.ndarray, dt: float, band: tuple[float, float]) -> WaveSpectrum:
     """Fit ``N0 (1 + 2 rho cos(omega dt)) + A / omega^2 + S_w`` to the residual PSD in ``band``
     (log least squares).
 
