@@ -25,6 +25,8 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterable, TypeVar
 
+from .errors import ConfigError
+
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -69,7 +71,7 @@ def worker_count(jobs: int | None = None) -> int:
 
     Raises
     ------
-    ValueError
+    ConfigError
         ``jobs`` or ``VESSELID_JOBS`` is not a positive whole number.
     """
     if jobs is None:
@@ -79,10 +81,10 @@ def worker_count(jobs: int | None = None) -> int:
         try:
             jobs = int(text)
         except ValueError:
-            raise ValueError(f"{JOBS_ENV}: expected a positive whole number of worker processes, "
+            raise ConfigError(f"{JOBS_ENV}: expected a positive whole number of worker processes, "
                              f"found {text!r}") from None
     if int(jobs) != jobs or jobs < 1:
-        raise ValueError(f"jobs: expected a positive whole number of worker processes, found {jobs!r}")
+        raise ConfigError(f"jobs: expected a positive whole number of worker processes, found {jobs!r}")
     return int(jobs)
 
 

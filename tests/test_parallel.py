@@ -8,6 +8,8 @@ import threading
 import numpy as np
 import pytest
 
+from pipeline.errors import ConfigError
+
 from pipeline import parallel
 
 
@@ -67,7 +69,7 @@ def test_default_follows_available_cores(monkeypatch):
 @pytest.mark.parametrize("text", ["0", "-2", "two", "1.5"])
 def test_bad_job_count_is_a_clear_error(monkeypatch, text):
     monkeypatch.setenv(parallel.JOBS_ENV, text)
-    with pytest.raises(ValueError, match="VESSELID_JOBS|jobs"):
+    with pytest.raises(ConfigError, match="VESSELID_JOBS|jobs"):
         parallel.worker_count()
 
 
