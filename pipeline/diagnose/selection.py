@@ -240,19 +240,42 @@ def excess_gap(s: DofState) -> bool:
     """
     units = sig.noise_units(s.data)
     names = {"y": s.problem.channel, "angle": getattr(s.problem, "angle", None)}
-    for key, ch in names.items():
-        if ch is None or ch not in s.channel_gaps:
-            continue
-        g = s.channel_gaps[ch]
-        n_eff = s.channel_neff.get(ch, math.nan)
-        if not (math.isfinite(g) and math.isfinite(n_eff) and n_eff > 1):
-            continue
-        f = max(float(s.channel_floor.get(ch, 1.0)), 1.0)
-        pv = float(scipy.stats.chi2.sf(n_eff * (g / f) ** 2, n_eff))
-        rel = math.sqrt(max(g * g - f * f, 0.0)) * units.get(key, math.nan)
-        if pv < ALPHA_UNEXPLAINED and g >= UNEXPLAINED_GAP * f and not rel < MIN_UNEXPLAINED_SCALE:
-            return True
-    return False
+    return any(gap_above_floor(s, key, ch, units) is not None for key, ch in names.items())
+
+
+def gap_above_floor(s: DofState, key: str, ch: str | None, units: Mapping[str, float]
+                    ) -> tuple[float, float, float] | None:
+    """The test of :data:`UNEXPLAINED_TEST` on one channel of a DOF.
+
+    Parameters
+    ----------
+    s : DofState
+        The DOF's current state.
+    key : str
+        Output key of the channel (``y`` or ``angle``).
+    ch : str or None
+        Channel name (None: the DOF has no such output).
+    units : Mapping[str, float]
+        Noise unit of each output key (:func:`pipeline.diagnose.significance.noise_units`).
+
+    Returns
+    -------
+    tuple of float or None
+        ``(gap g, floor f, p-value)`` [noise units, noise units, -] when the channel's gap stays
+        well above its floor; None when it does not or cannot be tested.
+    """
+    if ch is None or ch not in s.channel_gaps:
+        return None
+    g = s.channel_gaps[ch]
+    n_eff = s.channel_neff.get(ch, math.nan)
+    if not (math.isfinite(g) and math.isfinite(n_eff) and n_eff > 1):
+        return None
+    f = max(float(s.channel_floor.get(ch, 1.0)), 1.0)
+    pv = float(scipy.stats.chi2.sf(n_eff * (g / f) ** 2, n_eff))
+    rel = math.sqrt(max(g * g - f * f, 0.0)) * units.get(key, math.nan)
+    if pv < ALPHA_UNEXPLAINED and g >= UNEXPLAINED_GAP * f and not rel < MIN_UNEXPLAINED_SCALE:
+        return g, f, pv
+    return None
 
 
 def _tentative(s: DofState, base, heldout, rescore: Callable[[DofState], None]) -> DofState:
@@ -543,17 +566,10 @@ def unexplained(states: Mapping[str, DofState], places: tuple[Place, ...], trial
         resid = sig.heldout_residuals(s.data, s.base_heldout)
         units = sig.noise_units(s.data)
         for key, ch in names.items():
-            if ch is None or ch not in s.channel_gaps:
+            test = gap_above_floor(s, key, ch, units)
+            if test is None:
                 continue
-            g = s.channel_gaps[ch]
-            n_eff = s.channel_neff.get(ch, math.nan)
-            if not (math.isfinite(g) and math.isfinite(n_eff) and n_eff > 1):
-                continue
-            f = max(float(s.channel_floor.get(ch, 1.0)), 1.0)
-            pv = float(scipy.stats.chi2.sf(n_eff * (g / f) ** 2, n_eff))
-            rel = math.sqrt(max(g * g - f * f, 0.0)) * units.get(key, math.nan)
-            if not (pv < ALPHA_UNEXPLAINED and g >= UNEXPLAINED_GAP * f and not rel < MIN_UNEXPLAINED_SCALE):
-                continue
+            g, f, pv = test
             r = resid.get(key)
             r = r / units[key] if r is not None and math.isfinite(units.get(key, math.nan)) else r
             band, peak, corr, looks = residual_character(s.problem, r, trial) if r is not None else ("", math.nan, {}, "")

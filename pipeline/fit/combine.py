@@ -187,14 +187,7 @@ def combine(name: str, unit: str, method: str, contributions: Sequence[Contribut
             ci = confidence_interval(mean, se, math.inf)
         else:
             ci = confidence_interval(mean, se, math.inf)
-    success = True
-    if abs(se) > MAX_RELATIVE_STDERR * abs(mean):
-        success = False
-        messages.insert(0, f"relative standard error {se / abs(mean) if mean else math.inf:.0%} above "
-                           f"{MAX_RELATIVE_STDERR:.0%}: not identified")
-    return Estimate(name=name, value=mean, stderr=se, ci95=ci, unit=unit, n_segments=k,
-                    method=f"{method}; {rule}", success=success, message="; ".join(messages + left_out),
-                    consistency_p=p_value, per_segment=tuple(float(v) for v in x))
+    return combined_estimate(name, unit, method, rule, mean, se, ci, p_value, x, messages + left_out)
 
 
 def prediction_stderr(se_re: float, tau2: float, unit: str) -> tuple[float, str]:
@@ -237,7 +230,6 @@ def _combine_correlated(name: str, unit: str, method: str, used: Sequence[Contri
     sd = np.array([c.stderr for c in used])
     k = len(used)
     cov = rho * np.outer(sd, sd)
-    one = np.ones(k)
 
     def gls(c: np.ndarray) -> tuple[float, float, np.ndarray]:
         # Inverse-variance weights from the diagonal (a mean inside the values' range, which full
@@ -270,14 +262,44 @@ def _combine_correlated(name: str, unit: str, method: str, used: Sequence[Contri
             messages.insert(1, pnote)
     messages.append(note)
     ci = confidence_interval(mean, se, math.inf)
+    return combined_estimate(name, unit, method, rule, mean, se, ci, p_value, x, messages + left_out)
+
+
+
+def combined_estimate(name: str, unit: str, method: str, rule: str, mean: float, se: float,
+                      ci: tuple[float, float], p_value: float, values: Sequence[float],
+                      messages: list[str]) -> Estimate:
+    """The :class:`Estimate` of a combination, not identified when its relative error is too large.
+
+    Parameters
+    ----------
+    name, unit, method : str
+        Coefficient name, SI unit and how each segment's value was fitted.
+    rule : str
+        How the segments were combined.
+    mean, se : float
+        Combined value and its standard error [unit].
+    ci : tuple of float
+        95 % confidence interval [unit].
+    p_value : float
+        Consistency test of the segments' values (NaN: one segment).
+    values : sequence of float
+        Every segment's value [unit].
+    messages : list of str
+        Notes, in order; a "not identified" note is put first when it applies.
+
+    Returns
+    -------
+    Estimate
+    """
     success = True
     if abs(se) > MAX_RELATIVE_STDERR * abs(mean):
         success = False
-        messages.insert(0, f"relative standard error {se / abs(mean) if mean else math.inf:.0%} above "
-                           f"{MAX_RELATIVE_STDERR:.0%}: not identified")
-    return Estimate(name=name, value=mean, stderr=se, ci95=ci, unit=unit, n_segments=k,
-                    method=f"{method}; {rule}", success=success, message="; ".join(messages + left_out),
-                    consistency_p=p_value, per_segment=tuple(float(v) for v in x))
+        messages = [f"relative standard error {se / abs(mean) if mean else math.inf:.0%} above "
+                    f"{MAX_RELATIVE_STDERR:.0%}: not identified"] + list(messages)
+    return Estimate(name=name, value=mean, stderr=se, ci95=ci, unit=unit, n_segments=len(values),
+                    method=f"{method}; {rule}", success=success, message="; ".join(messages),
+                    consistency_p=p_value, per_segment=tuple(float(v) for v in values))
 
 
 #: Combination rules :func:`combination_rules` computes (the first is the one :func:`combine` uses).
