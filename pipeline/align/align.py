@@ -24,6 +24,9 @@ from .resample import find_gaps, resample_channel
 #: Highest rate the aligner resamples to by default [Hz]; faster sensors are decimated by
 #: interpolation, which is fine for the dynamics of a surface vessel.
 MAX_DEFAULT_RATE = 100.0
+#: Formats whose time stamps are a logger's rows, not the receiver's fix times: only there can a GNSS
+#: fix be repeated (held) on later rows (``pipeline.align.gnss.collapse_held_fixes``).
+LOGGER_ROW_FORMATS = frozenset({"csv"})
 
 
 def _native_rate(ch: Channel) -> float:
@@ -104,6 +107,11 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
     notes: list[str] = []
     collapsed = []
     for log in logs:
+        # Only a logger's rows can hold a fix: NMEA, UBX and the autopilot and bag formats stamp each fix
+        # with its own time, so identical values there are a boat at rest, not a copy.
+        if log.format not in LOGGER_ROW_FORMATS:
+            collapsed.append(log)
+            continue
         chans, held = collapse_held_fixes(log.channels)
         notes += [f"{log.source}: {h}" for h in held]
         collapsed.append(replace(log, channels=chans) if held else log)
