@@ -240,6 +240,9 @@ def fit_subprocess(path: Path) -> tuple[int, str, float, bool, float]:
         res = subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
     first = next((ln for ln in res.stderr.splitlines() if ln.startswith("error:")), "")
     tb = "Traceback" in res.stderr + res.stdout or bool(_EXC_NAME.search(res.stderr))
+    if tb and not first:
+        # No 'error:' line: name the exception's last line, so the problem list says what escaped.
+        first = next((ln.strip() for ln in reversed(res.stderr.splitlines()) if ln.strip()), "no output on stderr")
     return res.returncode, first, dt, tb, cpu() - c0
 
 
