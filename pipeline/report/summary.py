@@ -211,6 +211,30 @@ def gain_mass_consistency(fits: Fits) -> tuple[str, ...]:
     return tuple(out)
 
 
+def disagreement_warning(name: str, est) -> str:
+    """The warning for a coefficient whose segments disagree beyond their errors.
+
+    A random-effects combination (``pipeline.fit.combine``) already widens the error bar by the
+    between-segment spread, so it is not "too small"; the disagreement itself is the finding: the
+    manoeuvres see different values (a nonlinearity, a speed or amplitude dependence, a disturbance
+    that differs between runs), so one linear coefficient describes them only on average.
+
+    Parameters
+    ----------
+    name : str
+        Coefficient name.
+    est : FitParameter
+        The coefficient (reads ``consistency_p`` and ``method``).
+    """
+    head = (f"{name}: per-segment values disagree beyond their errors (chi-square p = "
+            f"{format_number(est.consistency_p, 2)})")
+    if "random-effects" in (est.method or ""):
+        return (head + "; the error bar includes the spread between segments (random-effects mean): the "
+                       "manoeuvres see different values (nonlinearity, speed or amplitude dependence, or a "
+                       "disturbance that differs between runs), so the value is an average over them")
+    return head + "; the error bar is too small"
+
+
 @dataclass(frozen=True)
 class Findings:
     """Everything doubtful in a report, split by what the reader must do.
@@ -256,8 +280,7 @@ def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()
             (warn if name in STANDARD_COEFFICIENTS else notes).append(text)
             continue
         if finite(est.consistency_p) and est.consistency_p < CONSISTENCY_ALPHA:
-            warn.append(f"{name}: per-segment values disagree beyond their errors (chi-square p = "
-                        f"{format_number(est.consistency_p, 2)}); the error bar is too small")
+            warn.append(disagreement_warning(name, est))
         if msg:
             notes.append(f"{name}: {shorten(msg)}")
     for i, sf in enumerate(fits.segment_fits):
