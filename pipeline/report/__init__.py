@@ -28,6 +28,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
+import numpy as np
+
 from ..atomic import atomic_write_text
 from ..parallel import ordered_map
 from ..errors import ReportError
@@ -274,7 +276,8 @@ def write_report(fits: Fits, out_dir: str | os.PathLike, trial: Trial | None = N
     problems = []
     for i, sf in enumerate(fits.segment_fits):
         problem = figure_problem(sf)
-        if problem:
+        # A failed fit that kept no samples has nothing to draw; its failure is already a warning.
+        if problem and not (not sf.success and np.size(sf.t) == 0):
             problems.append(f"figure {fit_figure_name(i, sf)}: {problem}")
     plan = figure_plan(fits, qualities, trial)
     if figures_written:
