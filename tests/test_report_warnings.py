@@ -52,3 +52,9 @@ def test_failed_fit_without_samples_is_one_warning_not_two(tmp_path):
         page = paths.html.read_text()
         assert ("the fit holds no samples" in page) is figure_warned
         assert ("fit 0 (step/yaw) failed: no excitation" in page) is (not success)
+
+
+def test_a_trial_without_segments_says_so_and_how_to_name_them():
+    nan = np.full((5, 5), np.nan)
+    text = " ".join(findings(Fits("v", {}, (), nan, nan), ()).warnings)
+    assert "no segment was fitted" in text and "[[segments]]" in text

@@ -271,6 +271,11 @@ def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()
     warn: list[str] = []
     notes: list[str] = []
     missing = [n for n in STANDARD_COEFFICIENTS if n not in fits.to_fit_result().params]
+    if not fits.segment_fits:
+        warn.append("no segment was fitted: the segment detector found no coast-down, step, free decay, rudder "
+                    "step, zig-zag or sinusoid in this trial (closed-loop or free sailing holds none it can "
+                    "recognise); name the manoeuvres by hand with [[segments]] in the trial manifest or "
+                    "`vesselid segment LOG --review page.html` (docs/your_own_data.md)")
     if missing:
         warn.append("not estimated by the fit stage: " + ", ".join(missing))
     for name, est in fits.to_fit_result().params.items():
