@@ -155,13 +155,14 @@ def summary_rows(fits: Fits, qualities: Sequence, added_mass: Mapping[str, float
         ``added mass taken as 0``. None: not known (no flag).
     """
     bad = not_white_dofs(fits, qualities)
+    params = fits.to_fit_result().params
     rows = []
     for name, dof in SUMMARY_DAMPING:
         v = name[-1]
-        rows.append(_row(fits.to_fit_result().params.get(name), f"D_{v}{v} = -{name}", name, True, bad.get(dof),
+        rows.append(_row(params.get(name), f"D_{v}{v} = -{name}", name, True, bad.get(dof),
                          added_mass is not None and dof not in added_mass))
     for name, label in (("K_nomoto", "Nomoto K"), ("T_nomoto", "Nomoto T")):
-        rows.append(_row(fits.to_fit_result().params.get(name), label, name, False, bad.get("nomoto"), False))
+        rows.append(_row(params.get(name), label, name, False, bad.get("nomoto"), False))
     rows.append(SummaryRow("model structure", "", model_structure(fits), "", "", ()))
     return rows
 
@@ -196,9 +197,10 @@ def gain_mass_consistency(fits: Fits) -> tuple[str, ...]:
         Fit results.
     """
     out = []
+    params = fits.to_fit_result().params
     for dof, name, inp, speed in (("surge", "X_u", "tau_x", "u/sog"), ("sway", "Y_v", "tau_y", "v"),
                                   ("yaw", "N_r", "tau_n", "r")):
-        g, d = fits.to_fit_result().params.get(f"D_gain_{dof}"), fits.to_fit_result().params.get(name)
+        g, d = params.get(f"D_gain_{dof}"), params.get(name)
         if not (is_identified(g) and is_identified(d)) or float(g.value) <= 0 or float(d.value) >= 0:
             continue
         ratio = float(g.value) / -float(d.value)
@@ -270,7 +272,8 @@ def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()
     """
     warn: list[str] = []
     notes: list[str] = []
-    missing = [n for n in STANDARD_COEFFICIENTS if n not in fits.to_fit_result().params]
+    params = fits.to_fit_result().params
+    missing = [n for n in STANDARD_COEFFICIENTS if n not in params]
     if not fits.segment_fits:
         warn.append("no segment was fitted: the segment detector found no coast-down, step, free decay, rudder "
                     "step, zig-zag or sinusoid in this trial (closed-loop or free sailing holds none it can "
@@ -278,7 +281,7 @@ def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()
                     "`vesselid segment LOG --review page.html` (docs/your_own_data.md)")
     if missing:
         warn.append("not estimated by the fit stage: " + ", ".join(missing))
-    for name, est in fits.to_fit_result().params.items():
+    for name, est in params.items():
         msg = " ".join((est.message or "").split())
         if not is_identified(est):
             text = f"{name} not identified: {shorten(reason(est))}"
@@ -303,7 +306,7 @@ def findings(fits: Fits, qualities: Sequence, extra_warnings: Sequence[str] = ()
                     f"is not in the model (gain, delay or coupling)")
     if added_mass is not None:
         zero = [dof for name, dof in SUMMARY_DAMPING
-                if is_identified(fits.to_fit_result().params.get(name)) and dof not in added_mass]
+                if is_identified(params.get(name)) and dof not in added_mass]
         if zero:
             warn.append(f"added mass taken as zero in {', '.join(zero)} (no [added_mass] in the vessel config): "
                         f"damping from time constants is low by the added-mass share; give [added_mass] "
