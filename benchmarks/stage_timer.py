@@ -117,8 +117,10 @@ def install(out_json: str | Path) -> dict:
         # Written after every stage too: a run stopped half-way still says where it got.
         Path(out_json).write_text(json.dumps(costs, indent=1))
 
-    # The diagnosis cross-validates its DOFs in its own worker processes (pipeline.diagnose.verdict): each
-    # job's CPU time is appended to a side file by the worker and read back as one region of units.
+    # A checkout before pipeline.diagnose.crossval.cross_validate_all (a --compare-root baseline) cross-validates
+    # its DOFs in its own worker processes (pipeline.diagnose.verdict._cross_validate_job): each job's CPU time
+    # is appended to a side file by the worker and read back as one region of units. Since then the folds are
+    # units of pipeline.parallel.ordered_map, traced like the others (and verdict has no such job).
     units_file = Path(str(out_json) + ".units")
     units_file.write_text("")
     try:

@@ -10,10 +10,11 @@ compared with a baseline that saw the same data.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..parallel import ordered_map
 from .candidates import Candidate, Fitted, candidate_label
 from .gridfit import GridData
 from .problem import DofProblem
@@ -145,7 +146,7 @@ def supported(problem: DofProblem, train: np.ndarray, test: np.ndarray) -> np.nd
 
 
 def cross_validate(problem: DofProblem, data: GridData, candidates: list[Candidate],
-                   tick: Callable[[], None] | None = None) -> list[CandidateRun]:
+                   tick: Callable[[], None] | None = None, jobs: int | None = 1) -> list[CandidateRun]:
     """Cross-validate the baseline (``candidates[0]``) and every candidate.
 
     Parameters
@@ -158,58 +159,127 @@ def cross_validate(problem: DofProblem, data: GridData, candidates: list[Candida
         Baseline first.
     tick : callable, optional
         Called once per fold and once for the final fits (progress).
+    jobs : int or None
+        Worker processes for the folds (:func:`pipeline.parallel.ordered_map`; 1: in this process,
+        None: ``VESSELID_JOBS`` or the cores). The results do not depend on it.
 
     Returns
     -------
     list[CandidateRun]
         In the order of ``candidates``.
     """
-    folds = assign_folds(problem)
-    k = int(folds.max()) + 1
-    shape = data.y.shape
-    failed: set[int] = set()
-    keys = ("y", "angle") if data.angle is not None else ("y",)
-    held = [{key: np.full(shape, np.nan) for key in keys} for _ in candidates]
-    fparams: list[list[Mapping[str, float]]] = [[] for _ in candidates]
-    for f in range(k):
-        train = np.flatnonzero(folds != f)
-        test = np.flatnonzero(folds == f)
-        if len(train) == 0:
-            continue
-        # Windows driven by an input the training set never saw are not scored for anyone.
-        test = test[supported(problem, train, test)]
-        base = candidates[0].fit(train)
-        for j, c in enumerate(candidates):
-            if j in failed:
+    return cross_validate_all([problem], [data], [candidates], tick=tick, jobs=jobs)[0]
+
+
+def cross_validate_all(problems: Sequence[DofProblem], datas: Sequence[GridData],
+                       candidates: Sequence[list[Candidate]], tick: Callable[[], None] | None = None,
+                       jobs: int | None = None) -> list[list[CandidateRun]]:
+    """:func:`cross_validate` of several DOFs, every fold of every DOF (and each DOF's fit on all its
+    windows) one unit of :func:`pipeline.parallel.ordered_map`.
+
+    A fold's unit fits the baseline on the training windows, then every candidate from it, and
+    predicts the held-out windows; the last unit of a DOF fits them all on every window. The units
+    do not depend on each other, so they run side by side; a candidate that fails in any unit is
+    dropped, as in one loop over the folds. Units are handed out largest DOF first (samples times
+    candidates), so that the last to finish is a small one.
+
+    Parameters
+    ----------
+    problems, datas, candidates : sequence
+        Per DOF: its problem, its analysis-grid data and its candidates (baseline first).
+    tick : callable, optional
+        Called once per unit as the results are gathered (progress).
+    jobs : int or None
+        Worker processes (1: in this process; None: ``VESSELID_JOBS`` or the cores).
+
+    Returns
+    -------
+    list of list[CandidateRun]
+        Per DOF, in the order of its ``candidates``.
+    """
+    folds = [assign_folds(p) for p in problems]
+    units = []
+    for i, f in enumerate(folds):
+        k = int(f.max()) + 1
+        units += [(i, fold) for fold in range(k)] + [(i, k)]
+    size = [float(np.sum(d.mask)) * len(c) for d, c in zip(datas, candidates)]
+    order = sorted(range(len(units)), key=lambda u: (-size[units[u][0]], units[u][0], units[u][1]))
+    context = (list(problems), list(datas), [list(c) for c in candidates], folds)
+    done = ordered_map(_cross_validate_unit, [units[u] for u in order], context=context, jobs=jobs)
+    result = dict(zip((units[u] for u in order), done))
+    out = []
+    for i, (p, d, cs, f) in enumerate(zip(problems, datas, candidates, folds)):
+        k = int(f.max()) + 1
+        keys = ("y", "angle") if d.angle is not None else ("y",)
+        held = [{key: np.full(d.y.shape, np.nan) for key in keys} for _ in cs]
+        fparams: list[list[Mapping[str, float]]] = [[] for _ in cs]
+        failed: set[int] = set()
+        for fold in range(k):
+            part = result[(i, fold)]
+            if tick:
+                tick()
+            if part is None:
                 continue
-            try:
-                fitted = base if j == 0 else c.fit(train, start=base)
-                if len(test):
-                    pred = c.simulate(fitted, test)
+            test, per = part
+            for j, got in enumerate(per):
+                if j in failed:
+                    continue
+                if got is None:
+                    failed.add(j)
+                    continue
+                params, pred = got
+                if pred is not None:
                     for key in keys:
                         held[j][key][test] = pred[key]
-            except (ValueError, ArithmeticError, np.linalg.LinAlgError):
-                # A candidate that cannot be fitted on these data (degenerate windows, no
-                # excitation) is dropped; it must not cost the user the other candidates.
-                failed.add(j)
+                fparams[j].append(params)
+        runs = []
+        for j, (c, full) in enumerate(zip(cs, result[(i, k)])):
+            if j in failed or full is None:
                 continue
-            fparams[j].append(dict(fitted.params))
+            runs.append(CandidateRun(candidate_label(c), c, held[j], tuple(fparams[j]), full, f))
         if tick:
             tick()
-    everything = np.arange(len(problem.windows))
-    base_full = candidates[0].fit(everything)
-    runs = []
-    for j, c in enumerate(candidates):
-        if j in failed:
-            continue
+        out.append(runs)
+    return out
+
+
+def _cross_validate_unit(context: tuple, unit: tuple[int, int]):
+    """One fold of one DOF: ``(test windows, per candidate (params, held-out prediction) or None when
+    it failed)``, None when the fold has no training windows; the fold index past the last: the fits
+    on every window (per candidate a :class:`Fitted`, or None when it failed)."""
+    problems, datas, candidates, folds = context
+    i, fold = unit
+    problem, cs, f = problems[i], candidates[i], folds[i]
+    if fold > int(f.max()):
+        everything = np.arange(len(problem.windows))
+        base_full = cs[0].fit(everything)
+        fulls = []
+        for j, c in enumerate(cs):
+            try:
+                fulls.append(base_full if j == 0 else c.fit(everything, start=base_full))
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+                fulls.append(None)
+        return fulls
+    train = np.flatnonzero(f != fold)
+    test = np.flatnonzero(f == fold)
+    if len(train) == 0:
+        return None
+    # Windows driven by an input the training set never saw are not scored for anyone.
+    test = test[supported(problem, train, test)]
+    base = cs[0].fit(train)
+    per = []
+    for j, c in enumerate(cs):
         try:
-            full = base_full if j == 0 else c.fit(everything, start=base_full)
+            fitted = base if j == 0 else c.fit(train, start=base)
+            pred = c.simulate(fitted, test) if len(test) else None
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            # A candidate that cannot be fitted on these data (degenerate windows, no
+            # excitation) is dropped; it must not cost the user the other candidates.
+            per.append(None)
             continue
-        runs.append(CandidateRun(candidate_label(c), c, held[j], tuple(fparams[j]), full, folds))
-    if tick:
-        tick()
-    return runs
+        keys = ("y", "angle") if datas[i].angle is not None else ("y",)
+        per.append((dict(fitted.params), None if pred is None else {key: pred[key] for key in keys}))
+    return test, per
 
 
 def jackknife_stderr(full: Mapping[str, float], folds: tuple[Mapping[str, float], ...]) -> dict[str, float]:

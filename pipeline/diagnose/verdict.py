@@ -20,7 +20,7 @@ from . import significance as sig
 from . import oscillatory as osc
 from . import selection as sel
 from .candidates import Candidate, candidate_label, candidates_for
-from .crossval import CandidateRun, cross_validate, jackknife_stderr
+from .crossval import CandidateRun, cross_validate, cross_validate_all, jackknife_stderr
 from .floor import heldout_floor
 from .gridfit import grid_data
 from .problem import DofProblem, build_problems
@@ -325,30 +325,14 @@ def _oscillatory_dof(q):
     return res, base_run, cand_run, summary, state
 
 
-def _cross_validate_job(args: tuple) -> list[CandidateRun]:
-    """One DOF's cross-validation (a worker process's job)."""
-    p, d, cs = args
-    return cross_validate(p, d, cs)
-
-
 def _cross_validate_all(problems: list[DofProblem], datas: list, cands: list, jobs: int,
                         tick) -> list[list[CandidateRun] | None]:
-    """Every DOF's cross-validation in ``jobs`` worker processes (None per DOF: done later in turn)."""
-    if jobs <= 1 or len(problems) < 2:
+    """Every DOF's cross-validation, its folds spread over ``jobs`` worker processes
+    (:func:`pipeline.diagnose.crossval.cross_validate_all`); None per DOF when ``jobs`` is 1 (done
+    later in turn)."""
+    if jobs <= 1:
         return [None] * len(problems)
-    from concurrent.futures import ProcessPoolExecutor
-
-    # Largest problems first, so that the last one to finish is a small one.
-    order = sorted(range(len(problems)), key=lambda i: -datas[i].mask.sum() * len(cands[i]))
-    out: list = [None] * len(problems)
-    with ProcessPoolExecutor(max_workers=min(jobs, len(problems))) as pool:
-        futs = {i: pool.submit(_cross_validate_job, (problems[i], datas[i], cands[i])) for i in order}
-        for i in order:
-            out[i] = futs[i].result()
-            if tick is not None:
-                for _ in range(int(out[i][0].fold_of.max()) + 2):
-                    tick()
-    return out
+    return cross_validate_all(problems, datas, cands, tick=tick, jobs=jobs)
 
 
 def _score_dof(p: DofProblem, d, cs: list[Candidate], tick, runs: list[CandidateRun] | None = None,

@@ -542,30 +542,9 @@ class Problem:
         return out
 
 
-def whiten_profiled_columns(filt: InnovationFilter, w: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """:func:`pipeline.fit.nomoto_pem.whiten_profiled` of every column of ``w`` (it is linear in ``w``).
-
-    Parameters
-    ----------
-    filt : InnovationFilter
-        The innovations filter.
-    w : numpy.ndarray, shape (N, p)
-        Output errors (or their derivatives) per column.
-    phi : numpy.ndarray, shape (N, 2)
-        :func:`pipeline.fit.nomoto_pem.initial_state_response` for ``N`` samples.
-    """
-    e0 = scipy.signal.lfilter(filt.num, filt.den, w, axis=0)
-    g = phi.T @ phi
-    det = g[0, 0] * g[1, 1] - g[0, 1] * g[1, 0]
-    if not det > 1e-300:
-        return e0
-    rhs = phi.T @ e0
-    x0 = np.array([g[1, 1] * rhs[0] - g[0, 1] * rhs[1], g[0, 0] * rhs[1] - g[1, 0] * rhs[0]]) / det
-    return e0 - phi @ x0
-
-
 def whiten_profiled_rows(filt: InnovationFilter, w: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """:func:`whiten_profiled_columns` with the samples along the last axis (rows of ``w``).
+    """:func:`pipeline.fit.nomoto_pem.whiten_profiled` of every row of ``w`` (it is linear in ``w``): the
+    Jacobian's heading columns whitened in one pass, the samples along the last axis.
 
     Parameters
     ----------
