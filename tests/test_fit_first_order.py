@@ -302,3 +302,24 @@ def test_standard_errors_hold_when_the_samples_are_interpolated_between_slower_f
                             [y0, T], ("y0", "T"))
     same, note = coloured_noise_errors(res, decay_jacobian(t, *res.values))
     assert same is res and note == ""
+
+
+def test_first_order_dampings_combine_on_their_logarithm_with_relative_errors():
+    """D = m/T has an error growing with D: weights on D favour the segment that drew a small D; on
+    ln|D| two segments with the same relative error weigh the same (and the t variance of each fit's
+    error is kept in the normal combination)."""
+    from pipeline.fit.combine import Contribution
+    from pipeline.fit.trial import combine_relative, t_variance_factor
+
+    a, b = Contribution(-30.0, 3.0, "a", dof=13), Contribution(-36.0, 3.6, "b", dof=23)
+    est = combine_relative("Y_v", "kg/s", "m", [a, b])
+    fa, fb = t_variance_factor(13, True), t_variance_factor(23, True)
+    assert fa == pytest.approx(math.sqrt(13 / 11)) and t_variance_factor(13, False) == 1.0
+    w = np.array([1 / (0.1 * fa) ** 2, 1 / (0.1 * fb) ** 2])
+    ln_mean = float(w @ np.log([30.0, 36.0]) / w.sum())
+    assert est.value == pytest.approx(-math.exp(ln_mean))
+    assert est.stderr == pytest.approx(math.exp(ln_mean) / math.sqrt(w.sum()))
+    assert est.ci95[0] < est.value < est.ci95[1] < 0 and est.per_segment == pytest.approx((-30.0, -36.0))
+    assert est.success and "ln|value|" in est.method and "sqrt(dof/(dof - 2))" in est.message
+    # Linear weights would pull the mean toward the smaller |D| (weights 1/3^2 vs 1/3.6^2).
+    assert abs(est.value) > (30 / 9 + 36 / 12.96) / (1 / 9 + 1 / 12.96)

@@ -117,3 +117,48 @@ def test_a_time_constant_shorter_than_the_sample_interval_is_not_identified():
     log10 = RawLog("fast", "sim", {"u": Channel("u", t10, u10), "r": Channel("r", t10, np.zeros_like(t10))},
                    IngestSummary("fast", "sim"))
     assert fit_coast_down(align([log10], fs=10.0), Segment("coast_down", "surge", 1.0, 20.0)).success
+
+
+def test_held_fixes_without_a_fix_time_column_are_one_fix_each_at_their_first_row(tmp_path):
+    """10 Hz rows, a 5 Hz fix held two rows and no t_fix column: every fix appears in two rows while
+    the boat moves, so the repeats are held copies; each fix is kept once, at the row it appeared."""
+    t = np.arange(0.0, 4.0 + 1e-9, 0.1)
+    fix_t = np.floor(t * 5 + 1e-9) / 5
+    df = pd.DataFrame({"t": t, "r": 0.01 * t, "psi": 0.1 * t, "lat": 57.0 + 1e-6 * fix_t,
+                       "lon": 10.0 + 1e-6 * fix_t, "sog": 1.0 + 0.1 * fix_t, "cog": 0.1 * fix_t})
+    path = tmp_path / "held.csv"
+    df.to_csv(path, index=False, float_format="%.10g")
+    trial = load_trial([path])
+    np.testing.assert_allclose(trial.sample_times["u"], np.arange(0.0, 4.0 + 1e-9, 0.2), atol=1e-9)
+    assert any("41 rows hold 21 fixes" in n and "receiver's clock (period 0.2 s" in n for n in trial.notes)
+
+
+def test_fix_times_follow_the_receiver_clock_when_it_is_not_a_whole_number_of_rows():
+    """A 4 Hz receiver (fixes at 0.03 + 0.25 j s) in 10 Hz rows: a fix first appears up to one row
+    late (0.07 or 0.02 s); the receiver's clock bounds the phase to a fraction of a row."""
+    from pipeline.align.gnss import fix_times, is_held
+
+    rows = np.arange(0.0, 30.0, 0.1)
+    fixes = np.arange(0.03, 29.8, 0.25)
+    first = np.zeros(rows.size, bool)
+    first[np.searchsorted(rows, fixes - 1e-9)] = True
+    assert is_held(first)
+    est, how = fix_times(rows, first)
+    first_rows = rows[first]
+    assert np.max(np.abs(first_rows - fixes)) > 0.06
+    # The latest phase the rows allow is 0.02 s late here (fixes at .03/.08 s past a row may all move
+    # 0.02 s and still appear in the same rows): within that, against up to 0.07 s for the first rows.
+    assert np.max(np.abs(est - fixes)) < 0.021 and np.all(est <= first_rows + 1e-9)
+    assert "receiver's clock (period 0.2500" in how or "receiver's clock (period 0.2499" in how
+
+
+def test_repeats_only_at_rest_are_not_held_fixes():
+    """Quantised position and zero speed repeat while a boat rests; while it moves every sample is new."""
+    from pipeline.align.gnss import is_held
+
+    new = np.ones(300, bool)
+    new[100:180] = False  # 80 s at rest: one long run
+    new[100] = True
+    assert not is_held(new)
+    # Two rows per fix throughout: held.
+    assert is_held(np.tile([True, False], 150))

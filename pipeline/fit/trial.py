@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Callable, Mapping
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -12,7 +12,7 @@ from ..errors import FitError
 from ..records import (CHANNEL_UNITS, DOF_CHANNELS, DOF_NAMES, DOFS, Estimate, Fits, Segment, SegmentFit,
                        Segments, Trial)
 from ..vessel import Vessel
-from .combine import Contribution, combine
+from .combine import Contribution, combine, combined_estimate
 from .damping import (damping_from_decay, damping_from_gain, damping_from_time_constant,
                       natural_frequency_ratio, step_gain)
 from .data import gain_formulation, input_levels, segment_label
@@ -63,6 +63,9 @@ class _Pool:
     notes: list[str] = field(default_factory=list)
     #: Further methods (with the kinds they served) when one coefficient comes from several models.
     more: dict[str, list[str]] = field(default_factory=dict)
+    #: Combine on the logarithm of the magnitude (:func:`combine_relative`): a damping from a time
+    #: constant, whose standard error grows with its value.
+    relative: bool = False
 
     def method_text(self) -> str:
         """The method, or each method with the segment kinds it was used on."""
@@ -179,6 +182,7 @@ class _Collector:
         self.add(DERIVATIVES[dof], DAMPING_UNITS[dof],
                  f"first-order exponential on {{kinds}}; {DERIVATIVES[dof]} = -m_eff/T with m_eff = {m_text}",
                  kind, self._derived(sf, lambda: damping_from_time_constant(m, T, se_T), -1.0, missing))
+        self.pools[DERIVATIVES[dof]].relative = True
         if kind != "step":
             return
         before, after, _ = input_levels(self.trial, seg)
@@ -251,14 +255,91 @@ class _Collector:
         for name in ("K_nomoto", "T_nomoto"):
             if note and name in self.pools:
                 self.pools[name].notes.append(note)
-        out = {name: combine(name, pool.unit, pool.method_text(), pool.items, pool.notes,
-                             prediction=name in ("K_nomoto", "T_nomoto"))
+        out = {name: (combine_relative if pool.relative else combine)(
+                   name, pool.unit, pool.method_text(), pool.items, pool.notes,
+                   prediction=name in ("K_nomoto", "T_nomoto"))
                for name, pool in self.pools.items()}
         if "b_nomoto" in out:
             out["b_nomoto"] = _bias_estimate(out["b_nomoto"])
         out = judge_nomoto(out, self.nomoto_fits)
         first = {k: out[k] for k in _ORDER if k in out}
         return {**first, **{k: v for k, v in out.items() if k not in first}}
+
+
+def t_variance_factor(dof: float, several: bool) -> float:
+    """``sqrt(dof/(dof - 2))``: the standard deviation of Student's t over that of a normal [-].
+
+    A segment's standard error uses its own residual variance, so its error over the standard error
+    is Student-t with the fit's ``dof``; a single segment keeps its t interval, a normal
+    combination of several (:func:`combine_relative`) takes each at its t variance (a 5 Hz sway step
+    has 13 degrees of freedom: factor 1.08; measured z spread 1.10 over 100 seeds before).
+
+    Parameters
+    ----------
+    dof : float
+        Residual degrees of freedom of the segment's fit.
+    several : bool
+        True when the segment is combined with others (else the factor is 1).
+    """
+    if not several or not (math.isfinite(dof) and dof > 2):
+        return 1.0
+    return math.sqrt(dof / (dof - 2.0))
+
+
+def combine_relative(name: str, unit: str, method: str, contributions: Sequence[Contribution],
+                     notes: Sequence[str] = (), prediction: bool = False) -> Estimate:
+    """:func:`pipeline.fit.combine.combine` on ``ln|value|`` with the relative errors, back-transformed.
+
+    A damping from a fitted time constant, ``D = m_eff/T``, has a standard error that grows with
+    its value (about ``D^1.5`` for an exponential sampled at a fixed rate), so inverse-variance
+    weights on ``D`` itself favour the segments whose noise drew a small ``D``: measured on 100
+    seeds of the 5 Hz GNSS-only sway step and coast-down (``benchmarks/trial_shapes.py`` manoeuvres),
+    the combined ``Y_v`` sat +0.27 +- 0.11 standard errors off the truth while each segment's ``T``
+    was unbiased; on synthetic pairs of fits (3000 draws) the weights on relative errors take the
+    mean error from +0.18 to +0.00 standard errors. The combination (consistency test, random
+    effects) runs on ``ln|value|`` with ``se/|value|``; the value is ``sign * exp(mean)``, its
+    error ``|value| * se_ln`` and its 95 % interval the back-transformed one.
+
+    Parameters
+    ----------
+    name, unit, method : str
+        Coefficient name, SI unit and how each segment's value was obtained.
+    contributions : sequence of Contribution
+        Per-segment values, all of one sign.
+    notes : sequence of str
+        Further remarks for the message.
+    prediction : bool
+        Passed to :func:`pipeline.fit.combine.combine`.
+
+    Returns
+    -------
+    Estimate
+        As :func:`pipeline.fit.combine.combine`; values of mixed sign are combined linearly.
+    """
+    usable = [c for c in contributions if c.ok and math.isfinite(c.value) and math.isfinite(c.stderr)
+              and c.stderr > 0 and c.value != 0]
+    signs = {math.copysign(1.0, c.value) for c in usable}
+    if len(signs) != 1:
+        return combine(name, unit, method, contributions, notes, prediction)
+    sign = signs.pop()
+    several = len(usable) > 1
+    logs = [replace(c, value=math.log(abs(c.value)),
+                    stderr=c.stderr / abs(c.value) * t_variance_factor(c.dof, several))
+            if c in usable else c for c in contributions]
+    notes = list(notes)
+    if several and any(t_variance_factor(c.dof, True) > 1.01 for c in usable):
+        notes.append("segment errors times sqrt(dof/(dof - 2)) before the normal combination (each is Student-t "
+                     "with its fit's residual degrees of freedom: " + ", ".join(f"{c.dof:g}" for c in usable) + ")")
+    est = combine(name, "(relative, in ln|value|)", method, logs, notes, prediction)
+    if not math.isfinite(est.value):
+        return est
+    value = sign * math.exp(est.value)
+    se = abs(value) * est.stderr
+    lo, hi = sorted(sign * math.exp(x) for x in est.ci95)
+    messages = [m for m in est.message.split("; ") if m and not m.startswith("relative standard error ")]
+    rule = est.method[len(method) + 2:] + " on ln|value| (weights from relative errors)"
+    return combined_estimate(name, unit, method, rule, value, se, (lo, hi), est.consistency_p,
+                             [sign * math.exp(v) for v in est.per_segment], messages)
 
 
 def _bias_estimate(est: Estimate) -> Estimate:
