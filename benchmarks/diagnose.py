@@ -968,6 +968,23 @@ def random_report(results: list[dict]) -> None:
         exc.append(100 * (1 - np.sqrt(max(ga * ga - 1, 0)) / np.sqrt(g * g - 1)))
     print(f"  of the error above noise  : {np.median(exc) if exc else float('nan'):.1f}% (median over {len(exc)}; "
           f"not the target's measure)")
+    # What caps the shrink: a correct model still leaves the held-out floor f of each channel, so the
+    # DOF gap cannot shrink below the RMS of the floors; the ceiling is 1 - floor / gap.
+    ceil = []
+    for r in right:
+        d = r["selected"][0]["dof"]
+        fl = r.get("floors", {}).get(d)
+        gaps = r.get("channel_gaps", {}).get(d)
+        if not fl or not gaps or r["verdict_shrink"] is None:
+            continue
+        f_dof = float(np.sqrt(np.mean([max(fl.get(ch, 1.0), 1.0) ** 2 for ch in gaps])))
+        g_dof = r["dof_gaps"].get(d, np.nan)
+        if g_dof > 0:
+            ceil.append((100 * max(1 - f_dof / g_dof, 0.0), r["verdict_shrink"]))
+    if ceil:
+        c = np.array(ceil)
+        print(f"  shrink ceiling (1 - floor/gap): median {np.median(c[:, 0]):.1f}% over {len(c)}; achieved "
+              f"shrink at or above 90% of its ceiling in {int(np.sum(c[:, 1] >= 0.9 * c[:, 0]))}/{len(c)}")
     print(f"both of two effects found   : {pct(both, pair)}   target >= 80%")
     # Power of the forward step: pairs where one effect was found and the other's own candidate was
     # significant alone (first round); how often that other one is also selected on top.
