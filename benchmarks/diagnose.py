@@ -17,6 +17,9 @@ Usage::
     .venv/bin/python benchmarks/diagnose.py --calibrate   # clean trials only: threshold calibration
     .venv/bin/python benchmarks/diagnose.py --timing   # a 30-minute trial through the CLI, timed
     .venv/bin/python benchmarks/diagnose.py --realdata benchmarks/diagnose_realdata   # measured sets
+    .venv/bin/python benchmarks/diagnose.py --random 64 --seed 15 --save s15.jsonl   # randomised (issue 12)
+    .venv/bin/python benchmarks/diagnose.py --random 16 --kinds pair --magnitude 1 2   # a controlled pair set
+    .venv/bin/python benchmarks/diagnose.py --report s15.jsonl   # the report (and misses by cause) of a saved run
 
 ``--realdata`` converts the measured sets in ``../shared/realdata`` (never copied into the
 project) to canonical CSV in a temporary folder, runs ``vesselid diagnose`` on each, writes the
@@ -567,19 +570,28 @@ class RandomCase:
     index: int
     kind: str
     seed: int
+    mag_range: tuple[float, float] = (0.3, 2.0)
 
     @property
     def name(self) -> str:
         return f"r{self.index:03d}-{self.kind}"
 
 
-def random_cases(n: int, seed: int = 12) -> list[RandomCase]:
+#: Range of the randomised effect magnitudes, as factors of the fixed benchmark's large magnitude
+#: (log-uniform); ``--magnitude`` narrows it for a controlled set.
+MAG_RANGE = (0.3, 2.0)
+
+
+def random_cases(n: int, seed: int = 12, kinds_only: tuple[str, ...] = ()) -> list[RandomCase]:
     """``n`` randomised trials: 45% one effect, 15% clean (own simulators), 15% PVS frigate
-    (clean), 12% two effects, 13% out of library."""
+    (clean), 12% two effects, 13% out of library; ``kinds_only``: every trial of these kinds (in
+    turn), each trial's own draws as in the mixed set."""
     rng = np.random.default_rng(seed)
     kinds = rng.choice(["single", "clean", "pvs_clean", "pair", "outside"], size=n,
                        p=[0.45, 0.15, 0.15, 0.12, 0.13])
-    return [RandomCase(i, str(k), int(seed * 1000 + i)) for i, k in enumerate(kinds)]
+    if kinds_only:
+        kinds = [kinds_only[i % len(kinds_only)] for i in range(n)]
+    return [RandomCase(i, str(k), int(seed * 1000 + i), MAG_RANGE) for i, k in enumerate(kinds)]
 
 
 def twin_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, noise: float,
@@ -688,7 +700,7 @@ def _random_nomoto(rng: np.random.Generator):
 
 def _library_effect(rng: np.random.Generator, vessel_kind: str, vessel, exclude=()) -> tuple[str, str, dict, float]:
     """(effect name expected, DOF, simulator settings, magnitude factor) drawn for a vessel kind."""
-    mag = float(np.exp(rng.uniform(np.log(0.3), np.log(2.0))))
+    mag = float(np.exp(rng.uniform(np.log(MAG_RANGE[0]), np.log(MAG_RANGE[1]))))
     if vessel_kind == "twin":
         opts = [e for e in ("actuator_delay", "sensor_delay", "nonlinear_damping") if e not in exclude]
         e = str(rng.choice(opts))
@@ -744,6 +756,8 @@ def _same(x, y) -> bool:
 
 def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], object, dict]:
     """Draw and write one randomised trial; returns (files, vessel or None, truth)."""
+    global MAG_RANGE
+    MAG_RANGE = case.mag_range  # a worker process draws the magnitudes the case was made with
     rng = np.random.default_rng(case.seed)
     noise_name = str(rng.choice(NOISES))
     noise = {"low": 0.5, "nominal": 1.0, "high": 2.0}[noise_name]
@@ -849,11 +863,76 @@ def run_random_case(case: RandomCase) -> dict:
     out["gap_before"], out["gap_final"] = rep.gap_before, rep.gap_final
     out["dof_gaps"] = {d.dof: d.gap for d in rep.dofs}
     out["verdict_shrink"] = rep.verdict.shrink if rep.verdict is not None else None
+    # For the miss classification: each channel's baseline gap and held-out floor, and how each true
+    # effect's own candidate scored alone (first round, before any selection).
+    chan: dict = {}
+    for c in rep.candidates:
+        for g in c.channels:
+            chan.setdefault(c.dof, {})[g.channel] = g.gap_before
+    out["channel_gaps"] = chan
+    out["floors"] = {d.dof: {k: float(v) for k, v in d.heldout_floor.items()} for d in rep.dofs}
+    alone = []
+    for e in truth["effects"]:
+        want = "actuator_delay" if e["effect"].endswith("delay") else e["effect"]
+        mine = [c for c in rep.candidates if c.effect == want and (not e.get("dof") or c.dof == e["dof"])]
+        best = max(mine, key=lambda c: c.shrink if np.isfinite(c.shrink) else -np.inf, default=None)
+        alone.append(None if best is None else {"dof": best.dof, "shrink": best.shrink, "p": best.p_value,
+                                                "significant": bool(best.significant)})
+    out["alone"] = alone
     return out
 
 
 def _hit(sel: dict, eff: dict) -> bool:
     return sel["effect"] == eff["effect"] and (not eff.get("dof") or sel["dof"] == eff["dof"])
+
+
+#: A DOF is "at the floor" when each of its channels' baseline gap stays under this multiple of its
+#: held-out floor (the gap a correct model leaves): the diagnosis' own rule for the smallest gap it
+#: calls more than a correct model leaves (``pipeline.diagnose.selection.UNEXPLAINED_GAP``).
+AT_FLOOR = 1.5
+
+
+def at_floor(r: dict, dof: str | None) -> bool | None:
+    """True when every channel of ``dof`` (every DOF when None) is at its held-out floor; None
+    when the trial saved no channel gaps (a file of an older run)."""
+    if "channel_gaps" not in r:
+        return None
+    dofs = [dof] if dof else list(r["channel_gaps"])
+    gaps = [(g, max(r["floors"].get(d, {}).get(ch, 1.0), 1.0)) for d in dofs
+            for ch, g in r["channel_gaps"].get(d, {}).items() if g is not None and np.isfinite(g)]
+    return bool(gaps) and all(g < AT_FLOOR * f for g, f in gaps)
+
+
+def miss_cause(r: dict) -> str | None:
+    """Why a single- or two-effect trial missed (None: no miss)."""
+    if "selected" not in r:
+        return None
+    effs = r["effects"]
+    todo = [e for e in effs if not any(_hit(s, e) for s in r["selected"])]
+    if r["kind"] == "single":
+        if r["selected"] and _hit(r["selected"][0], effs[0]):
+            return None
+        todo = effs
+    if not todo:
+        return None
+    e = todo[0]
+    which = "single: " if r["kind"] == "single" else ("pair, both missed: " if len(todo) == 2 else "pair, second: ")
+    dof = e.get("dof") or None
+    if dof and dof not in r.get("dof_gaps", {}):
+        return which + "true DOF not analysed"
+    if r["kind"] == "single" and r["selected"]:
+        s0 = r["selected"][0]
+        return which + ("right effect, wrong DOF" if s0["effect"] == e["effect"] else "another effect first")
+    if len(todo) == 1 and r["kind"] == "pair":
+        a = r.get("alone", [None, None])[effs.index(e)] if r.get("alone") else None
+        if a is None:
+            return which + "no candidate of it" if "alone" in r else which + "not found"
+        if a["significant"]:
+            return which + "significant alone, not on top of the first"
+    fl = at_floor(r, dof)
+    if fl:
+        return which + "at the floor (below detection)"
+    return which + ("above the floor, not significant" if fl is not None else "not found")
 
 
 def random_report(results: list[dict]) -> None:
@@ -892,7 +971,41 @@ def random_report(results: list[dict]) -> None:
         exc.append(100 * (1 - np.sqrt(max(ga * ga - 1, 0)) / np.sqrt(g * g - 1)))
     print(f"  of the error above noise  : {np.median(exc) if exc else float('nan'):.1f}% (median over {len(exc)}; "
           f"not the target's measure)")
+    # What caps the shrink: a correct model still leaves the held-out floor f of each channel, so the
+    # DOF gap is not expected to shrink below the RMS of the floors: about 1 - floor / gap at most (the
+    # floor is estimated, from the baseline's own replicates, so a candidate can land below it).
+    ceil = []
+    for r in right:
+        d = r["selected"][0]["dof"]
+        fl = r.get("floors", {}).get(d)
+        gaps = r.get("channel_gaps", {}).get(d)
+        if not fl or not gaps or r["verdict_shrink"] is None:
+            continue
+        f_dof = float(np.sqrt(np.mean([max(fl.get(ch, 1.0), 1.0) ** 2 for ch in gaps])))
+        g_dof = r["dof_gaps"].get(d, np.nan)
+        if g_dof > 0:
+            ceil.append((100 * max(1 - f_dof / g_dof, 0.0), r["verdict_shrink"]))
+    if ceil:
+        c = np.array(ceil)
+        print(f"  shrink ceiling (1 - floor/gap): median {np.median(c[:, 0]):.1f}% over {len(c)}; achieved "
+              f"shrink at or above 90% of its ceiling in {int(np.sum(c[:, 1] >= 0.9 * c[:, 0]))}/{len(c)}, "
+              f"above it in {int(np.sum(c[:, 1] > c[:, 0]))}/{len(c)}")
     print(f"both of two effects found   : {pct(both, pair)}   target >= 80%")
+    # Power of the forward step: pairs where one effect was found and the other's own candidate was
+    # significant alone (first round); how often that other one is also selected on top.
+    able, got = [], []
+    for r in pair:
+        if "alone" not in r:
+            continue
+        found = [any(_hit(s, e) for s in r["selected"]) for e in r["effects"]]
+        alone = [bool(a and a["significant"]) for a in r["alone"]]
+        if any(found) and not all(found) and alone[found.index(False)]:
+            able.append(r)
+        elif all(found) and any(alone):
+            able.append(r)
+            got.append(r)
+    if able:
+        print(f"  second found when it is significant alone: {pct(got, able)} (power of the step on top)")
     print(f"out of library -> unexplained: {pct(unexp, outside)}   target >= 80%")
     times = [r["t_diagnose"] for r in ran if "t_diagnose" in r]
     print(f"diagnose time: median {np.median(times):.1f} s, max {np.max(times):.1f} s" if times else "")
@@ -914,6 +1027,16 @@ def random_report(results: list[dict]) -> None:
         print(f"  {eff:<20} n={len(rows):<3} threshold "
               + (f"{thr:.2g} noise units" if thr is not None else "not reached") +
               f"; found {sum(ok for _, ok in rows)}/{len(rows)}")
+    causes: dict[str, list[str]] = {}
+    for r in single + pair:
+        c = miss_cause(r)
+        if c:
+            causes.setdefault(c, []).append(r["case"])
+    if causes:
+        print("\nmisses by cause (single: verdict; pair: the effect not found; 'at the floor': every channel "
+              f"of the true DOF below {AT_FLOOR:g} x its held-out floor):")
+        for c, names in sorted(causes.items()):
+            print(f"  {c:<52} {len(names):>2}  {' '.join(names)}")
     print("\nmisses:")
     for r in ran:
         ok = ((r["kind"] == "single" and r in right) or (r["kind"] in ("clean", "pvs_clean") and not r["selected"])
@@ -941,6 +1064,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--realdata", metavar="DIR", help="diagnose the measured sets; figures into DIR")
     ap.add_argument("--random", type=int, metavar="N", help="N randomised trials (issue 12 calibration)")
     ap.add_argument("--seed", type=int, default=12, help="seed of the randomised draw")
+    ap.add_argument("--kinds", help="with --random: only these kinds, comma-separated (single, pair, clean, ...)")
+    ap.add_argument("--magnitude", nargs=2, type=float, metavar=("LO", "HI"),
+                    help="with --random: effect magnitudes log-uniform in [LO, HI] x the large magnitude")
+    ap.add_argument("--resume", action="store_true", help="with --random and --save: keep the trials already saved")
     ap.add_argument("--report", metavar="JSONL", help="print the randomised report from a --random --save file")
     args = ap.parse_args(argv)
     if args.report:
@@ -951,11 +1078,21 @@ def main(argv: list[str] | None = None) -> int:
     if args.random:
         from concurrent.futures import as_completed
 
-        todo_r = random_cases(args.random, args.seed)
+        global MAG_RANGE
+        if args.magnitude:
+            MAG_RANGE = (float(args.magnitude[0]), float(args.magnitude[1]))
+        kinds_only = tuple(k for k in (args.kinds or "").split(",") if k)
+        todo_r = random_cases(args.random, args.seed, kinds_only)
         t0 = time.perf_counter()
         results = []
-        # One JSON line per finished trial, so that an interrupted run still reports what it measured.
-        sink = open(args.save, "w") if args.save else None
+        # One JSON line per finished trial, so that an interrupted run still reports what it measured;
+        # --resume keeps the trials already in the file and runs only the others.
+        if args.resume and args.save and Path(args.save).exists():
+            results = [json.loads(line) for line in Path(args.save).read_text().splitlines() if line.strip()]
+            done = {r["case"] for r in results}
+            todo_r = [c for c in todo_r if c.name not in done]
+            print(f"resumed: {len(results)} trials already in {args.save}, {len(todo_r)} to run")
+        sink = open(args.save, "a" if args.resume else "w") if args.save else None
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
             for fut in as_completed([pool.submit(run_random_case, c) for c in todo_r]):
                 results.append(fut.result())

@@ -102,3 +102,27 @@ def test_missing_coupling_is_named(tmp_path):
     rep = _verdict(tmp_path, AAUSHIP, chain(*_surge_sway_yaw(), rest_s=15.0), Effects(coupling=c), "coupling")
     assert (rep.effect, rep.dof) == ("coupling", "yaw")
     assert rep.verdict.input_channel == "v"
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_quadratic_damping_fit_is_not_pulled_negative_by_the_outputs_own_noise(tmp_path, monkeypatch, seed):
+    # A weakly excited ship (K = 0.08: yaw rates of a few noise units) with quadratic damping at
+    # high sensor noise. The measured |r| r as a regressor carries the output's own noise (errors
+    # in variables) and pulls d2 below zero, to its lower bound; the model's simulated |r| r does not.
+    from pipeline.diagnose import candidates as cand
+    from pipeline.diagnose.gridfit import grid_data
+    from pipeline.diagnose.problem import build_problems
+    from pipeline.diagnose.segments import diagnose_segments
+
+    ship = parse_vessel({"name": "weak", "nomoto": {"K": 0.08, "T": 5.0}})
+    d2_true = 0.3 / (0.08 * np.radians(10))
+    trial, _ = simulated_trial(ship, sea_trial(ship), Effects(quadratic_damping=np.array([0, 0, 0, 0, d2_true])),
+                               tmp_path, f"weak{seed}", seed=seed, dt=0.05, noise="high")
+    p = next(p for p in build_problems(trial, diagnose_segments(trial), ship) if p.dof == "yaw")
+    d = grid_data(p)
+    idx = np.arange(len(p.windows))
+    d2 = cand.NonlinearDamping(p, d).fit(idx).params["d2"]
+    monkeypatch.setattr(cand, "REGRESSOR_ROUNDS", 0)
+    d2_measured = cand.NonlinearDamping(p, d).fit(idx).params["d2"]
+    assert d2_measured < 0, d2_measured   # the bias this guards against is present in the data
+    assert 0 < d2 < 4 * d2_true, (d2, d2_true)
