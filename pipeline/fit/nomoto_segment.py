@@ -43,7 +43,7 @@ from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
 from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
 from .nomoto_oe import GainFloor, SecondOrderNoGain, fit_nomoto
 from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
-from .nomoto_quality import STRUCTURE_UNDECIDED
+from .nomoto_quality import SPEED_RANGE, STRUCTURE_UNDECIDED
 from .nomoto_records import NomotoFit, NomotoRecord
 from .segment_fit import MAX_RELATIVE_STDERR
 
@@ -197,6 +197,9 @@ def prepare_window(trial: Trial, segment: Segment, t0: float, t1: float) -> Nomo
     if command:
         servo, servo_note = _choose_servo(rec, channels)
         notes.append(servo_note)
+    speed = speed_range_note(rows)
+    if speed:
+        notes.append(speed)
     return NomotoWindow(segment, rec, tuple(channels), servo, tuple(notes), t - segment.t_start)
 
 
@@ -560,6 +563,46 @@ def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: 
     return SegmentFit(segment=segment, model=model, channel=main, param_names=fit.names, params=params,
                       stderr=stderr, covariance=fit.covariance, t=t_rel, y=y, y_fit=fit.y_fit[0][main], rmse=rmse,
                       aic=fit.aic, bic=fit.bic, success=not fail, message="; ".join(fail + notes))
+
+
+#: Samples per chunk whose median is one speed level in :func:`speed_range_note` (at least).
+SPEED_CHUNK_SAMPLES = 25
+#: Chunks a window's speed is read in (fewer when the window is short).
+SPEED_CHUNKS = 10
+
+
+def speed_range_note(rows) -> str:
+    """The speed range over a Nomoto window, as a note (``SPEED_RANGE``; '' without a speed channel).
+
+    Nomoto's K and T scale with the speed (``K = K' U / L``, ``T = T' L / U``; Fossen 2021, sec.
+    7.2), and a ship slows in a turn: a K or T fitted over a record whose speed changed is the
+    ship's at some speed inside that range, not at the straight-run speed of its linearisation
+    (measured: PythonVehicleSimulator's tanker at 25 m slows from 7.19 to 6.64 m/s in its 10 deg
+    rudder steps, and every step's K is 4-6 % below the straight-run linearisation).
+    :func:`pipeline.fit.nomoto_quality.speed_term` turns the largest range behind a combined K or T
+    into an error term. The range is that of the medians of up to ``SPEED_CHUNKS`` consecutive
+    chunks of at least ``SPEED_CHUNK_SAMPLES`` samples (sensor noise averaged out), of ``sog``
+    when logged, else of the surge speed ``u``.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        The window's rows of the trial.
+    """
+    for ch in ("sog", "u"):
+        if ch not in rows:
+            continue
+        u = rows[ch].to_numpy(dtype=float)
+        u = u[np.isfinite(u)]
+        n = min(SPEED_CHUNKS, u.size // SPEED_CHUNK_SAMPLES)
+        if n < 2:
+            return ""
+        med = np.array([np.median(c) for c in np.array_split(u, n)])
+        hi, lo = float(np.max(np.abs(med))), float(np.min(np.abs(med)))
+        if not hi > 0:
+            return ""
+        return f"{SPEED_RANGE} {(hi - lo) / hi:.4g} of the highest ({ch} {lo:.4g} to {hi:.4g} m/s)"
+    return ""
 
 
 def slow_noise_note(fit: NomotoFit) -> str:
