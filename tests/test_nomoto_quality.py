@@ -239,3 +239,16 @@ def test_speed_loss_in_turns_widens_k_and_t_by_nomoto_scaling():
     assert "speed term" in out.message and out.success
     plain = [SimpleNamespace(**{**vars(f), "message": "OE, order 1"}) for f in fits]
     assert judge_nomoto({"K_nomoto": k}, plain)["K_nomoto"].stderr == k.stderr
+
+
+def test_correlation_length_counts_a_slow_component_under_white_noise():
+    # White compass noise over a random walk (a measured rudder's sensor noise integrated by the
+    # ship): the lag-1 correlation is small, but the residual stays correlated for hundreds of lags.
+    from pipeline.fit.nomoto_oe import correlation_length
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    white = rng.standard_normal(n)
+    assert correlation_length(white, n // 4) < n // 4
+    slow = np.cumsum(0.05 * rng.standard_normal(n))
+    assert correlation_length(white + slow - slow.mean(), n // 4) > 200
