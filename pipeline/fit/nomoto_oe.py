@@ -79,6 +79,7 @@ from .nomoto_problem import (COLLAPSE_WEIGHT, DYNAMIC_PARAMS, MIN_SAMPLES, NOISE
 from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_start import first_order_start, guess_nomoto
 from .nomoto_zoh import simulate_zoh, zoh_discretise
+from .robust_covariance import hac_covariance
 
 #: Re-exported for callers of the former single module (the model lives in :mod:`pipeline.model.nomoto`).
 __all__ = ["DYNAMIC_PARAMS", "MIN_SAMPLES", "NOISE_MODELS", "NOISE_PARAMS", "Nomoto2Params", "NomotoFit",
@@ -241,10 +242,13 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
                                     f"compass residuals coloured but the wave PEM failed ({why}): OE kept"), t_start)
     if noise == "auto" and waves is None:
         if pem.bic >= oe.bic:
-            return _timed(_with_message(oe, f"compass residuals coloured but the wave PEM does not lower the BIC "
-                                            f"({pem.bic:.1f} >= {oe.bic:.1f}): OE kept"), t_start)
+            return _timed(_with_message(correlated_residual_errors(prob, res.x, oe),
+                                        f"compass residuals coloured but the wave PEM does not lower the BIC "
+                                        f"({pem.bic:.1f} >= {oe.bic:.1f}): OE kept"), t_start)
         pem = _with_message(pem, f"OE compass residuals coloured; wave PEM chosen (BIC {pem.bic:.1f} < "
                                  f"{oe.bic:.1f})")
+    if not _psi_white(pem):
+        pem = correlated_residual_errors(pem_prob, pem_res.x, pem)
     return _timed(pem, t_start)
 
 
@@ -438,8 +442,9 @@ def correlated_residual_errors(prob: Problem, x: np.ndarray, fit: NomotoFit) -> 
     """``fit`` with its standard errors from a Newey-West (Bartlett kernel) sandwich when that is larger.
 
     An output-error fit kept although its residuals are coloured (the wave noise model could not be
-    fitted) has a covariance ``s^2 (J'J)^-1`` that assumes white residuals; correlated residuals
-    carry less information than their count says, so those errors are too small (measured:
+    fitted, or did not lower the BIC), or a wave PEM whose innovations are still not white, has a
+    covariance ``s^2 (J'J)^-1`` that assumes white residuals; correlated residuals carry less
+    information than their count says, so those errors are too small (measured:
     PythonVehicleSimulator's frigate, slow sinusoid with the measured rudder's sensor noise, T off by
     4 of its standard errors, 30 % coverage over 20 seeds). The heteroscedasticity-and-
     autocorrelation-consistent covariance ``(J'J)^-1 Omega (J'J)^-1`` with ``Omega = sum_l
@@ -455,7 +460,7 @@ def correlated_residual_errors(prob: Problem, x: np.ndarray, fit: NomotoFit) -> 
     Parameters
     ----------
     prob : Problem
-        The white-noise problem of ``fit``.
+        The problem of ``fit`` (its residual is the OE error or the PEM innovation).
     x : numpy.ndarray
         Its solver vector at the solution.
     fit : NomotoFit
@@ -469,17 +474,12 @@ def correlated_residual_errors(prob: Problem, x: np.ndarray, fit: NomotoFit) -> 
     if n <= 4 * p:
         return fit
     lags = correlation_length(e, n // 4)
-    g = jac * e[:, None]
-    omega = g.T @ g
-    for lag in range(1, lags + 1):
-        gam = g[lag:].T @ g[:-lag]
-        omega += (1.0 - lag / (lags + 1.0)) * (gam + gam.T)
     try:
-        bread = np.linalg.inv(jac.T @ jac)
+        robust = hac_covariance(jac, e, np.zeros(n, int), bandwidth=lags)
     except np.linalg.LinAlgError:
         return fit
     d = np.where(prob.log_mask, fit.values, 1.0)
-    hac = (bread @ omega @ bread) * np.outer(d, d) * n / (n - p)
+    hac = robust.covariance * np.outer(d, d)
     ratio = np.sqrt(np.clip(np.diag(hac), 0.0, None)) / np.where(fit.stderr > 0, fit.stderr, np.inf)
     f = np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)
     if not np.any(f > 1.0):

@@ -36,7 +36,10 @@ Before these rules, a model-structure term (``STRUCTURE_TERM`` notes in the segm
 messages: the difference between the first- and second-order values where the structure was not
 decided clearly or the two disagree) is added in quadrature to the combined standard error and the
 95 % interval is widened to match (:func:`add_structure_term`): a structure bias is common to all
-segments, so it is added after combining, never averaged down.
+segments, so it is added after combining, never averaged down. A speed term follows
+(:func:`add_speed_term`): half the largest relative speed range over the records behind K or T
+(``SPEED_RANGE`` notes of :func:`pipeline.fit.nomoto_segment.speed_range_note`) times the value,
+because Nomoto's K and T scale with the speed and a ship slows in its turns.
 The per-segment rules (a near-tie between first- and second-order Nomoto whose K or T differ
 materially; a second order called for but not fitted) are in :mod:`pipeline.fit.nomoto_segment`.
 """
