@@ -439,7 +439,7 @@ def _psi_white(fit: NomotoFit) -> bool:
 
 
 def correlated_residual_errors(prob: Problem, x: np.ndarray, fit: NomotoFit) -> NomotoFit:
-    """``fit`` with its standard errors from a Newey-West (Bartlett kernel) sandwich when that is larger.
+    """``fit`` with Newey-West (Bartlett kernel) standard errors where they are larger (``robust_stderr``).
 
     An output-error fit kept although its residuals are coloured (the wave noise model could not be
     fitted, or did not lower the BIC), or a wave PEM whose innovations are still not white, has a
@@ -455,7 +455,9 @@ def correlated_residual_errors(prob: Problem, x: np.ndarray, fit: NomotoFit) -> 
     rudder's sensor noise, makes a lag-1 plug-in bandwidth, or the first crossing of the band, far
     too short).
     Each standard error is only ever raised (the correlation structure of the covariance is kept),
-    and the message says by how much.
+    and the message says by how much. They are kept beside the white-noise ones (``robust_stderr``,
+    ``robust_covariance``), which the trial's structure stage pools segments with; the segment fit
+    (:mod:`pipeline.fit.nomoto_segment`) reports them.
 
     Parameters
     ----------
@@ -487,7 +489,7 @@ def correlated_residual_errors(prob: Problem, x: np.ndarray, fit: NomotoFit) -> 
     i_k = fit.names.index("K") if "K" in fit.names else 0
     note = (f"standard errors from the residuals' own correlation (Newey-West, {lags} lags; K x {f[i_k]:.2g}): "
             f"coloured residuals carry less information than white ones")
-    return replace(fit, stderr=fit.stderr * f, covariance=fit.covariance * np.outer(f, f),
+    return replace(fit, robust_stderr=fit.stderr * f, robust_covariance=fit.covariance * np.outer(f, f),
                    message="; ".join(m for m in (fit.message, note) if m))
 
 

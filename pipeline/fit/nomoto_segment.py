@@ -30,7 +30,7 @@ What the log holds decides the model, by the data:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -514,6 +514,9 @@ def _heldout_errors(fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...]
 def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], t_rel: np.ndarray,
                  notes: list[str], unsure: str = "") -> SegmentFit:
     main = channels[0]
+    if fit.robust_covariance is not None:
+        # Coloured residuals: the Newey-West errors are the ones to report (nomoto_oe).
+        fit = replace(fit, stderr=fit.robust_stderr, covariance=fit.robust_covariance)
     model = "nomoto_oe" if fit.noise_model == "white" else "nomoto_pem"
     params = {n: float(v) for n, v in zip(fit.names, fit.values)}
     stderr = {n: float(s) for n, s in zip(fit.names, fit.stderr)}
