@@ -208,7 +208,7 @@ def test_k_trending_with_the_rudder_amplitude_is_unsure():
 
 def test_speed_loss_in_turns_widens_k_and_t_by_nomoto_scaling():
     # A ship that slows from 7.19 to 6.64 m/s in its turns (PythonVehicleSimulator's tanker at
-    # 25 m, 10 deg steps): the window's speed range is read through 0.05 m/s noise, and the combined
+    # 25 m, 10 deg steps): the speed lost is read through 0.05 m/s noise, and the combined
     # K's interval then spans a K shift across the whole range; a speed-held ship gets no term.
     from types import SimpleNamespace
 
@@ -219,13 +219,18 @@ def test_speed_loss_in_turns_widens_k_and_t_by_nomoto_scaling():
 
     rng = np.random.default_rng(3)
     t = np.arange(0.0, 640.0, 0.2)     # a 160 s straight lead-in, then the step at t = 160 s
+    turning = 1.0 - np.exp(-np.clip(t - 160.0, 0.0, None) / 50.0)
+    r = np.radians(0.2) * turning + np.radians(0.05) * rng.standard_normal(t.size)
     u = 6.64 + 0.55 * np.exp(-np.clip(t - 160.0, 0.0, None) / 60.0) + 0.05 * rng.standard_normal(t.size)
-    note = speed_range_note(pd.DataFrame({"t": t, "u": u}))
+    note = speed_range_note(pd.DataFrame({"t": t, "u": u, "r": r}))
     rel = float(note.split(" ")[5])
     assert 0.06 < rel < 0.08
-    held = speed_range_note(pd.DataFrame({"t": t, "u": 8.0 + 0.05 * rng.standard_normal(t.size)}))
+    held = speed_range_note(pd.DataFrame({"t": t, "u": 8.0 + 0.05 * rng.standard_normal(t.size), "r": r}))
     assert float(held.split(" ")[5]) < 0.005
-    assert speed_range_note(pd.DataFrame({"t": t})) == ""
+    # A throttle opened with the rudder (a step from rest): the speed rises with the turn, no loss.
+    from_rest = speed_range_note(pd.DataFrame({"t": t, "u": 7.19 * turning, "r": r}))
+    assert float(from_rest.split(" ")[5]) == 0.0
+    assert speed_range_note(pd.DataFrame({"t": t, "r": r})) == ""
 
     truth = 0.021795
     ks = [0.95 * truth * (1 + 0.002 * i) for i in range(4)]

@@ -575,36 +575,51 @@ SPEED_CHUNKS = 10
 
 
 def speed_range_note(rows) -> str:
-    """The speed range over a Nomoto window, as a note (``SPEED_RANGE``; '' without a speed channel).
+    """The speed a ship lost in the turns of a Nomoto window, as a note (``SPEED_RANGE``; '' when none).
 
     Nomoto's K and T scale with the speed (``K = K' U / L``, ``T = T' L / U``; Fossen 2021, sec.
-    7.2), and a ship slows in a turn: a K or T fitted over a record whose speed changed is the
-    ship's at some speed inside that range, not at the straight-run speed of its linearisation
-    (measured: PythonVehicleSimulator's tanker at 25 m slows from 7.19 to 6.64 m/s in its 10 deg
-    rudder steps, and every step's K is 4-6 % below the straight-run linearisation).
-    :func:`pipeline.fit.nomoto_quality.speed_term` turns the largest range behind a combined K or T
-    into an error term. The range is that of the medians of up to ``SPEED_CHUNKS`` consecutive
-    chunks of at least ``SPEED_CHUNK_SAMPLES`` samples (sensor noise averaged out), of ``sog``
-    when logged, else of the surge speed ``u``.
+    7.2), and a ship slows in a turn: a K or T fitted over a record whose turns ran slower than its
+    straight runs is the ship's at some speed between the two, not at the straight-run speed of its
+    linearisation (measured: PythonVehicleSimulator's tanker at 25 m slows from 7.19 to 6.64 m/s in
+    its 10 deg rudder steps, and every step's K is 4-6 % below the straight-run linearisation).
+    The speed is read as the medians of up to ``SPEED_CHUNKS`` consecutive chunks of at least
+    ``SPEED_CHUNK_SAMPLES`` samples (sensor noise averaged out), of ``sog`` when logged, else of the
+    surge speed ``u``, and so is the squared yaw rate; the note gives the chunks' speed range
+    relative to the highest when the speed falls as the squared yaw rate grows (the slope of a
+    straight line through the chunks is negative; the range, not the line, because the speed lags
+    the yaw rate by the surge time constant), else 0 (a throttle opened with the rudder, as in a
+    manoeuvre started from rest, is no speed lost to the turn). :func:`pipeline.fit.nomoto_quality.add_speed_term` turns the largest loss
+    behind a combined K or T into an error term.
 
     Parameters
     ----------
     rows : pandas.DataFrame
-        The window's rows of the trial.
+        The window's rows of the trial (``r``, or ``psi`` and ``t``, for the yaw rate).
     """
+    if "r" in rows and np.isfinite(rows["r"].to_numpy(dtype=float)).any():
+        r = rows["r"].to_numpy(dtype=float)
+    elif "psi" in rows and "t" in rows:
+        r = np.gradient(np.unwrap(rows["psi"].to_numpy(dtype=float)), rows["t"].to_numpy(dtype=float))
+    else:
+        return ""
     for ch in ("sog", "u"):
         if ch not in rows:
             continue
         u = rows[ch].to_numpy(dtype=float)
-        u = u[np.isfinite(u)]
-        n = min(SPEED_CHUNKS, u.size // SPEED_CHUNK_SAMPLES)
-        if n < 2:
+        ok = np.isfinite(u) & np.isfinite(r)
+        n = min(SPEED_CHUNKS, int(ok.sum()) // SPEED_CHUNK_SAMPLES)
+        if n < 3:
             return ""
-        med = np.array([np.median(c) for c in np.array_split(u, n)])
-        hi, lo = float(np.max(np.abs(med))), float(np.min(np.abs(med)))
+        speed = np.array([np.median(c) for c in np.array_split(np.abs(u[ok]), n)])
+        r2 = np.array([np.median(c) for c in np.array_split(r[ok] ** 2, n)])
+        if not np.ptp(r2) > 0:
+            return ""
+        slope = np.polyfit(r2, speed, 1)[0]
+        hi, lo = float(np.max(speed)), float(np.min(speed))
         if not hi > 0:
             return ""
-        return f"{SPEED_RANGE} {(hi - lo) / hi:.4g} of the highest ({ch} {lo:.4g} to {hi:.4g} m/s)"
+        loss = (hi - lo) / hi if slope < 0 else 0.0
+        return f"{SPEED_RANGE} {loss:.4g} of the highest speed ({ch} {lo:.4g} to {hi:.4g} m/s)"
     return ""
 
 
