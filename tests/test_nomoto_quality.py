@@ -228,7 +228,7 @@ def test_speed_loss_in_turns_widens_k_and_t_by_nomoto_scaling():
     held = speed_range_note(pd.DataFrame({"t": t, "u": 8.0 + 0.05 * rng.standard_normal(t.size), "r": r}))
     assert float(held.split(" ")[5]) < 0.005
     # A throttle opened with the rudder (a step from rest): the speed rises with the turn, no loss.
-    from_rest = speed_range_note(pd.DataFrame({"t": t, "u": 7.19 * turning, "r": r}))
+    from_rest = speed_range_note(pd.DataFrame({"t": t, "u": 1.0 + 6.19 * turning, "r": r}))
     assert float(from_rest.split(" ")[5]) == 0.0
     assert speed_range_note(pd.DataFrame({"t": t, "r": r})) == ""
 

@@ -197,7 +197,8 @@ def prepare_window(trial: Trial, segment: Segment, t0: float, t1: float) -> Nomo
     if command:
         servo, servo_note = _choose_servo(rec, channels)
         notes.append(servo_note)
-    speed = speed_range_note(rows)
+    # The segment itself, not the lead-in before it (which may hold an earlier throttle change).
+    speed = speed_range_note(rows[rows["t"] >= segment.t_start])
     if speed:
         notes.append(speed)
     return NomotoWindow(segment, rec, tuple(channels), servo, tuple(notes), t - segment.t_start)
@@ -584,11 +585,13 @@ def speed_range_note(rows) -> str:
     its 10 deg rudder steps, and every step's K is 4-6 % below the straight-run linearisation).
     The speed is read as the medians of up to ``SPEED_CHUNKS`` consecutive chunks of at least
     ``SPEED_CHUNK_SAMPLES`` samples (sensor noise averaged out), of ``sog`` when logged, else of the
-    surge speed ``u``, and so is the squared yaw rate; the note gives the chunks' speed range
-    relative to the highest when the speed falls as the squared yaw rate grows (the slope of a
-    straight line through the chunks is negative; the range, not the line, because the speed lags
-    the yaw rate by the surge time constant), else 0 (a throttle opened with the rudder, as in a
-    manoeuvre started from rest, is no speed lost to the turn). :func:`pipeline.fit.nomoto_quality.add_speed_term` turns the largest loss
+    surge speed ``u``, and so is the squared yaw rate; the note gives the speed of the window's
+    straighter end (first or last chunk, the one with the smaller yaw rate: the steady hold before a
+    step into a turn, or the straight run after a step out of it) less that of its turning end,
+    relative to the former, or 0 when the turning end is the faster one (a throttle opened with the
+    rudder, as in a manoeuvre started from rest, is no speed lost to the turn; the steady ends, not
+    a line through the chunks, because the speed lags the yaw rate by the surge time constant and
+    a throttle cut inside the window would tilt a line). :func:`pipeline.fit.nomoto_quality.add_speed_term` turns the largest loss
     behind a combined K or T into an error term.
 
     Parameters
@@ -614,12 +617,13 @@ def speed_range_note(rows) -> str:
         r2 = np.array([np.median(c) for c in np.array_split(r[ok] ** 2, n)])
         if not np.ptp(r2) > 0:
             return ""
-        slope = np.polyfit(r2, speed, 1)[0]
-        hi, lo = float(np.max(speed)), float(np.min(speed))
-        if not hi > 0:
+        # The straighter end (smaller yaw rate) against the end that turns harder.
+        straight, turning = (speed[0], speed[-1]) if r2[0] <= r2[-1] else (speed[-1], speed[0])
+        if not straight > 0:
             return ""
-        loss = (hi - lo) / hi if slope < 0 else 0.0
-        return f"{SPEED_RANGE} {loss:.4g} of the highest speed ({ch} {lo:.4g} to {hi:.4g} m/s)"
+        loss = max(0.0, (straight - turning) / straight)
+        return (f"{SPEED_RANGE} {loss:.4g} of the straight-run speed ({ch} {straight:.4g} m/s at the straighter "
+                f"end, {turning:.4g} m/s at the turning end)")
     return ""
 
 
