@@ -456,3 +456,20 @@ def test_starts_are_compared_by_a_weight_free_likelihood_not_by_their_weighted_c
     assert int(np.argmin([res.cost for _, res in solved])) != best, "this record no longer tells the rules apart"
     kept = solved[best][0].natural(solved[best][1].x)
     np.testing.assert_allclose(fit.values, kept, rtol=1e-12)
+
+
+def test_a_measured_rudders_noise_gets_error_bars_from_the_residuals_correlation():
+    # A measured rudder angle with 0.5 deg sensor noise drives the fit: the heading's response to
+    # that noise is a random walk in the residuals, which the white-noise covariance ignores (T off
+    # by 11 of its standard errors on this seed); the kept OE fit's Newey-West errors cover it.
+    t, u, psi = zigzag_design(600.0)
+    rng = np.random.default_rng(1)
+    y = psi + math.sqrt(COMPASS_VAR) * rng.standard_normal(t.size)
+    measured = u + math.radians(0.5) * rng.standard_normal(t.size)
+    white = fit_nomoto(NomotoRecord(t, measured, y), noise="white")
+    assert abs(white.T - T_SEED) > 5 * white.error("T")
+    fit = fit_nomoto(NomotoRecord(t, measured, y))
+    assert "Newey-West" in fit.message, fit.message
+    se = dict(zip(fit.names, fit.robust_stderr))
+    assert abs(fit.T - T_SEED) < 2 * se["T"] and abs(fit.K - K_SEED) < 2 * se["K"]
+    assert se["T"] > 5 * white.error("T")

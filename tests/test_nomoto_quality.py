@@ -204,3 +204,56 @@ def test_k_trending_with_the_rudder_amplitude_is_unsure():
     assert nonlinear_reason(k, fits, "T") == []
     plain = [SimpleNamespace(**{**vars(f), "message": ""}) for f in fits]
     assert nonlinear_reason(k, plain, "K") == []
+
+
+def test_speed_loss_in_turns_widens_k_and_t_by_nomoto_scaling():
+    # A ship that slows from 7.19 to 6.64 m/s in its turns (PythonVehicleSimulator's tanker at
+    # 25 m, 10 deg steps): the speed lost is read through 0.05 m/s noise, and the combined
+    # K's interval then spans a K shift across the whole range; a speed-held ship gets no term.
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from pipeline.fit.nomoto_quality import speed_range
+    from pipeline.fit.nomoto_segment import speed_range_note
+
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 640.0, 0.2)     # a 160 s straight lead-in, then the step at t = 160 s
+    turning = 1.0 - np.exp(-np.clip(t - 160.0, 0.0, None) / 50.0)
+    r = np.radians(0.2) * turning + np.radians(0.05) * rng.standard_normal(t.size)
+    u = 6.64 + 0.55 * np.exp(-np.clip(t - 160.0, 0.0, None) / 60.0) + 0.05 * rng.standard_normal(t.size)
+    note = speed_range_note(pd.DataFrame({"t": t, "u": u, "r": r}))
+    rel = float(note.split(" ")[5])
+    assert 0.06 < rel < 0.08
+    held = speed_range_note(pd.DataFrame({"t": t, "u": 8.0 + 0.05 * rng.standard_normal(t.size), "r": r}))
+    assert float(held.split(" ")[5]) < 0.005
+    # A throttle opened with the rudder (a step from rest): the speed rises with the turn, no loss.
+    from_rest = speed_range_note(pd.DataFrame({"t": t, "u": 1.0 + 6.19 * turning, "r": r}))
+    assert float(from_rest.split(" ")[5]) == 0.0
+    assert speed_range_note(pd.DataFrame({"t": t, "r": r})) == ""
+
+    truth = 0.021795
+    ks = [0.95 * truth * (1 + 0.002 * i) for i in range(4)]
+    k = combine("K_nomoto", "1/s", "m", [Contribution(v, 1e-5, f"s{i}") for i, v in enumerate(ks)])
+    assert not k.ci95[0] <= truth <= k.ci95[1]
+    fits = [SimpleNamespace(params={"K": v}, stderr={"K": 1e-5}, segment=SimpleNamespace(kind="rudder_step"),
+                            message=f"OE, order 1; {note}") for v in ks]
+    assert speed_range(fits) == rel
+    out = judge_nomoto({"K_nomoto": k}, fits)["K_nomoto"]
+    assert out.ci95[0] <= truth <= out.ci95[1]
+    assert "speed term" in out.message and out.success
+    plain = [SimpleNamespace(**{**vars(f), "message": "OE, order 1"}) for f in fits]
+    assert judge_nomoto({"K_nomoto": k}, plain)["K_nomoto"].stderr == k.stderr
+
+
+def test_correlation_length_counts_a_slow_component_under_white_noise():
+    # White compass noise over a random walk (a measured rudder's sensor noise integrated by the
+    # ship): the lag-1 correlation is small, but the residual stays correlated for hundreds of lags.
+    from pipeline.fit.nomoto_oe import correlation_length
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    white = rng.standard_normal(n)
+    assert correlation_length(white, n // 4) < n // 4
+    slow = np.cumsum(0.05 * rng.standard_normal(n))
+    assert correlation_length(white + slow - slow.mean(), n // 4) > 200

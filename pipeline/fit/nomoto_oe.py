@@ -79,6 +79,7 @@ from .nomoto_problem import (COLLAPSE_WEIGHT, DYNAMIC_PARAMS, MIN_SAMPLES, NOISE
 from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_start import first_order_start, guess_nomoto
 from .nomoto_zoh import simulate_zoh, zoh_discretise
+from .robust_covariance import hac_covariance
 
 #: Re-exported for callers of the former single module (the model lives in :mod:`pipeline.model.nomoto`).
 __all__ = ["DYNAMIC_PARAMS", "MIN_SAMPLES", "NOISE_MODELS", "NOISE_PARAMS", "Nomoto2Params", "NomotoFit",
@@ -230,21 +231,24 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
     except (FitError, np.linalg.LinAlgError, FloatingPointError) as exc:
         if noise != "auto":
             raise
-        return _timed(_with_message(oe, f"compass residuals coloured but the wave PEM failed ({exc}): OE kept, "
-                                        f"its error bars assume white residuals"), t_start)
+        return _timed(_with_message(correlated_residual_errors(prob, res.x, oe),
+                                    f"compass residuals coloured but the wave PEM failed ({exc}): OE kept"), t_start)
     if noise == "auto" and not pem.success and oe.success:
         # The refinement failed (a wave parameter out of range, no covariance): the plain fit that
         # worked is kept, and the message says why the noise model was not used.
         why = ", ".join(pem.at_bound) + " out of range" if pem.at_bound else (
             "solver did not converge" if not pem.converged else "covariance not computed")
-        return _timed(_with_message(oe, f"compass residuals coloured but the wave PEM failed ({why}): OE kept, "
-                                        f"its error bars assume white residuals"), t_start)
+        return _timed(_with_message(correlated_residual_errors(prob, res.x, oe),
+                                    f"compass residuals coloured but the wave PEM failed ({why}): OE kept"), t_start)
     if noise == "auto" and waves is None:
         if pem.bic >= oe.bic:
-            return _timed(_with_message(oe, f"compass residuals coloured but the wave PEM does not lower the BIC "
-                                            f"({pem.bic:.1f} >= {oe.bic:.1f}): OE kept"), t_start)
+            return _timed(_with_message(correlated_residual_errors(prob, res.x, oe),
+                                        f"compass residuals coloured but the wave PEM does not lower the BIC "
+                                        f"({pem.bic:.1f} >= {oe.bic:.1f}): OE kept"), t_start)
         pem = _with_message(pem, f"OE compass residuals coloured; wave PEM chosen (BIC {pem.bic:.1f} < "
                                  f"{oe.bic:.1f})")
+    if not _psi_white(pem):
+        pem = correlated_residual_errors(pem_prob, pem_res.x, pem)
     return _timed(pem, t_start)
 
 
@@ -432,6 +436,82 @@ def _plausible(prob: Problem, res: optimize.OptimizeResult) -> bool:
 def _psi_white(fit: NomotoFit) -> bool:
     tests = [t for t in fit.residual_tests if t.name.endswith(" psi")]
     return all(t.white for t in tests)
+
+
+def correlated_residual_errors(prob: Problem, x: np.ndarray, fit: NomotoFit) -> NomotoFit:
+    """``fit`` with Newey-West (Bartlett kernel) standard errors where they are larger (``robust_stderr``).
+
+    An output-error fit kept although its residuals are coloured (the wave noise model could not be
+    fitted, or did not lower the BIC), or a wave PEM whose innovations are still not white, has a
+    covariance ``s^2 (J'J)^-1`` that assumes white residuals; correlated residuals carry less
+    information than their count says, so those errors are too small (measured:
+    PythonVehicleSimulator's frigate, slow sinusoid with the measured rudder's sensor noise, T off by
+    4 of its standard errors, 30 % coverage over 20 seeds). The heteroscedasticity-and-
+    autocorrelation-consistent covariance ``(J'J)^-1 Omega (J'J)^-1`` with ``Omega = sum_l
+    (1 - |l|/(L+1)) sum_t g_t g_{t-l}'``, ``g_t = J_t e_t`` (Newey & West 1987), uses the residual's
+    own correlation; the bandwidth ``L`` is the last lag up to ``n/4`` at which the residual's
+    autocorrelation lies outside the white-noise band ``2 / sqrt(n)`` (:func:`correlation_length`; a
+    white sensor noise on top of a slow coloured part, such as the heading's response to a measured
+    rudder's sensor noise, makes a lag-1 plug-in bandwidth, or the first crossing of the band, far
+    too short).
+    Each standard error is only ever raised (the correlation structure of the covariance is kept),
+    and the message says by how much. They are kept beside the white-noise ones (``robust_stderr``,
+    ``robust_covariance``), which the trial's structure stage pools segments with; the segment fit
+    (:mod:`pipeline.fit.nomoto_segment`) reports them.
+
+    Parameters
+    ----------
+    prob : Problem
+        The problem of ``fit`` (its residual is the OE error or the PEM innovation).
+    x : numpy.ndarray
+        Its solver vector at the solution.
+    fit : NomotoFit
+        The fit (not modified).
+    """
+    if not np.all(np.isfinite(fit.stderr)):
+        return fit
+    e = prob.residual(x)
+    jac = prob.jacobian(x)
+    n, p = jac.shape
+    if n <= 4 * p:
+        return fit
+    lags = correlation_length(e, n // 4)
+    try:
+        robust = hac_covariance(jac, e, np.zeros(n, int), bandwidth=lags)
+    except np.linalg.LinAlgError:
+        return fit
+    d = np.where(prob.log_mask, fit.values, 1.0)
+    hac = robust.covariance * np.outer(d, d)
+    ratio = np.sqrt(np.clip(np.diag(hac), 0.0, None)) / np.where(fit.stderr > 0, fit.stderr, np.inf)
+    f = np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)
+    if not np.any(f > 1.0):
+        return fit
+    i_k = fit.names.index("K") if "K" in fit.names else 0
+    note = (f"standard errors from the residuals' own correlation (Newey-West, {lags} lags; K x {f[i_k]:.2g}): "
+            f"coloured residuals carry less information than white ones")
+    return replace(fit, robust_stderr=fit.stderr * f, robust_covariance=fit.covariance * np.outer(f, f),
+                   message="; ".join(m for m in (fit.message, note) if m))
+
+
+def correlation_length(e: np.ndarray, most: int) -> int:
+    """The last lag (at most ``most``) at which the autocorrelation of ``e`` lies outside ``+-2/sqrt(n)``.
+
+    Parameters
+    ----------
+    e : numpy.ndarray
+        Residuals (NaN-free).
+    most : int
+        Largest lag returned.
+    """
+    e = np.asarray(e, float) - float(np.mean(e))
+    n = e.size
+    if n < 4 or not e @ e > 0:
+        return 0
+    m = 1 << int(math.ceil(math.log2(2 * n)))
+    f = np.fft.rfft(e, m)
+    acf = np.fft.irfft(f * np.conj(f), m)[: most + 1] / (e @ e)
+    outside = np.nonzero(np.abs(acf[1:]) >= 2.0 / math.sqrt(n))[0]
+    return int(outside[-1]) + 1 if outside.size else 0
 
 
 def _with_message(fit: NomotoFit, note: str) -> NomotoFit:

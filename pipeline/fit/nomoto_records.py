@@ -84,6 +84,11 @@ class NomotoFit:
         Channels fitted (``psi``, ``r``).
     timings : Mapping[str, float]
         Wall time of the fit [s] (``total_s``).
+    robust_covariance, robust_stderr : numpy.ndarray or None
+        Newey-West covariance and standard errors when the residuals stayed coloured and they are
+        larger than the white-noise ones (:func:`pipeline.fit.nomoto_oe.correlated_residual_errors`);
+        None otherwise. ``covariance`` and ``stderr`` stay the white-noise ones (the structure
+        stage pools segments with them); a segment fit reports these.
     """
 
     order: int
@@ -107,6 +112,8 @@ class NomotoFit:
     message: str = ""
     channels: tuple[str, ...] = ("psi",)
     timings: Mapping[str, float] = field(default_factory=dict)
+    robust_covariance: np.ndarray | None = None
+    robust_stderr: np.ndarray | None = None
 
     def value(self, name: str) -> float:
         """Estimate of one parameter [SI].

@@ -30,7 +30,7 @@ What the log holds decides the model, by the data:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -43,7 +43,7 @@ from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
 from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
 from .nomoto_oe import GainFloor, SecondOrderNoGain, fit_nomoto
 from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
-from .nomoto_quality import STRUCTURE_UNDECIDED
+from .nomoto_quality import SPEED_RANGE, STRUCTURE_UNDECIDED
 from .nomoto_records import NomotoFit, NomotoRecord
 from .segment_fit import MAX_RELATIVE_STDERR
 
@@ -197,6 +197,10 @@ def prepare_window(trial: Trial, segment: Segment, t0: float, t1: float) -> Nomo
     if command:
         servo, servo_note = _choose_servo(rec, channels)
         notes.append(servo_note)
+    # The segment itself, not the lead-in before it (which may hold an earlier throttle change).
+    speed = speed_range_note(rows[rows["t"] >= segment.t_start])
+    if speed:
+        notes.append(speed)
     return NomotoWindow(segment, rec, tuple(channels), servo, tuple(notes), t - segment.t_start)
 
 
@@ -511,6 +515,9 @@ def _heldout_errors(fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...]
 def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], t_rel: np.ndarray,
                  notes: list[str], unsure: str = "") -> SegmentFit:
     main = channels[0]
+    if fit.robust_covariance is not None:
+        # Coloured residuals: the Newey-West errors are the ones to report (nomoto_oe).
+        fit = replace(fit, stderr=fit.robust_stderr, covariance=fit.robust_covariance)
     model = "nomoto_oe" if fit.noise_model == "white" else "nomoto_pem"
     params = {n: float(v) for n, v in zip(fit.names, fit.values)}
     stderr = {n: float(s) for n, s in zip(fit.names, fit.stderr)}
@@ -560,6 +567,64 @@ def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: 
     return SegmentFit(segment=segment, model=model, channel=main, param_names=fit.names, params=params,
                       stderr=stderr, covariance=fit.covariance, t=t_rel, y=y, y_fit=fit.y_fit[0][main], rmse=rmse,
                       aic=fit.aic, bic=fit.bic, success=not fail, message="; ".join(fail + notes))
+
+
+#: Samples per chunk whose median is one speed level in :func:`speed_range_note` (at least).
+SPEED_CHUNK_SAMPLES = 25
+#: Chunks a window's speed is read in (fewer when the window is short).
+SPEED_CHUNKS = 10
+
+
+def speed_range_note(rows) -> str:
+    """The speed a ship lost in the turns of a Nomoto window, as a note (``SPEED_RANGE``; '' when none).
+
+    Nomoto's K and T scale with the speed (``K = K' U / L``, ``T = T' L / U``; Fossen 2021, sec.
+    7.2), and a ship slows in a turn: a K or T fitted over a record whose turns ran slower than its
+    straight runs is the ship's at some speed between the two, not at the straight-run speed of its
+    linearisation (measured: PythonVehicleSimulator's tanker at 25 m slows from 7.19 to 6.64 m/s in
+    its 10 deg rudder steps, and every step's K is 4-6 % below the straight-run linearisation).
+    The speed is read as the medians of up to ``SPEED_CHUNKS`` consecutive chunks of at least
+    ``SPEED_CHUNK_SAMPLES`` samples (sensor noise averaged out), of ``sog`` when logged, else of the
+    surge speed ``u``, and so is the squared yaw rate; the note gives the speed of the window's
+    straighter end (first or last chunk, the one with the smaller yaw rate: the steady hold before a
+    step into a turn, or the straight run after a step out of it) less that of its turning end,
+    relative to the former, or 0 when the turning end is the faster one (a throttle opened with the
+    rudder, as in a manoeuvre started from rest, is no speed lost to the turn; the steady ends, not
+    a line through the chunks, because the speed lags the yaw rate by the surge time constant and
+    a throttle cut inside the window would tilt a line). :func:`pipeline.fit.nomoto_quality.add_speed_term` turns the largest loss
+    behind a combined K or T into an error term.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        The window's rows of the trial (``r``, or ``psi`` and ``t``, for the yaw rate).
+    """
+    if "r" in rows and np.isfinite(rows["r"].to_numpy(dtype=float)).any():
+        r = rows["r"].to_numpy(dtype=float)
+    elif "psi" in rows and "t" in rows:
+        r = np.gradient(np.unwrap(rows["psi"].to_numpy(dtype=float)), rows["t"].to_numpy(dtype=float))
+    else:
+        return ""
+    for ch in ("sog", "u"):
+        if ch not in rows:
+            continue
+        u = rows[ch].to_numpy(dtype=float)
+        ok = np.isfinite(u) & np.isfinite(r)
+        n = min(SPEED_CHUNKS, int(ok.sum()) // SPEED_CHUNK_SAMPLES)
+        if n < 3:
+            return ""
+        speed = np.array([np.median(c) for c in np.array_split(np.abs(u[ok]), n)])
+        r2 = np.array([np.median(c) for c in np.array_split(r[ok] ** 2, n)])
+        if not np.ptp(r2) > 0:
+            return ""
+        # The straighter end (smaller yaw rate) against the end that turns harder.
+        straight, turning = (speed[0], speed[-1]) if r2[0] <= r2[-1] else (speed[-1], speed[0])
+        if not straight > 0:
+            return ""
+        loss = max(0.0, (straight - turning) / straight)
+        return (f"{SPEED_RANGE} {loss:.4g} of the straight-run speed ({ch} {straight:.4g} m/s at the straighter "
+                f"end, {turning:.4g} m/s at the turning end)")
+    return ""
 
 
 def slow_noise_note(fit: NomotoFit) -> str:
