@@ -248,7 +248,19 @@ def structure_term(fits: Sequence[SegmentFit], short: str) -> float:
     short : str
         ``K`` or ``T``.
     """
-    head = f"{STRUCTURE_TERM} {short}: +-"
+    return largest_noted(fits, f"{STRUCTURE_TERM} {short}: +-")
+
+
+def largest_noted(fits: Sequence[SegmentFit], head: str) -> float:
+    """The largest magnitude of the number that follows ``head`` in the fits' messages (0 when none).
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Nomoto segment fits; their messages are ``"; "``-separated notes.
+    head : str
+        The start of the note, up to the number.
+    """
     out = 0.0
     for f in fits:
         for part in f.message.split("; "):
@@ -287,16 +299,7 @@ def speed_range(fits: Sequence[SegmentFit]) -> float:
     fits : sequence of SegmentFit
         Nomoto segment fits.
     """
-    head = f"{SPEED_RANGE} "
-    out = 0.0
-    for f in fits:
-        for part in f.message.split("; "):
-            if part.startswith(head):
-                try:
-                    out = max(out, abs(float(part[len(head):].split(" ")[0])))
-                except ValueError:
-                    continue
-    return out
+    return largest_noted(fits, f"{SPEED_RANGE} ")
 
 
 def add_speed_term(est: Estimate, rel_range: float) -> Estimate:
