@@ -15,6 +15,9 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from ..errors import ReportError
+# One consistency rule: the report flags disagreeing segments at the level at which the fit stage stops
+# treating them as one value (random-effects combination below it).
+from ..fit.combine import CONSISTENCY_ALPHA
 from ..records import DOFS, Estimate, FitParameter, Fits, Segment, Segments, SegmentFit
 from ..text_format import number
 
@@ -27,8 +30,6 @@ NOMOTO: tuple[str, ...] = ("K_nomoto", "T_nomoto")
 #: Coefficients every report lists, identified or not (the coefficients.json contract).
 STANDARD_COEFFICIENTS: tuple[str, ...] = DERIVATIVES + NOMOTO
 
-#: Significance level below which a chi-square consistency p-value is reported as a warning.
-CONSISTENCY_ALPHA = 0.05
 
 
 def derivative_index(name: str) -> tuple[int, int] | None:
