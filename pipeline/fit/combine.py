@@ -171,23 +171,68 @@ def combine(name: str, unit: str, method: str, contributions: Sequence[Contribut
         p_value = float(stats.chi2.sf(chi2, k - 1))
         rule = f"inverse-variance mean of {k} segments"
         if p_value < CONSISTENCY_ALPHA:
-            s1, s2 = float(w.sum()), float((w**2).sum())
-            tau2 = max(0.0, (chi2 - (k - 1)) / (s1 - s2 / s1))
+            tau2 = dersimonian_laird_tau2(chi2, w)
             w_re = 1.0 / (1.0 / w + tau2)
             mean = float(w_re @ x / w_re.sum())
             se = float(1.0 / math.sqrt(w_re.sum()))
-            rule = f"DerSimonian-Laird random-effects mean of {k} segments"
-            messages.insert(0, f"segments disagree (chi2 = {chi2:.3g} on {k - 1} dof, p = {p_value:.2g} "
-                               f"< {CONSISTENCY_ALPHA}): random-effects combination, between-segment spread "
-                               f"tau = {math.sqrt(tau2):.3g} {unit} added to every segment's error")
-            if prediction:
-                se, note = prediction_stderr(se, tau2, unit)
-                rule += ", prediction error"
-                messages.insert(1, note)
+            se, suffix = note_disagreement(messages, chi2, k, p_value, tau2, unit, se, prediction)
+            rule = f"DerSimonian-Laird random-effects mean of {k} segments{suffix}"
             ci = confidence_interval(mean, se, math.inf)
         else:
             ci = confidence_interval(mean, se, math.inf)
     return combined_estimate(name, unit, method, rule, mean, se, ci, p_value, x, messages + left_out)
+
+
+def dersimonian_laird_tau2(chi2: float, w: np.ndarray) -> float:
+    """Between-segment variance ``tau^2`` by DerSimonian and Laird's moment estimator [unit^2].
+
+    Parameters
+    ----------
+    chi2 : float
+        Cochran's Q of the values about their inverse-variance mean.
+    w : numpy.ndarray
+        Inverse-variance weights ``1/se_i^2`` [1/unit^2].
+    """
+    s1, s2 = float(w.sum()), float((w**2).sum())
+    return max(0.0, (chi2 - (w.size - 1)) / (s1 - s2 / s1))
+
+
+def note_disagreement(messages: list[str], chi2: float, k: int, p_value: float, tau2: float, unit: str,
+                      se_re: float, prediction: bool) -> tuple[float, str]:
+    """Put the "segments disagree" note first in ``messages``; the reported error and a rule suffix.
+
+    Parameters
+    ----------
+    messages : list of str
+        The combination's notes (changed in place).
+    chi2, p_value : float
+        The consistency test on ``k - 1`` degrees of freedom.
+    k : int
+        Segments combined.
+    tau2 : float
+        Between-segment variance [unit^2].
+    unit : str
+        Unit of the values.
+    se_re : float
+        Standard error of the random-effects mean [unit].
+    prediction : bool
+        Report the prediction error instead (:func:`prediction_stderr`).
+
+    Returns
+    -------
+    float
+        The standard error to report [unit].
+    str
+        ``", prediction error"`` when the prediction error is reported, else ``""``.
+    """
+    messages.insert(0, f"segments disagree (chi2 = {chi2:.3g} on {k - 1} dof, p = {p_value:.2g} "
+                       f"< {CONSISTENCY_ALPHA}): random-effects combination, between-segment spread "
+                       f"tau = {math.sqrt(tau2):.3g} {unit} added to every segment's error")
+    if not prediction:
+        return se_re, ""
+    se, note = prediction_stderr(se_re, tau2, unit)
+    messages.insert(1, note)
+    return se, ", prediction error"
 
 
 def prediction_stderr(se_re: float, tau2: float, unit: str) -> tuple[float, str]:
@@ -248,18 +293,10 @@ def _combine_correlated(name: str, unit: str, method: str, used: Sequence[Contri
             f"inverse-variance mean with the correlated error")
     rule = f"inverse-variance mean of {k} segments, overlapping windows correlated"
     if p_value < CONSISTENCY_ALPHA:
-        w = 1.0 / sd**2
-        s1, s2 = float(w.sum()), float((w**2).sum())
-        tau2 = max(0.0, (chi2 - (k - 1)) / (s1 - s2 / s1))
+        tau2 = dersimonian_laird_tau2(chi2, 1.0 / sd**2)
         mean, se, _ = gls(cov + tau2 * np.eye(k))
-        rule = f"random-effects mean of {k} segments, overlapping windows correlated"
-        messages.insert(0, f"segments disagree (chi2 = {chi2:.3g} on {k - 1} dof, p = {p_value:.2g} "
-                           f"< {CONSISTENCY_ALPHA}): random-effects combination, between-segment spread "
-                           f"tau = {math.sqrt(tau2):.3g} {unit} added to every segment's error")
-        if prediction:
-            se, pnote = prediction_stderr(se, tau2, unit)
-            rule += ", prediction error"
-            messages.insert(1, pnote)
+        se, suffix = note_disagreement(messages, chi2, k, p_value, tau2, unit, se, prediction)
+        rule = f"random-effects mean of {k} segments, overlapping windows correlated{suffix}"
     messages.append(note)
     ci = confidence_interval(mean, se, math.inf)
     return combined_estimate(name, unit, method, rule, mean, se, ci, p_value, x, messages + left_out)
@@ -359,8 +396,7 @@ def combination_rules(values: Sequence[float], stderrs: Sequence[float], dof: fl
     out = {"fixed_effect": (mean, se, (mean - z * se, mean + z * se))}
     birge = se * max(1.0, math.sqrt(q / (k - 1)))
     out["birge_ratio"] = (mean, birge, (mean - z * birge, mean + z * birge))
-    s1, s2 = float(w.sum()), float((w**2).sum())
-    tau2 = max(0.0, (q - (k - 1)) / (s1 - s2 / s1))
+    tau2 = dersimonian_laird_tau2(q, w)
     w_re = 1.0 / (1.0 / w + tau2)
     m_re = float(w_re @ x / w_re.sum())
     se_re = float(1.0 / math.sqrt(w_re.sum()))
