@@ -17,7 +17,7 @@ import scipy.linalg
 import scipy.signal
 
 from pipeline.model import (INPUTS_5DOF, NOMOTO_STATES, STATES_5DOF, NomotoParams, Vessel5DofParams,
-                            integrate_rk4, nomoto_rhs, params_from_vessel, vessel5dof_rhs)
+                            integrate_rk4, nomoto_rhs, params_from_vessel, rk4_chunk_integrator, vessel5dof_rhs)
 from pipeline.model.waves import WaveParams, simulate_waves, wave_matrices, wave_psd, wave_rhs
 from pipeline.errors import ConfigError
 from pipeline.vessel import load_vessel, parse_vessel
@@ -124,6 +124,25 @@ def test_vessel5dof_numpy_and_casadi_agree():
         sym = np.asarray(f(x, u)).ravel()
         assert num.shape == (10,)
         np.testing.assert_allclose(sym, num, rtol=1e-12, atol=1e-12)
+
+
+def test_compiled_chunks_integrate_like_integrate_rk4():
+    """The simulator's compiled RK4 (chunks of 64 steps; 150 samples: two full chunks and a short one)
+    gives integrate_rk4's states and the right-hand side's derivatives, to rounding."""
+    rng = np.random.default_rng(11)
+    params = _coupled_params(rng)
+    h, n = 0.05, 150
+    t = np.arange(n) * h
+    u = np.repeat(rng.normal(0, [5, 5, 0.5, 1, 0.3], size=(15, 5)), 10, axis=0)  # held inputs
+    x0 = _x0(u=1.0, phi=0.2, psi=0.5)
+    integrate = rk4_chunk_integrator(vessel5dof_rhs, params, 10, 5, h, chunk=64)
+    xs, xdots, x_end = integrate(x0, u)
+    ref = integrate_rk4(vessel5dof_rhs, x0, np.append(t, n * h), np.vstack([u, u[-1:]]), params)
+    np.testing.assert_allclose(xs, ref[:n], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(x_end, ref[n], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(xdots, [vessel5dof_rhs(0.0, x, uk, params) for x, uk in zip(ref[:n], u)],
+                               rtol=1e-12, atol=1e-12)
+    assert np.max(np.abs(xs[-1] - xs[0])) > 0.1  # the vessel moved: the comparison is not of a state at rest
 
 
 def test_vessel5dof_casadi_jacobian_is_minus_minv_d_at_rest():

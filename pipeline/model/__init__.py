@@ -5,15 +5,16 @@ process model (``pipeline.autopilot``) and the diagnosis (``pipeline.diagnose``)
 fits is the model that is simulated. Each right-hand side accepts numpy arrays or casadi symbols.
 """
 
-from .integrate import integrate_rk4
+from .integrate import integrate_rk4, rk4_chunk_integrator
 from .discretise import expm_small, noise_integral, van_loan, zoh
 from .nomoto import (HEADING_MODEL_STATES, NOMOTO2_STATES, NOMOTO_INPUTS, NOMOTO_STATES, Nomoto2Params, NomotoParams,
-                     heading_model_matrices, nomoto2_rhs, nomoto_matrices, nomoto_rhs, servo_response)
+                     heading_model_matrices, nomoto2_rhs, nomoto_matrices, nomoto_rhs, nomoto_ship_rhs,
+                     servo_response)
 from .vessel5dof import INPUTS_5DOF, STATES_5DOF, Vessel5DofParams, params_from_vessel, vessel5dof_rhs
 
 __all__ = [
-    "integrate_rk4",
-    "NomotoParams", "nomoto_rhs", "NOMOTO_STATES", "NOMOTO_INPUTS",
+    "integrate_rk4", "rk4_chunk_integrator",
+    "NomotoParams", "nomoto_rhs", "nomoto_ship_rhs", "NOMOTO_STATES", "NOMOTO_INPUTS",
     "Nomoto2Params", "nomoto2_rhs", "NOMOTO2_STATES", "nomoto_matrices", "heading_model_matrices",
     "HEADING_MODEL_STATES", "servo_response",
     "zoh", "van_loan", "noise_integral", "expm_small",

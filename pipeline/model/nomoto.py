@@ -105,6 +105,31 @@ def nomoto_rhs(t, x, u, params: NomotoParams):
     return o.stack([r, (-damping + params.K * (u[0] - params.b)) / params.T])
 
 
+def nomoto_ship_rhs(t, x, u, params):
+    """First-order Nomoto yaw dynamics plus the track of a ship at constant speed through the water.
+
+    Parameters
+    ----------
+    t : float
+        Time [s] (unused; time-invariant).
+    x : array_like, shape (4,)
+        ``[psi, r, x_n, y_e]`` [rad, rad/s, m, m].
+    u : array_like, shape (1,)
+        ``[delta]`` [rad].
+    params : tuple
+        ``(NomotoParams, speed [m/s], current [m/s] north and east)``.
+
+    Returns
+    -------
+    array_like, shape (4,)
+        State derivative.
+    """
+    nomoto, speed, current = params
+    o = ops(x)
+    psi_r = nomoto_rhs(t, x[:2], u, nomoto)
+    return o.stack([psi_r[0], psi_r[1], speed * o.cos(x[0]) + current[0], speed * o.sin(x[0]) + current[1]])
+
+
 @dataclass(frozen=True)
 class Nomoto2Params:
     """Parameters of :func:`nomoto2_rhs` (second-order Nomoto model).

@@ -51,6 +51,10 @@ class Manoeuvre:
         State values forced at the manoeuvre start (``phi``, ``theta``, ``p``, ...) [SI].
     segments : tuple[TruthSegment, ...]
         What it should segment into.
+    uses_state : bool
+        Whether ``command`` reads the state (a zig-zag does). The simulator then evaluates it with the
+        state of each autopilot tick; an open-loop programme (False) is evaluated a stretch ahead
+        and integrated in one go. True unless a manoeuvre says otherwise.
     """
 
     name: str
@@ -59,6 +63,7 @@ class Manoeuvre:
     command: Command
     initial: Mapping[str, float] = field(default_factory=dict)
     segments: tuple[TruthSegment, ...] = ()
+    uses_state: bool = True
 
 
 def _force_channel(dof: str) -> str:
@@ -92,7 +97,8 @@ def step_and_coast(dof: str, force: float, t_on: float, t_off: float, channel: s
 
     return Manoeuvre(f"{dof} step {force:g} and coast-down", t_on + t_off, (ch,), command,
                      segments=(TruthSegment("step", dof, 0.0, t_on, ch, 0.0, force),
-                               TruthSegment("coast_down", dof, t_on, t_on + t_off, ch, force, 0.0)))
+                               TruthSegment("coast_down", dof, t_on, t_on + t_off, ch, force, 0.0)),
+                     uses_state=False)
 
 
 def free_decay(dof: str, angle0: float, duration: float) -> Manoeuvre:
@@ -118,7 +124,7 @@ def free_decay(dof: str, angle0: float, duration: float) -> Manoeuvre:
     vel = DOF_CHANNELS[dof][0]
     return Manoeuvre(f"{dof} free decay from {np.degrees(angle0):.1f} deg", duration, (),
                      lambda t, x: {}, initial={angle: angle0, vel: 0.0},
-                     segments=(TruthSegment("free_decay", dof, 0.0, duration),))
+                     segments=(TruthSegment("free_decay", dof, 0.0, duration),), uses_state=False)
 
 
 def rudder_step(delta: float, t_on: float, t_off: float, thrust: Mapping[str, float] | None = None) -> Manoeuvre:
@@ -140,7 +146,8 @@ def rudder_step(delta: float, t_on: float, t_off: float, thrust: Mapping[str, fl
 
     return Manoeuvre(f"rudder step {np.degrees(delta):.0f} deg", t_on + t_off, ("delta", *held), command,
                      segments=(TruthSegment("rudder_step", "yaw", 0.0, t_on, "delta", 0.0, delta),
-                               TruthSegment("rudder_step", "yaw", t_on, t_on + t_off, "delta", delta, 0.0)))
+                               TruthSegment("rudder_step", "yaw", t_on, t_on + t_off, "delta", delta, 0.0)),
+                     uses_state=False)
 
 
 def zigzag(delta: float, psi_switch: float, duration: float,
@@ -206,7 +213,8 @@ def sinusoid(amplitude: float, omega: float, periods: float, channel: str = "del
     duration = periods * 2 * np.pi / omega
     return Manoeuvre(f"sinusoid {amplitude:g} at {omega:g} rad/s", duration, (channel,),
                      lambda t, x: {channel: amplitude * np.sin(omega * t)},
-                     segments=(TruthSegment("sinusoid", dof, 0.0, duration, channel, 0.0, amplitude),))
+                     segments=(TruthSegment("sinusoid", dof, 0.0, duration, channel, 0.0, amplitude),),
+                     uses_state=False)
 
 
 def rest(duration: float) -> Manoeuvre:
@@ -217,7 +225,7 @@ def rest(duration: float) -> Manoeuvre:
     duration : float
         Length [s].
     """
-    return Manoeuvre("rest", duration, (), lambda t, x: {})
+    return Manoeuvre("rest", duration, (), lambda t, x: {}, uses_state=False)
 
 
 @dataclass(frozen=True)

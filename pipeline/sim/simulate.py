@@ -16,17 +16,20 @@ import pandas as pd
 
 from ..errors import SimError
 from ..geo import ned_to_latlon, wrap_pi
-from ..model.nomoto import NomotoParams, nomoto_rhs
+from ..model.integrate import rk4_chunk_integrator
+from ..model.nomoto import NomotoParams, nomoto_ship_rhs
 from ..model.vessel5dof import INPUTS_5DOF, STATES_5DOF, params_from_vessel, vessel5dof_rhs
 from ..model.waves import simulate_waves
 from ..records import Channel, IngestSummary, RawLog, Segment, Segments
 from ..vessel import Vessel
-from .effects import Effects, apply_delay, apply_rate_limit, apply_thrust_asymmetry, check_effects
+from .effects import Effects, apply_rate_limit, apply_thrust_asymmetry, check_effects
 from .manoeuvres import Schedule
 from .sensors import SensorSpec, default_sensors
 
 GRAVITY = 9.81  # [m/s^2]
 NOMOTO_SHIP_STATES = ("psi", "r", "x_n", "y_e")
+#: Integration steps per compiled call of the plant (:func:`pipeline.model.integrate.rk4_chunk_integrator`).
+CHUNK_STEPS = 256
 
 
 @dataclass(frozen=True)
@@ -58,21 +61,6 @@ class SimResult:
     seed: int
 
 
-def _nomoto_ship_rhs(t, x, u, params):
-    """Nomoto yaw dynamics plus the track of a ship at constant speed through the water."""
-    nomoto, speed, current = params
-    psi_r = nomoto_rhs(t, x[:2], u, nomoto)
-    return np.array([psi_r[0], psi_r[1], speed * np.cos(x[0]) + current[0], speed * np.sin(x[0]) + current[1]])
-
-
-def _rk4_step(rhs, x, u, params, h):
-    k1 = rhs(0.0, x, u, params)
-    k2 = rhs(0.0, x + h / 2 * k1, u, params)
-    k3 = rhs(0.0, x + h / 2 * k2, u, params)
-    k4 = rhs(0.0, x + h * k3, u, params)
-    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-
-
 def _plant(vessel: Vessel, effects: Effects, speed: float):
     """(rhs, params, state names, mapping of commanded channels to the model input)."""
     if vessel.has_rigid_body and vessel.damping is not None:
@@ -84,22 +72,31 @@ def _plant(vessel: Vessel, effects: Effects, speed: float):
     if vessel.nomoto:
         d2 = 0.0 if effects.quadratic_damping is None else float(effects.quadratic_damping[4])
         nomoto = NomotoParams(K=vessel.nomoto["K"], T=vessel.nomoto["T"], b=effects.rudder_bias, d2=d2)
-        return _nomoto_ship_rhs, (nomoto, speed, np.asarray(effects.current, float)), NOMOTO_SHIP_STATES, "nomoto"
+        return nomoto_ship_rhs, (nomoto, speed, np.asarray(effects.current, float)), NOMOTO_SHIP_STATES, "nomoto"
     raise SimError(f"{vessel.name}: expected rigid_body + [damping] (5-DOF) or [nomoto] (rudder ship) to "
                    f"simulate; found neither")
 
 
-def _to_model_input(kind: str, vessel: Vessel, channels: tuple[str, ...], applied: np.ndarray) -> np.ndarray:
-    if kind == "nomoto":
-        return np.array([applied[channels.index("delta")] if "delta" in channels else 0.0])
-    tau = np.zeros(5)
+def _input_map(kind: str, vessel: Vessel, channels: tuple[str, ...], n_inputs: int):
+    """``to_model(applied)``: the model's input rows from the actuators' applied values, shape (steps, channels).
+
+    The 5-DOF model takes generalised forces (a rudder adds its yaw moment and sway force per
+    radian); the Nomoto ship takes the rudder angle.
+    """
+    gain = np.zeros((len(channels), n_inputs))
     for j, ch in enumerate(channels):
-        if ch in INPUTS_5DOF:
-            tau[INPUTS_5DOF.index(ch)] += applied[j]
+        if kind == "nomoto":
+            gain[j, 0] = 1.0 if ch == "delta" else 0.0
+        elif ch in INPUTS_5DOF:
+            gain[j, INPUTS_5DOF.index(ch)] = 1.0
         elif ch == "delta":
-            tau[4] += vessel.rudder.get("yaw_moment", 0.0) * applied[j]
-            tau[1] += vessel.rudder.get("sway_force", 0.0) * applied[j]
-    return tau
+            gain[j, 4] = vessel.rudder.get("yaw_moment", 0.0)
+            gain[j, 1] = vessel.rudder.get("sway_force", 0.0)
+
+    def to_model(applied: np.ndarray) -> np.ndarray:
+        return np.asarray(applied, float) @ gain  # rows of (steps, channels), also with no channel
+
+    return to_model
 
 
 def simulate(vessel: Vessel, schedule: Schedule, effects: Effects = Effects(),
@@ -162,38 +159,54 @@ def simulate(vessel: Vessel, schedule: Schedule, effects: Effects = Effects(),
     max_step = np.array([effects.actuator_rate_limit.get(c, np.inf) * dt for c in channels])
     tau_x_index = channels.index("tau_x") if "tau_x" in channels else None
     quantize = _pwm_quantizer(vessel, channels)
+    to_model = _input_map(kind, vessel, channels, tau.shape[1])
+    integrate = rk4_chunk_integrator(rhs, params, len(states), tau.shape[1], dt, CHUNK_STEPS)
+    # Manoeuvre boundaries in integration steps (starts lie on autopilot ticks).
+    bounds = np.searchsorted(which, np.arange(len(schedule.manoeuvres) + 1), side="left")
     xk = np.zeros(len(states))
     limited = np.zeros(len(channels))
-    current_m = -1
-    for k in range(n):
-        m_idx = int(which[k])
-        man = schedule.manoeuvres[m_idx]
-        if m_idx != current_m:
-            current_m = m_idx
-            for name, value in man.initial.items():
-                if name in states:
-                    xk[states.index(name)] = value
-        if k % tick == 0:
-            # A digital autopilot issues commands on its own tick and logs them there; between
-            # ticks the command is held, so the logged steps are exactly the applied ones.
+    unlimited = bool(np.all(np.isinf(max_step)))
+    for m_idx, man in enumerate(schedule.manoeuvres):
+        for name, value in man.initial.items():
+            if name in states:
+                xk[states.index(name)] = value
+        k = int(bounds[m_idx])
+        while k < bounds[m_idx + 1]:
+            # A stretch whose commands are known before it is integrated: up to the next tick when
+            # the manoeuvre reads the state (a zig-zag watches the heading), else a whole chunk.
+            step_to = k + tick if man.uses_state else k + CHUNK_STEPS
+            k_end = int(min(step_to, bounds[m_idx + 1]))
             state = dict(zip(states, xk))
-            c = man.command(float(t[k] - starts[m_idx]), state)
-            cmd[k] = quantize([c.get(ch, 0.0) for ch in channels])
-        else:
-            cmd[k] = cmd[k - 1]
-        target = apply_delay(cmd, k, delay_steps)
-        # The rate limiter tracks the actuator's own position; the reverse-thrust loss acts on
-        # what the propeller makes of it and must not feed back into the limiter's state.
-        limited = apply_rate_limit(limited, target, max_step) if k else np.where(np.isinf(max_step), target, 0.0)
-        applied = limited
-        if tau_x_index is not None:
-            applied = apply_thrust_asymmetry(limited, tau_x_index, effects.thrust_reverse_gain)
-        u_model = _to_model_input(kind, vessel, channels, applied)
-        x[k] = xk
-        xdot[k] = rhs(t[k], xk, u_model, params)
-        tau[k] = u_model
-        if k < n - 1:
-            xk = _rk4_step(rhs, xk, u_model, params, dt)
+            for j in range(k, k_end):
+                if j % tick == 0:
+                    # A digital autopilot issues commands on its own tick and logs them there; between
+                    # ticks the command is held, so the logged steps are exactly the applied ones.
+                    c = man.command(float(t[j] - starts[m_idx]), state)
+                    cmd[j] = quantize([c.get(ch, 0.0) for ch in channels])
+                else:
+                    cmd[j] = cmd[j - 1]
+            rows = np.arange(k, k_end)
+            target = cmd[np.maximum(rows - delay_steps, 0)]
+            # The rate limiter tracks the actuator's own position; the reverse-thrust loss acts on
+            # what the propeller makes of it and must not feed back into the limiter's state.
+            if unlimited:
+                applied = target.copy()
+            else:
+                applied = np.empty_like(target)
+                for i, j in enumerate(rows):
+                    limited = (apply_rate_limit(limited, target[i], max_step) if j
+                               else np.where(np.isinf(max_step), target[i], 0.0))
+                    applied[i] = limited
+            if tau_x_index is not None:
+                applied = np.array([apply_thrust_asymmetry(a, tau_x_index, effects.thrust_reverse_gain)
+                                    for a in applied])
+            tau[k:k_end] = to_model(applied)
+            x[k:k_end], xdot[k:k_end], xk = integrate(xk, tau[k:k_end])
+            k = k_end
+    # Casadi's arithmetic leaves signed zeros (-0.0) at rest where numpy gave +0.0; adding zero clears
+    # them, so a course over ground at rest, atan2(0, 0), reads 0 and not pi (as before the compiled plant).
+    x += 0.0
+    xdot += 0.0
 
     truth = pd.DataFrame(x, columns=list(states))
     truth.insert(0, "t", t)
@@ -262,11 +275,20 @@ def _pwm_quantizer(vessel: Vessel, channels: tuple[str, ...]):
         if len(hits) == 1:
             maps[channels.index(ch)] = hits[0]
 
+    # A command is held for many ticks: each distinct value is converted once (the two numpy
+    # conversions cost about 60 us per tick, a third of the simulator's time on a thruster boat).
+    seen: dict[tuple[float, ...], np.ndarray] = {}
+
     def quantize(values):
-        out = np.asarray(values, float)
-        for j, amap in maps.items():
-            out[j] = float(amap.to_input(np.round(amap.to_pwm(out[j]))))
-        return out
+        key = tuple(float(v) for v in values)
+        if key not in seen:
+            out = np.asarray(key, float)
+            for j, amap in maps.items():
+                out[j] = float(amap.to_input(np.round(amap.to_pwm(out[j]))))
+            if len(seen) > 100_000:
+                seen.clear()
+            seen[key] = out
+        return seen[key].copy()
 
     return quantize
 
