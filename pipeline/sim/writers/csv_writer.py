@@ -54,7 +54,12 @@ def write_csv_log(log: RawLog, path: str | Path, time_resolution: float = 1e-6) 
             for c in frame.columns:
                 v = frame[c].to_numpy()
                 f = fmt.get(c, "{:.7g}".format)
-                cols.append(np.array(["" if not np.isfinite(x) else f(x) for x in v], dtype=object))
+                # Only the samples are formatted (a 10 Hz GNSS column on 100 Hz rows is 90 % blank);
+                # Python floats format as numpy's do, a third faster.
+                col = np.full(len(v), "", dtype=object)
+                finite = np.isfinite(v)
+                col[finite] = [f(x) for x in v[finite].tolist()]
+                cols.append(col)
             for row in zip(*cols):
                 fh.write(",".join(row) + "\n")
     return Path(path)
