@@ -30,10 +30,24 @@ def delayed_log(tmp_path_factory):
     return path, toml
 
 
-def test_contract(delayed_log, tmp_path, capsys):
+@pytest.fixture(scope="module")
+def cli_outputs(delayed_log, tmp_path_factory):
+    """One ``vesselid diagnose --json --plots`` run on the delayed trial: (JSON path, plots folder, printed text)."""
+    import contextlib
+    import io
+
     log, toml = delayed_log
-    out = tmp_path / "diag.json"
-    assert main(["diagnose", "--vessel", str(toml), str(log), "--json", str(out)]) == 0
+    folder = tmp_path_factory.mktemp("diagnose_cli_out")
+    out, plots = folder / "diag.json", folder / "plots"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = main(["diagnose", "--vessel", str(toml), str(log), "--json", str(out), "--plots", str(plots)])
+    assert code == 0
+    return out, plots, printed.getvalue()
+
+
+def test_contract(cli_outputs):
+    out, _, printed = cli_outputs
     doc = json.loads(out.read_text())
     assert doc["verdict"] == {"effect": "actuator_delay", "dof": "yaw"}
     assert isinstance(doc["gap_before"], float) and isinstance(doc["gap_after"], float)
@@ -44,19 +58,16 @@ def test_contract(delayed_log, tmp_path, capsys):
         assert c["dof"] in DOF_NAMES and isinstance(c["significant"], bool)
         assert c["shrink"] is None or isinstance(c["shrink"], float)
     assert any(c["significant"] and c["effect"] == "actuator_delay" for c in doc["candidates"])
-    printed = capsys.readouterr().out
     assert "verdict: actuator_delay in yaw" in printed
 
 
-def test_plots_and_html_section(delayed_log, tmp_path):
+def test_plots_and_html_section(delayed_log, cli_outputs):
     from pipeline.diagnose import diagnose
     from pipeline.diagnose.html import diagnose_html_section
     from pipeline.flow import load_trial
 
-    log, toml = delayed_log
-    out = tmp_path / "diag.json"
-    plots = tmp_path / "plots"
-    assert main(["diagnose", "--vessel", str(toml), str(log), "--json", str(out), "--plots", str(plots)]) == 0
+    log, _ = delayed_log
+    _, plots, _ = cli_outputs
     names = sorted(p.name for p in plots.iterdir())
     assert "diagnose_where.png" in names and "diagnose_overlay_yaw.png" in names
     assert all((plots / n).stat().st_size > 1000 for n in names)
