@@ -343,3 +343,16 @@ def test_structure_term_widens_or_marks_unsure_when_the_structures_disagree():
     notes = structure_term_notes(structure_gaps(far), "weak", "one record")
     assert len(notes) == 1 and notes[0].startswith(STRUCTURE_TERM_PREFIX)
     assert structure_term_notes(structure_gaps(far), "clear", "") == []
+
+
+def test_rate_limit_not_tried_when_the_lag_is_below_a_sample():
+    # The rudder logged as the command of a ship whose servo is far faster than a sample (0.03 s lag at
+    # 5 Hz): the lag is kept, but the costly rate-limit fit is not tried (a ramp shorter than about two
+    # samples cannot be told from the lag); it was tried, and rejected by the BIC, before.
+    from pipeline.fit.nomoto_segment import prepare_window
+
+    trial = _ship_log(_steps([0, 15, 0], 60.0), tau=0.03)
+    seg = Segment("rudder_step", "yaw", 60.0, float(trial.t[-1]), "delta", 0.0, math.radians(15))
+    win = prepare_window(trial, seg, 0.0, seg.t_end)
+    assert win.servo == ("t_servo",)
+    assert any("a rate limit not tried" in n for n in win.notes)

@@ -257,3 +257,28 @@ def test_correlation_length_counts_a_slow_component_under_white_noise():
     assert correlation_length(white, n // 4) < n // 4
     slow = np.cumsum(0.05 * rng.standard_normal(n))
     assert correlation_length(white + slow - slow.mean(), n // 4) > 200
+
+
+def test_structure_note_on_a_minority_of_segments_is_tested_against_the_rest():
+    # One zig-zag of five segments whose wave noise model took up its misfit (slow_noise_note): the
+    # combined K stands when that zig-zag agrees with the four steps within their errors (the
+    # PythonVehicleSimulator frigate, a first-order ship, at 2 Hz), and is unsure when it does not,
+    # or when the note is on most segments.
+    from types import SimpleNamespace
+
+    note = "unsure: model structure undecided for K T: the wave noise model's peak lies below 1/T"
+    ks = [0.0800, 0.0801, 0.0800, 0.0799]
+
+    def fits(k_flagged, n_flagged=1):
+        vals = ks + [k_flagged]
+        return [SimpleNamespace(params={"K": v}, stderr={"K": 1e-4}, segment=SimpleNamespace(kind="rudder_step"),
+                                message="OE, order 1" + (f"; {note}" if i >= len(vals) - n_flagged else ""))
+                for i, v in enumerate(vals)]
+
+    k = combine("K_nomoto", "1/s", "m", [Contribution(v, 1e-4, f"s{i}") for i, v in enumerate(ks + [0.08])])
+    agree = judge_nomoto({"K_nomoto": k}, fits(0.0801))["K_nomoto"]
+    assert agree.success and "structure note on 1 of 5 segments not applied to K" in agree.message
+    off = judge_nomoto({"K_nomoto": k}, fits(0.0790))["K_nomoto"]
+    assert not off.success and off.message.startswith(note)
+    most = judge_nomoto({"K_nomoto": k}, fits(0.0801, n_flagged=3))["K_nomoto"]
+    assert not most.success and most.message.startswith(note)

@@ -83,6 +83,7 @@ class _Candidate:
     first: NomotoFit | None
     second: NomotoFit | None
     why_no_second: str
+    no_gain: bool = False
 
 
 @dataclass(frozen=True)
@@ -148,9 +149,16 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
     choice = choose_structure(usable)
     undecided = undecided_note(usable) if choice.near_tie and choice.order == 1 else ""
     clear, why = choice_is_clear(choice)
+    decided = "clear" if clear else "undecided"
+    n_both, n_no_gain = sum(c.second is not None for c in usable), sum(c.no_gain for c in usable)
+    if decided == "undecided" and n_no_gain > n_both:
+        # Most segments' second order could not gain in-sample above the noise: their data show no
+        # pole-zero pair, so the few that did do not leave the structure undecided; their gap stays a term.
+        decided = "weak"
+        why = (f"{why}; the second order gained above the noise on {n_both} of {len(usable)} segments only (on "
+               f"{n_no_gain} its in-sample gain was below the noise: no pole-zero pair in their data)")
     terms = structure_term_notes(
-        structure_gaps([pair_values(c.first, c.second) for c in usable if c.second is not None]),
-        "clear" if clear else "undecided", why)
+        structure_gaps([pair_values(c.first, c.second) for c in usable if c.second is not None]), decided, why)
     undecided = "; ".join(n for n in [undecided] + terms if n)
     out: dict[int, SegmentFit] = {}
     for c in usable:
@@ -295,7 +303,10 @@ def structure_term_notes(gaps: Sequence[StructureGap], decided: str, why: str) -
     - ``clear``: leave-one-segment-out across the trial's segments passed the shared rule for the
       winner (or the second order lost clearly): the winner's value stands, no term.
     - ``weak``: the second order won on the held-out end of one record only (a lone zig-zag or
-      sinusoid: no other manoeuvre confirms it): the difference to the first-order value is a
+      sinusoid: no other manoeuvre confirms it), or a near-tie across the segments where the second
+      order gained in-sample above the noise on fewer segments than it could not (measured on
+      PythonVehicleSimulator's frigate, a first-order ship, at 5 Hz: 1 of 5 segments fitted with
+      both, K marked unsure): the difference to the first-order value is a
       model-structure term (``STRUCTURE_TERM_PREFIX``), added in quadrature to the combined
       standard error by :func:`pipeline.fit.nomoto_quality.judge_nomoto`.
     - ``undecided``: the first order was kept on a near-tie: the same term, and when the two
@@ -450,7 +461,7 @@ def _fit_both(index: int, win: NomotoWindow) -> _Candidate:
         second, _ = fit_window_order(win, ORDER2_SUM_PRODUCT, noise=first.noise_model,
                                      start=first_order_start_values(first), gain_floor=floor)
     except SecondOrderNoGain as exc:
-        return _Candidate(index, win, first, None, str(exc))
+        return _Candidate(index, win, first, None, str(exc), no_gain=True)
     except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return _Candidate(index, win, first, None, f"second-order fit failed: {exc}")
     if not _usable(second):
