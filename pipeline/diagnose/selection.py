@@ -113,6 +113,10 @@ class DofState:
     channel_floor : dict[str, float]
         Held-out gap per channel that a correct model leaves (:mod:`pipeline.diagnose.floor`);
         missing channels: 1.
+    result_base : dict[str, Mapping[str, numpy.ndarray]]
+        Per result label, the reference its correction is taken from when it is not ``base_full``
+        (a composed input transform is scored against the first transform alone, on the original
+        measurements).
     """
 
     problem: DofProblem
@@ -124,6 +128,7 @@ class DofState:
     selected: list
     base_full: Mapping[str, np.ndarray] | None = None
     channel_floor: dict = field(default_factory=dict)
+    result_base: dict = field(default_factory=dict)
 
 
 def corrected(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str, np.ndarray]) -> GridData:
@@ -224,7 +229,8 @@ def forward_select(states: dict[str, DofState], rescore: Callable[[DofState], No
         s.selected.append(res.label)
         if len(chosen) >= max_effects:
             break
-        s.data = corrected(s.data, s.base_full if s.base_full is not None else s.base_heldout, run.heldout)
+        ref = s.result_base.get(res.label, s.base_full if s.base_full is not None else s.base_heldout)
+        s.data = corrected(s.data, ref, run.heldout)
         rescore(s)
     return chosen
 

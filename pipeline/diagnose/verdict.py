@@ -19,7 +19,7 @@ from ..vessel import Vessel
 from . import significance as sig
 from . import oscillatory as osc
 from . import selection as sel
-from .candidates import Candidate, candidate_label, candidates_for
+from .candidates import Candidate, candidate_label, candidates_for, composed_candidates, is_input_transform
 from .crossval import CandidateRun, cross_validate, cross_validate_all, jackknife_stderr
 from .floor import heldout_floor
 from .gridfit import grid_data
@@ -177,11 +177,14 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             # old baseline's prediction on the corrected data leaves exactly the candidate's residual.
             state.results = []
             return
-        cs = [c for c in candidates_for(p, state.data) if candidate_label(c) not in state.selected]
+        taken = {label.split(" after ")[0] for label in state.selected}
+        last = next((r for res, r in state.results if state.selected and res.label == state.selected[-1]), None)
+        cs = [c for c in candidates_for(p, state.data) if candidate_label(c) not in taken]
         runs2, scored2, bs = _score_dof(p, state.data, cs, None)
         for res, r, _ in scored2:
             run_of[(res.dof, "+" + res.label)] = r
         state.results = [(res, r) for res, r, _ in scored2]
+        state.results += _composed(p, last, taken, state)
         state.base_heldout = runs2[0].heldout
         state.base_full = _full_outputs(runs2[0], len(p.windows))
         state.channel_gaps, state.channel_neff = sel.channel_gaps_of(bs)
@@ -272,6 +275,26 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         dofs=tuple(summaries), traces=tuple(all_traces), spectra=tuple(spectra), thresholds=thresholds,
         notes=tuple(notes), effects=effects, gap_final=gap_final, unexplained=unexplained,
         ranking_rule=RANKING_RULE, unexplained_test=sel.UNEXPLAINED_TEST)
+
+
+def _composed(p: DofProblem, last: CandidateRun | None, taken: set[str], state: sel.DofState) -> list:
+    """A selected input transform's partner composed on the inputs it produced
+    (:func:`pipeline.diagnose.candidates.composed_candidates`), scored on the original
+    measurements against the first transform alone; ``(CandidateResult, CandidateRun)`` pairs.
+    The reference each one's correction is taken from is kept in ``state.result_base``."""
+    if last is None or not is_input_transform(last.candidate) or getattr(last.candidate, "after", None):
+        return []
+    cs = [c for c in composed_candidates(p, last.candidate, last.full)]
+    cs = cs[:1] + [c for c in cs[1:] if candidate_label(c).split(" after ")[0] not in taken]
+    if len(cs) < 2:
+        return []
+    runs, scored, _ = _score_dof(cs[0].problem, cs[0].data, cs, None)
+    ref = _full_outputs(runs[0], len(p.windows))
+    out = []
+    for res, r, _ in scored:
+        state.result_base[res.label] = ref if ref is not None else runs[0].heldout
+        out.append((res, r))
+    return out
 
 
 def _stated_noise_notes(p: DofProblem) -> list[str]:
