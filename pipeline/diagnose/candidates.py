@@ -839,8 +839,8 @@ def _apply(c: "_InputTransform", raw: Mapping[str, np.ndarray], value: float) ->
     return {**raw, c.channel: rate_limit(raw[c.channel], value, p.fs)}
 
 
-#: Rounds of the coordinate search of a composed transform (second, first), then the second again.
-COMPOSED_ROUNDS = 3
+#: Cost evaluations of the joint refinement of a composed transform's two values.
+COMPOSED_EVALUATIONS = 60
 
 
 class ComposedTransform(_InputTransform):
@@ -911,8 +911,17 @@ class ComposedTransform(_InputTransform):
     def _param(self, v: float) -> dict[str, float]:
         return self._which()._param(v)
 
+    def _pair_data(self, v1: float, v2: float) -> GridData:
+        self.searching, self.v1 = "second", v1
+        return self._data_for(v2)
+
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
         """Refit on windows ``train``; see :meth:`Candidate.fit`.
+
+        The second value is searched on its grid at the first's value (as a transform alone is),
+        then both are refined together (Nelder-Mead at the fitted ``T``, in log rate and delay,
+        the two trading against each other along a valley a coordinate search crawls along), and
+        ``T`` and the gains refitted.
 
         Parameters
         ----------
@@ -923,22 +932,39 @@ class ComposedTransform(_InputTransform):
         """
         v1 = float(start.state[0]) if start is not None and isinstance(start.state, tuple) \
             and np.isscalar(start.state[0]) else self.v1
-        fitted = None
-        for which in ("second", "first") * COMPOSED_ROUNDS + ("second",):
-            self.searching = which
-            self.grid = self.second.grid if which == "second" else self.first.grid
-            if which == "second":
-                self.v1 = v1
-            fitted = _InputTransform.fit(self, train, start)
-            if which == "second":
-                self.v2 = float(fitted.state[0])
-            else:
-                v1 = float(fitted.state[0])
-        v1, v2 = self.v1, self.v2
-        theta = fitted.state[1]
-        params = {k: v for k, v in fitted.params.items()}
-        params.update(self.first._param(v1))
-        return Fitted(params, self.param_names + self.first.param_names, fitted.sse, ((v1, v2), theta))
+        self.searching, self.v1, self.grid = "second", v1, self.second.grid
+        fitted = _InputTransform.fit(self, train, start)
+        v2 = float(fitted.state[0])
+        t_i = fitted.params["T"]
+        log1, log2 = isinstance(self.first, ActuatorRateLimit), isinstance(self.second, ActuatorRateLimit)
+        lo1, hi1 = float(np.min(self.first.grid)), float(np.max(self.first.grid))
+        lo2, hi2 = float(np.min(self.second.grid)), float(np.max(self.second.grid))
+
+        def unpack(x: np.ndarray) -> tuple[float, float]:
+            a = float(np.exp(x[0])) if log1 else float(x[0]) * (hi1 - lo1)
+            b = float(np.exp(x[1])) if log2 else float(x[1]) * (hi2 - lo2)
+            return self.first._snap(float(np.clip(a, lo1, hi1))), self.second._snap(float(np.clip(b, lo2, hi2)))
+
+        def pack(a: float, b: float) -> np.ndarray:
+            return np.array([np.log(a) if log1 else a / (hi1 - lo1), np.log(b) if log2 else b / (hi2 - lo2)])
+
+        def cost(x: np.ndarray) -> float:
+            a, b = unpack(x)
+            return solve_linear(self._pair_data(a, b).rows(train), self.spec, t_i)[1]
+
+        x0 = pack(max(v1, lo1), max(v2, lo2) if log2 else v2)
+        # First steps: a third of a decade of a rate, three tenths of the delay grid's span.
+        simplex = np.array([x0, x0 + [0.3, 0.0], x0 + [0.0, 0.3]])
+        res = scipy.optimize.minimize(cost, x0, method="Nelder-Mead",
+                                      options={"initial_simplex": simplex, "maxfev": COMPOSED_EVALUATIONS,
+                                               "xatol": 1e-3, "fatol": 0.0})
+        if res.fun < cost(x0):
+            v1, v2 = unpack(res.x)
+        d = self._pair_data(v1, v2).rows(train)
+        t, theta, sse = refit_linear(d, self.spec, t_i)
+        self.v1, self.v2 = v1, v2
+        params = {"T": t, **_gain_params(self.spec, theta), **self.second._param(v2), **self.first._param(v1)}
+        return Fitted(params, self.param_names + self.first.param_names, sse, ((v1, v2), theta))
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Open-loop outputs on windows ``idx``; see :meth:`Candidate.simulate`.
