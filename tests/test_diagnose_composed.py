@@ -9,9 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from pipeline.diagnose import diagnose
-from pipeline.diagnose.candidates import delay_input, rate_limit
+from pipeline.diagnose.candidates import ActuatorRateLimit, composed_candidates, delay_input, rate_limit
+from pipeline.diagnose.gridfit import grid_data
+from pipeline.diagnose.problem import build_problems
+from pipeline.diagnose.segments import diagnose_segments
 from pipeline.flow import load_trial
 
 
@@ -36,6 +40,24 @@ def slewing_late_rudder_log(path, seed=3, fs=5.0, minutes=8.0, rate=0.06, lag=1.
     return path
 
 
+def test_composed_fit_recovers_both_the_rate_limit_and_the_delay_behind_it(tmp_path):
+    trial = load_trial([slewing_late_rudder_log(tmp_path / "rudder.csv", minutes=6.0)], None)
+    p = build_problems(trial, diagnose_segments(trial), None)[0]
+    every = np.arange(len(p.windows))
+    first = ActuatorRateLimit(p, grid_data(p), "delta")
+    alone = first.fit(every)
+    # Fitted alone, the rate limit slows down to stand in for the delay as well.
+    assert alone.params["R"] < 0.85 * 0.06
+    cands = composed_candidates(p, first, alone)
+    assert [type(c).__name__ for c in cands] == ["ActuatorRateLimit", "ComposedTransform"]
+    both = cands[1].fit(every, start=cands[0].fit(every))
+    assert abs(both.params["tau_d"] - 1.5) < 0.4, both.params
+    assert abs(both.params["R"] - 0.06) < 0.01, both.params
+    # The rate limit alone plus a delay fit the measurements better than the rate limit alone.
+    assert both.sse < 0.5 * alone.sse
+
+
+@pytest.mark.slow  # 9-15 s of CPU (a whole diagnosis); the fit itself is guarded by the test above
 def test_a_delay_behind_a_rate_limit_is_found_on_the_rate_limited_input(tmp_path):
     rep = diagnose(load_trial([slewing_late_rudder_log(tmp_path / "rudder.csv")], None))
     labels = [e.candidate for e in rep.effects]
