@@ -50,6 +50,8 @@ def test_composed_fit_recovers_both_the_rate_limit_and_the_delay_behind_it(tmp_p
     assert alone.params["R"] < 0.85 * 0.06
     cands = composed_candidates(p, first, alone)
     assert [type(c).__name__ for c in cands] == ["ActuatorRateLimit", "ComposedTransform"]
+    # Only a delay behind a rate limit is composed (see composed_candidates).
+    assert composed_candidates(p, cands[1].second, cands[1].second.fit(every)) == []
     both = cands[1].fit(every, start=cands[0].fit(every))
     assert abs(both.params["tau_d"] - 1.5) < 0.4, both.params
     assert abs(both.params["R"] - 0.06) < 0.01, both.params
