@@ -170,7 +170,8 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     run_of = {(res.dof, res.label): r for v in per_dof.values() for res, r, _ in v["scored"]}
 
     def rescore(state: sel.DofState) -> None:
-        """Cross-validate a DOF again on its corrected data (the next selection step)."""
+        """Cross-validate a DOF again on its corrected data (the next selection step), its folds
+        spread over ``jobs`` worker processes as in the first round."""
         p = state.problem
         if isinstance(p, osc.OscProblem):
             # One candidate only: once it is selected nothing is left to test in this DOF, and the
@@ -180,11 +181,12 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         taken = {label.split(" after ")[0] for label in state.selected}
         last = next((r for res, r in state.results if state.selected and res.label == state.selected[-1]), None)
         cs = [c for c in candidates_for(p, state.data) if candidate_label(c) not in taken]
-        runs2, scored2, bs = _score_dof(p, state.data, cs, None)
+        runs2, scored2, bs = _score_dof(p, state.data, cs, None,
+                                        runs=_cross_validate_all([p], [state.data], [cs], jobs, None)[0])
         for res, r, _ in scored2:
             run_of[(res.dof, "+" + res.label)] = r
         state.results = [(res, r) for res, r, _ in scored2]
-        state.results += _composed(p, last, taken, state)
+        state.results += _composed(p, last, taken, state, jobs)
         state.base_heldout = runs2[0].heldout
         state.base_full = _full_outputs(runs2[0], len(p.windows))
         state.channel_gaps, state.channel_neff = sel.channel_gaps_of(bs)
@@ -277,18 +279,21 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         ranking_rule=RANKING_RULE, unexplained_test=sel.UNEXPLAINED_TEST)
 
 
-def _composed(p: DofProblem, last: CandidateRun | None, taken: set[str], state: sel.DofState) -> list:
-    """A selected input transform's partner composed on the inputs it produced
+def _composed(p: DofProblem, last: CandidateRun | None, taken: set[str], state: sel.DofState,
+              jobs: int = 1) -> list:
+    """A delay composed behind a selected rate limit
     (:func:`pipeline.diagnose.candidates.composed_candidates`), scored on the original
-    measurements against the first transform alone; ``(CandidateResult, CandidateRun)`` pairs.
-    The reference each one's correction is taken from is kept in ``state.result_base``."""
+    measurements against the rate limit alone; ``(CandidateResult, CandidateRun)`` pairs. The
+    reference each one's correction is taken from is kept in ``state.result_base``; ``jobs``
+    worker processes cross-validate."""
     if last is None or not is_input_transform(last.candidate) or getattr(last.candidate, "after", None):
         return []
     cs = [c for c in composed_candidates(p, last.candidate, last.full)]
     cs = cs[:1] + [c for c in cs[1:] if candidate_label(c).split(" after ")[0] not in taken]
     if len(cs) < 2:
         return []
-    runs, scored, _ = _score_dof(cs[0].problem, cs[0].data, cs, None)
+    runs, scored, _ = _score_dof(cs[0].problem, cs[0].data, cs, None,
+                                 runs=_cross_validate_all([cs[0].problem], [cs[0].data], [cs], jobs, None)[0])
     ref = _full_outputs(runs[0], len(p.windows))
     out = []
     for res, r, _ in scored:
