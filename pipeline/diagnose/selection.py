@@ -11,9 +11,13 @@ cross-validated and significance-tested again on top of it; the candidates of ot
 scored on separate problems and keep their scores. The next best significant candidate is
 selected, and so on, until none is significant (at most :data:`MAX_EFFECTS`). Working on the
 corrected measurements (backfitting; Hastie and Tibshirani 1990) lets any two effects of the
-library be stacked without writing every pair as one model. Two strong effects can hide each other:
-each alone leaves the other's slow error in its residual, which leaves the F test few effective
-samples. Where no candidate is significant and a DOF's gap fails the "only what a correct model
+library be stacked without writing every pair as one model. One pair does not stack that way: a
+delay behind a rate limit of the same input (the rudder slews, then acts late) does not add to it, so
+once a rate limit is selected a delay applied to its output is also scored on the original
+measurements against the rate limit alone (:func:`pipeline.diagnose.candidates.composed_candidates`;
+its correction is taken from the rate limit's fit, ``DofState.result_base``). Two strong effects
+can hide each other: each alone leaves the other's slow error in its residual, which leaves the F
+test few effective samples. Where no candidate is significant and a DOF's gap fails the "only what a correct model
 leaves" test, :func:`pair_step` takes each of the best two candidates off in turn and selects a
 pair only when each is significant on top of the other.
 
