@@ -11,9 +11,13 @@ cross-validated and significance-tested again on top of it; the candidates of ot
 scored on separate problems and keep their scores. The next best significant candidate is
 selected, and so on, until none is significant (at most :data:`MAX_EFFECTS`). Working on the
 corrected measurements (backfitting; Hastie and Tibshirani 1990) lets any two effects of the
-library be stacked without writing every pair as one model. Two strong effects can hide each other:
-each alone leaves the other's slow error in its residual, which leaves the F test few effective
-samples. Where no candidate is significant and a DOF's gap fails the "only what a correct model
+library be stacked without writing every pair as one model. One pair does not stack that way: a
+delay behind a rate limit of the same input (the rudder slews, then acts late) does not add to it, so
+once a rate limit is selected a delay applied to its output is also scored on the original
+measurements against the rate limit alone (:func:`pipeline.diagnose.candidates.composed_candidates`;
+its correction is taken from the rate limit's fit, ``DofState.result_base``). Two strong effects
+can hide each other: each alone leaves the other's slow error in its residual, which leaves the F
+test few effective samples. Where no candidate is significant and a DOF's gap fails the "only what a correct model
 leaves" test, :func:`pair_step` takes each of the best two candidates off in turn and selects a
 pair only when each is significant on top of the other.
 
@@ -113,6 +117,10 @@ class DofState:
     channel_floor : dict[str, float]
         Held-out gap per channel that a correct model leaves (:mod:`pipeline.diagnose.floor`);
         missing channels: 1.
+    result_base : dict[str, Mapping[str, numpy.ndarray]]
+        Per result label, the reference its correction is taken from when it is not ``base_full``
+        (a composed input transform is scored against the first transform alone, on the original
+        measurements).
     """
 
     problem: DofProblem
@@ -124,6 +132,7 @@ class DofState:
     selected: list
     base_full: Mapping[str, np.ndarray] | None = None
     channel_floor: dict = field(default_factory=dict)
+    result_base: dict = field(default_factory=dict)
 
 
 def corrected(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str, np.ndarray]) -> GridData:
@@ -224,7 +233,8 @@ def forward_select(states: dict[str, DofState], rescore: Callable[[DofState], No
         s.selected.append(res.label)
         if len(chosen) >= max_effects:
             break
-        s.data = corrected(s.data, s.base_full if s.base_full is not None else s.base_heldout, run.heldout)
+        ref = s.result_base.get(res.label, s.base_full if s.base_full is not None else s.base_heldout)
+        s.data = corrected(s.data, ref, run.heldout)
         rescore(s)
     return chosen
 
