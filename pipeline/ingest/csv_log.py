@@ -15,7 +15,9 @@ CSV as people write it is read too, and every guess is named in the summary:
   ``RawLog.start_time``, so separate recordings are told apart by their absolute times;
 - semicolon separators (with a decimal comma when the numbers use one);
 - units by suffix of a canonical name: ``psi_deg``, ``r_degs``/``r_dps`` [deg/s], ``sog_kn``/``sog_kts``
-  [knots], ``sog_kmh``, ``u_ms``/``u_mps`` [m/s], ``phi_rad``; a ``units`` entry overrides it.
+  [knots], ``sog_kmh``, ``u_ms``/``u_mps`` [m/s], ``phi_rad``; a ``units`` entry overrides it;
+- several recordings stacked in one table (a ``run``/``series``/``recording`` column naming each row's
+  recording, time starting again in each): one RawLog per recording (:func:`read_csv_recordings`).
 
 A logger that writes one row per IMU sample and repeats the last GNSS fix in every row can say which
 rows hold a new fix: a column ``t_fix`` (any unit suffix, e.g. ``t_fix_ms``; ``t_fix@sensor`` for the
