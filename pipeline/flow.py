@@ -28,7 +28,7 @@ from . import __version__
 from .align import align
 from .atomic import atomic_folder, atomic_path, check_output_folder
 from .errors import AutopilotError, DiagnoseError, SegmentError
-from .ingest import read_log
+from .ingest import read_log, read_recordings
 from .manifest import expand_logs
 from .records import Fits, Provenance, RawLog, Segment, Segments, Trial
 from .segment import apply_manifest_segments, detect_segments
@@ -100,7 +100,8 @@ def read_logs(paths: Sequence[str | Path], vessel: Vessel | None = None,
     Returns
     -------
     list[RawLog]
-        One per file, in the order given (a folder's files in name order).
+        One per file, in the order given (a folder's files in name order); a CSV that stacks several
+        recordings gives one per recording (:func:`pipeline.ingest.read_recordings`).
 
     Raises
     ------
@@ -109,7 +110,7 @@ def read_logs(paths: Sequence[str | Path], vessel: Vessel | None = None,
     IngestError
         As the readers.
     """
-    return [read_log(p, vessel=vessel, columns=columns, units=units) for p in expand_logs(paths)]
+    return [log for p in expand_logs(paths) for log in read_recordings(p, vessel=vessel, columns=columns, units=units)]
 
 
 def load_trial(paths: Sequence[str | Path], vessel: Vessel | None = None, name: str | None = None,

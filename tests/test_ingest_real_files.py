@@ -350,5 +350,5 @@ def test_single_epoch_and_one_second_logs_stop_with_the_duration(tmp_path):
     with pytest.raises(AlignError, match=r"expected a log of at least two samples.*found 1 sample\(s\) per channel "
                                          r"spanning 0 s"):
         align([read_log(one)])
-    with pytest.raises(SegmentError, match=r"expected a trial of at least 5 s.*found 0\.9"):
+    with pytest.raises(SegmentError, match=r"expected a trial of at least 2 s.*found 0\.9"):
         detect_segments(align([read_log(DATA / "pymavlink" / "test.BIN")]))

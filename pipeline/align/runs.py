@@ -181,6 +181,23 @@ def run_offsets(logs: Sequence[RawLog]) -> dict[str, ClockOffset]:
     return estimate_offsets(_clock_view(logs))
 
 
+def _condensed(tried: list[str]) -> list[str]:
+    """Why a log joined no run: the first 'same channels' reason once (with how many more), other reasons as they are."""
+    same = [x for x in tried if x.startswith("same channels as ")]
+    other = [x for x in tried if not x.startswith("same channels as ")]
+    if len(same) > 1:
+        same = [same[0] + f" (and {len(same) - 1} more run(s) of the same channels)"]
+    return same + other
+
+
+def _stem(source: str) -> str:
+    """A log's short name: the file stem, with the recording for one of several in a file (``roll#Test 2``)."""
+    base, sep, recording = source.rpartition("#")
+    if sep and Path(base).suffix and "/" not in recording:
+        return f"{Path(base).stem}#{recording}"
+    return Path(source).stem
+
+
 def _unique_names(stems: Sequence[str]) -> list[str]:
     seen: dict[str, int] = {}
     out = []
@@ -299,12 +316,12 @@ def group_runs(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | None 
                                  f"cross-correlation; found: " + ("; ".join(tried) or "no other log"))
             groups.append([s])
             reasons.append([f"{Path(s).name}: no absolute time"]
-                           + ([f"a run of its own: {'; '.join(tried)}"] if tried else []))
+                           + ([f"a run of its own: {'; '.join(_condensed(tried))}"] if tried else []))
 
     order = sorted(range(len(groups)), key=lambda k: (_start_key(groups[k], timed), sources.index(groups[k][0])))
     groups = [groups[k] for k in order]
     reasons = [reasons[k] for k in order]
-    names_ = _unique_names([Path(g[0]).stem for g in groups])
+    names_ = _unique_names([_stem(g[0]) for g in groups])
     out = []
     for name, g, why in zip(names_, groups, reasons):
         offs = run_offsets([by_source[m] for m in g])
@@ -334,7 +351,7 @@ def _explicit(logs, explicit, names, by_source, timed) -> list[RunGroup]:
                          f"in a run but not read {extra}, in more than one run {twice}")
     if names is not None and len(names) != len(explicit):
         raise AlignError(f"runs: expected one name per run ({len(explicit)}), found {len(names)}")
-    names_ = list(names) if names is not None else _unique_names([Path(r[0]).stem for r in explicit])
+    names_ = list(names) if names is not None else _unique_names([_stem(r[0]) for r in explicit])
     out = []
     for name, run in zip(names_, explicit):
         if not run:

@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 from ..errors import IngestError
 from ..records import RawLog
-from .csv_log import read_csv_log
+from .csv_log import read_csv_log, read_csv_recordings
 
 
 def _read_csv(path: Path, vessel=None, columns=None, units=None, **_: Any) -> RawLog:
@@ -148,4 +148,32 @@ def read_log(path: str | Path, vessel=None, **options: Any) -> RawLog:
     return reader(p, vessel=vessel, **options)
 
 
-__all__ = ["read_log", "read_csv_log", "READERS", "CONTENT_READERS"]
+def read_recordings(path: str | Path, vessel=None, **options: Any) -> list[RawLog]:
+    """Every recording in one log file: one for most formats, one per recording for a CSV that stacks several.
+
+    A CSV whose rows name their recording in a run column (``series``, ``run``, ...; see
+    :func:`pipeline.ingest.csv_log.read_csv_recordings`) gives one RawLog per recording; every
+    other file gives what :func:`read_log` gives.
+
+    Parameters
+    ----------
+    path, vessel, **options
+        As :func:`read_log`.
+
+    Returns
+    -------
+    list[RawLog]
+        The file's recordings in file order.
+
+    Raises
+    ------
+    IngestError
+        As :func:`read_log`.
+    """
+    p = Path(path)
+    if p.suffix.lower() == ".csv" and not p.is_dir():
+        return read_csv_recordings(p, columns=options.get("columns"), units=options.get("units"))
+    return [read_log(p, vessel=vessel, **options)]
+
+
+__all__ = ["read_log", "read_recordings", "read_csv_log", "read_csv_recordings", "READERS", "CONTENT_READERS"]

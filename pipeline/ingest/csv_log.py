@@ -15,7 +15,9 @@ CSV as people write it is read too, and every guess is named in the summary:
   ``RawLog.start_time``, so separate recordings are told apart by their absolute times;
 - semicolon separators (with a decimal comma when the numbers use one);
 - units by suffix of a canonical name: ``psi_deg``, ``r_degs``/``r_dps`` [deg/s], ``sog_kn``/``sog_kts``
-  [knots], ``sog_kmh``, ``u_ms``/``u_mps`` [m/s], ``phi_rad``; a ``units`` entry overrides it.
+  [knots], ``sog_kmh``, ``u_ms``/``u_mps`` [m/s], ``phi_rad``; a ``units`` entry overrides it;
+- several recordings stacked in one table (a ``run``/``series``/``recording`` column naming each row's
+  recording, time starting again in each): one RawLog per recording (:func:`read_csv_recordings`).
 
 A logger that writes one row per IMU sample and repeats the last GNSS fix in every row can say which
 rows hold a new fix: a column ``t_fix`` (any unit suffix, e.g. ``t_fix_ms``; ``t_fix@sensor`` for the
@@ -140,6 +142,21 @@ def _time_column(df: pd.DataFrame, columns: Mapping[str, str], time_column: str)
     return None
 
 
+#: Column names that name the recording each row belongs to (several recordings stacked in one file).
+RUN_COLUMN_NAMES = ("run", "series", "recording", "run_id", "run_name", "recording_id")
+
+
+def _run_column(df: pd.DataFrame, columns: Mapping[str, str]) -> str | None:
+    """Raw name of the column naming each row's recording: mapped to ``run``, or a ``RUN_COLUMN_NAMES`` name."""
+    mapped = [raw for raw, name in columns.items() if name == "run" and raw in df.columns]
+    if mapped:
+        return mapped[0]
+    for c in df.columns:
+        if c.lower() in RUN_COLUMN_NAMES and c not in columns:
+            return c
+    return None
+
+
 def _parse_time(p: Path, col: pd.Series, raw: str, unit: str | None) -> tuple[np.ndarray, float, list[str]]:
     """Times [s from the first row], the Unix time of the first row (NaN if unknown), and notes."""
     notes: list[str] = []
@@ -227,9 +244,12 @@ def _time_axis(p: Path, df: pd.DataFrame, columns: Mapping[str, str], units: Map
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         i = int(back[0])
+        hint = ("" if _run_column(df, columns) is not None else
+                "; several recordings in one file? A column naming each row's recording (run, series, "
+                "recording, or one mapped to 'run' in the column map) makes each recording a run")
         raise IngestError(f"{p}: expected strictly increasing time in {time_raw!r}, found "
                           f"{str(df[time_raw].iloc[i + 1])} after {str(df[time_raw].iloc[i])} on data row {i + 2} "
-                          f"({len(back)} such rows)")
+                          f"({len(back)} such rows){hint}")
     return t, start_time, time_raw
 
 
@@ -321,18 +341,25 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
     _check_options(p, units, input_kinds)
     df, sep, decimal = _read_frame(p)
     notes: list[str] = [] if sep == "," else [f"format: separator {sep!r}, decimal {decimal!r}"]
+    return _frame_log(p, str(p), df, columns, units, time_column, input_kinds, notes)
+
+
+def _frame_log(p: Path, source: str, df: pd.DataFrame, columns: Mapping[str, str], units: Mapping[str, str],
+               time_column: str, input_kinds: Mapping[str, str], notes: list[str]) -> RawLog:
+    """The RawLog of a parsed table (one recording); ``source`` names it."""
     t, start_time, time_column = _time_axis(p, df, columns, units, time_column, notes)
     chans: dict[str, Channel] = {}
     read: dict[str, int] = {}
     skipped: dict[str, int] = {}
     warnings: list[str] = []
     fix_rows = _fix_time_columns(p, df, columns)
+    run_raw = _run_column(df, columns)
     for sensor, (raw, new) in fix_rows.items():
         notes.append(f"GNSS fixes: column {raw!r} gives the fix time of each row: {int(new.sum())} fixes in "
                      f"{len(new)} rows; GNSS channels{' @' + sensor if sensor else ''} keep the row where each "
                      f"fix first appears (the others are held copies)")
     for raw in df.columns:
-        if raw == time_column or any(raw == r for r, _ in fix_rows.values()):
+        if raw == time_column or raw == run_raw or any(raw == r for r, _ in fix_rows.values()):
             continue
         name, unit = _name_and_unit(raw, columns, units, notes)
         if _base(name) not in CHANNEL_UNITS:
@@ -365,7 +392,97 @@ def read_csv_log(path: str | Path, columns: Mapping[str, str] | None = None,
     if not chans:
         raise IngestError(f"{p}: expected at least one canonical channel ({', '.join(CHANNEL_UNITS)}), "
                           f"found only {list(df.columns)}")
-    summary = IngestSummary(path=str(p), format="csv", read=read, skipped=skipped, warnings=tuple(notes + warnings))
+    summary = IngestSummary(path=source, format="csv", read=read, skipped=skipped, warnings=tuple(notes + warnings))
     absolute = bool(np.isfinite(start_time))
-    return RawLog(source=str(p), format="csv", channels=chans, summary=summary,
+    return RawLog(source=source, format="csv", channels=chans, summary=summary,
                   time_reference="unix" if absolute else "trial", start_time=start_time)
+
+
+def read_csv_recordings(path: str | Path, columns: Mapping[str, str] | None = None,
+                        units: Mapping[str, str] | None = None, time_column: str = "t",
+                        input_kinds: Mapping[str, str] | None = None) -> list[RawLog]:
+    """Read a CSV that may hold several recordings stacked in one file, one RawLog per recording.
+
+    People append recordings to one table with a column naming each row's recording (a test
+    number, a series label) and a time that starts again in each. Such a file is split when
+    a column named ``run``, ``series``, ``recording``, ``run_id``, ``run_name`` or ``recording_id``
+    (or one the column map maps to ``run``) holds more than one value and either the time does not
+    increase strictly over the whole file or the column map names the run column: each value's rows,
+    in their order in the file, are one recording (``RawLog.source`` ``path#value``), read like a
+    file of its own (:func:`read_csv_log`), and align makes each its own run unless their absolute
+    times overlap. Without such a column the file is one recording.
+
+    Parameters
+    ----------
+    path, columns, units, time_column, input_kinds
+        As :func:`read_csv_log`.
+
+    Returns
+    -------
+    list[RawLog]
+        One per recording, in the order of their first row in the file.
+
+    Raises
+    ------
+    IngestError
+        As :func:`read_csv_log`, for each recording; a run column with empty cells.
+    """
+    p = check_file(path, "CSV log")
+    columns, units, input_kinds = dict(columns or {}), dict(units or {}), dict(input_kinds or {})
+    _check_options(p, units, input_kinds)
+    df, sep, decimal = _read_frame(p)
+    notes: list[str] = [] if sep == "," else [f"format: separator {sep!r}, decimal {decimal!r}"]
+    run_raw = _run_column(df, columns)
+    names = pd.unique(df[run_raw].dropna()) if run_raw is not None else []
+    split = len(names) > 1 and (run_raw in columns or not _time_increases(df, columns, time_column))
+    if not split:
+        return [_frame_log(p, str(p), df, columns, units, time_column, input_kinds, notes)]
+    if df[run_raw].isna().any():
+        bad = int(np.flatnonzero(df[run_raw].isna().to_numpy())[0])
+        raise IngestError(f"{p}: expected a recording name in column {run_raw!r} on every row, found an empty cell "
+                          f"on data row {bad + 1}")
+    labels = _recording_labels(df, run_raw, names)
+    out = []
+    for name in names:
+        rows = df[df[run_raw] == name].reset_index(drop=True)
+        note = [f"recording: rows with {run_raw} = {str(name)!r} ({len(rows)} of {len(df)} rows; the file holds "
+                f"{len(names)} recordings)"] + labels.get(name, [])
+        out.append(_frame_log(p, f"{p}#{name}", rows, columns, units, time_column, input_kinds, notes + note))
+    return out
+
+
+def _recording_labels(df: pd.DataFrame, run_raw: str, names) -> dict:
+    """Warnings for recordings that a text column labels unlike most (``kind`` = ``fit`` among ``measured``).
+
+    A table of recordings may hold rows that are not measurements (a regression curve, an average
+    of the runs); the reader cannot know, but it names them, so that the user can leave them out.
+    """
+    out: dict = {}
+    for col in df.columns:
+        if col == run_raw or pd.api.types.is_numeric_dtype(df[col]):
+            continue
+        per = df.groupby(run_raw, sort=False)[col].agg(lambda x: tuple(pd.unique(x.dropna())))
+        if not all(len(v) == 1 for v in per) or len({v[0] for v in per}) < 2:
+            continue
+        common = pd.Series([v[0] for v in per]).mode().iloc[0]
+        for name in names:
+            if per[name][0] != common:
+                out.setdefault(name, []).append(
+                    f"recording {str(name)!r}: column {col!r} is {per[name][0]!r} here and {common!r} in most "
+                    f"recordings of the file; if these rows are not measurements (a fit, an average of the "
+                    f"others), leave them out of the file: they are read as a recording of their own")
+    return out
+
+
+def _time_increases(df: pd.DataFrame, columns: Mapping[str, str], time_column: str) -> bool:
+    """True when the time column of ``df`` increases strictly (or cannot be read: then the reader says why)."""
+    raw = _time_column(df, columns, time_column)
+    if raw is None:
+        return True
+    t = pd.to_numeric(df[raw], errors="coerce")
+    if t.isna().any():
+        stamps = pd.to_datetime(df[raw].astype(str).str.strip(), format="ISO8601", errors="coerce")
+        if stamps.isna().any():
+            return True
+        t = (stamps - stamps.iloc[0]).dt.total_seconds()
+    return bool((np.diff(t.to_numpy(float)) > 0).all())
