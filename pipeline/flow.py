@@ -531,34 +531,30 @@ class OutputInputs:
 
 
 def _output_unit(inputs: OutputInputs, unit) -> Any:
-    """One unit of :func:`write_outputs`: a report figure (:func:`pipeline.report.draw_figure`), or (``None``)
-    the autopilot's and the diagnosis's files, returning their report sections in flow order."""
+    """One unit of :func:`write_outputs`: a report figure (:func:`pipeline.report.draw_figure`), or
+    (``"autopilot"``, ``"diagnosis"``) that stage's files, returning its report section."""
     import html as _html
 
-    if unit is not None:
-        from .report import draw_figure
+    if unit == "autopilot":
+        from .autopilot import write_autopilot_outputs_and_section
 
-        return draw_figure(inputs.figures, unit)
-    from .autopilot import write_autopilot_outputs
-    from .autopilot.report_section import autopilot_html_section
-    from .diagnose.figures import write_figures as write_diagnosis_figures
-    from .diagnose.html import diagnose_html_section
+        if inputs.autopilot is None:
+            return ("Heading autopilot and Kalman filter",
+                    f"<p>No autopilot was designed: {_html.escape(inputs.skipped.get('autopilot', ''))}</p>")
+        # The section embeds the figures just written (each drawn once).
+        return write_autopilot_outputs_and_section(inputs.autopilot, inputs.stage)[1]
+    if unit == "diagnosis":
+        from .diagnose.figures import write_figures as write_diagnosis_figures
+        from .diagnose.html import diagnose_html_section
 
-    sections = []
-    if inputs.autopilot is not None:
-        write_autopilot_outputs(inputs.autopilot, inputs.stage)
-        sections.append(autopilot_html_section(inputs.autopilot))
-    else:
-        sections.append(("Heading autopilot and Kalman filter",
-                         f"<p>No autopilot was designed: {_html.escape(inputs.skipped.get('autopilot', ''))}</p>"))
-    if inputs.diagnosis is not None:
+        if inputs.diagnosis is None:
+            return ("Sim-to-real gap", f"<p>No diagnosis: {_html.escape(inputs.skipped.get('diagnose', ''))}</p>")
         write_json(inputs.diagnosis.to_dict(), inputs.stage / DIAGNOSIS_NAME)
         write_diagnosis_figures(inputs.diagnosis, inputs.stage)
-        sections.append(diagnose_html_section(inputs.diagnosis))
-    else:
-        sections.append(("Sim-to-real gap",
-                         f"<p>No diagnosis: {_html.escape(inputs.skipped.get('diagnose', ''))}</p>"))
-    return sections
+        return diagnose_html_section(inputs.diagnosis)
+    from .report import draw_figure
+
+    return draw_figure(inputs.figures, unit)
 
 
 def write_outputs(out: str | Path, trial: Trial, segments: Segments, fits: Fits,
@@ -599,9 +595,13 @@ def write_outputs(out: str | Path, trial: Trial, segments: Segments, fits: Fits,
                               FigureInputs(fits, qualities, trial, segment_list(fits, segments), stage))
         # The autopilot's and the diagnosis's outputs (their figures) and each report figure are
         # independent units: worker processes draw them side by side when the cores allow, the
-        # largest unit first. The report page, which embeds them all, is written after.
-        units = [None, *figure_plan(fits, qualities, trial)]
-        sections = ordered_map(_output_unit, units, context=inputs)[0]
+        # largest units first (the diagnosis's figures, the trial overview, the autopilot's
+        # figures). The report page, which embeds them all, is written after.
+        plan = figure_plan(fits, qualities, trial)
+        overview = [job for job in plan if job.kind == "overview"]
+        units = ["diagnosis", *overview, "autopilot", *(job for job in plan if job.kind != "overview")]
+        done = ordered_map(_output_unit, units, context=inputs)
+        sections = [done[units.index("autopilot")], done[0]]  # flow order: autopilot, then diagnosis
         added = dict(vessel.added_mass) if vessel is not None and vessel.has_rigid_body else None
         paths = write_report(fits, stage, trial=trial, segments=segments, extra_sections=sections,
                              diagnosis=diagnosis, provenance=provenance, added_mass=added,

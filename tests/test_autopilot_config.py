@@ -13,7 +13,7 @@ from pipeline.autopilot.config import (DEFAULT_MAX_ANGLE, DEFAULT_MAX_RATE, ardu
                                        build_autopilot_config, read_autopilot_toml, read_coefficients_json,
                                        read_waves_json, write_ardupilot_params, write_autopilot_toml)
 from pipeline.autopilot.design import build_autopilot, nomoto_from_fits
-from pipeline.autopilot.outputs import write_autopilot_outputs
+from pipeline.autopilot.outputs import write_autopilot_outputs_and_section
 from pipeline.errors import AutopilotError
 from pipeline.model.waves import WaveParams
 from pipeline.records import Estimate, Fits
@@ -200,13 +200,15 @@ def test_ardupilot_mapping_reproduces_the_pd_loop(tmp_path):
 
 def test_stage_outputs_and_html_section(tmp_path):
     res = build_autopilot(read_coefficients_json(_coefficients(tmp_path)), duration=300.0)
-    files = write_autopilot_outputs(res, tmp_path / "report")
+    files, section = write_autopilot_outputs_and_section(res, tmp_path / "report")
     assert set(files) >= {"config", "ardupilot", "closed_loop", "figure_model", "figure_sea", "html"}
     doc = json.loads(files["closed_loop"].read_text())
     assert doc["observability"]["current and waves"]["rank"] == 5
     assert doc["metrics"]["sea"]["cases"]["pd"]["steady_error_deg"] > 2.0
     assert files["figure_sea"].read_bytes()[:4] == b"\x89PNG"
     title, frag = ap.autopilot_html_section(res)
+    # The section the report page gets from the files' writer (figures drawn once) is the one drawn afresh.
+    assert section == (title, frag)
     assert "autopilot" in title.lower()
     assert frag.count("<img") == 2 and "<table" in frag
     assert "steady heading error" in frag and "feed-forward removes it" in frag

@@ -390,3 +390,33 @@ def test_jit_code_size_does_not_grow_with_the_data_and_leaves_no_folder(coupled_
     assert cj.remove_stale_folders(tmp_path) == 1
     assert not dead.exists() and live.exists()
     cj._cached.cache_clear()
+
+
+def test_record_residual_tests_in_worker_groups_equal_one_loop():
+    """The grey-box records' residual tests run as groups of records in 2 worker processes: the same
+    tests and long-run variance ratios, in record order, as one loop over the records."""
+    from pipeline.fit import greybox
+    from pipeline.parallel import ordered_map
+
+    rng = np.random.default_rng(11)
+    outputs = ("v", "r", "phi")
+    records, y_fit = [], []
+    for i in range(5):
+        n = 300 + 40 * i
+        t = 100.0 * i + 0.1 * np.arange(n)
+        tau = np.zeros((n, 5))
+        tau[:, 4] = np.sign(np.sin(0.05 * np.arange(n)))
+        y = rng.normal(0.0, 0.01, (n, greybox.NX)).cumsum(axis=0) * 0.1
+        records.append(greybox.GreyBoxRecord(t, y, tau, (f"s{i}",)))
+        y_fit.append(y + rng.normal(0.0, 0.01, y.shape))
+    context = (records, y_fit, outputs)
+    serial = [greybox._record_residual_tests(context, (i,))[0] for i in range(len(records))]
+    grouped = ordered_map(greybox._record_residual_tests, [(0, 1), (2,), (3, 4)], context=context, jobs=2)
+    flat = [r for group in grouped for r in group]
+    assert len(flat) == len(serial) == 5
+    for (tests_a, ratios_a), (tests_b, ratios_b) in zip(serial, flat):
+        assert ratios_a == ratios_b and len(ratios_a) == len(outputs)
+        assert [t.name for t in tests_a] == [t.name for t in tests_b]
+        for a, b in zip(tests_a, tests_b):
+            assert a.autocorrelation.tobytes() == b.autocorrelation.tobytes()
+            assert (a.ljung_box_p, a.white, a.independent) == (b.ljung_box_p, b.white, b.independent)

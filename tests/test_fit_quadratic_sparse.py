@@ -110,3 +110,37 @@ def test_sparse_lsmr_solve_matches_dense_exact(monkeypatch):
     # and the truth (a = 0.22, b = 0.9) within three standard errors of the quadratic fit
     q = fits["sparse"][1]
     assert abs(q.values[0] - 0.22) < 3 * q.stderr[0] and abs(q.values[1] - 0.9) < 3 * q.stderr[1]
+
+
+def test_jacobian_base_point_reused_from_the_residuals_bit_for_bit(monkeypatch):
+    """The solver's residual matrix at the accepted point is the Jacobian's base point: the same
+    solution bit for bit as recomputing it, with one simulation fewer per Jacobian."""
+    records = surge_records(4, 6)
+    p = problem(records, "surge", DT, M, "quadratic")
+    theta0 = start_vector(p)
+    calls = {"sim": 0, "jac": 0}
+    simulate, jacobian = type(p).simulate, type(p).jacobian
+
+    def counted_simulate(self, theta):
+        calls["sim"] += 1
+        return simulate(self, theta)
+
+    def counted_jacobian(self, *args, **kwargs):
+        calls["jac"] += 1
+        return jacobian(self, *args, **kwargs)
+
+    monkeypatch.setattr(type(p), "simulate", counted_simulate)
+    monkeypatch.setattr(type(p), "jacobian", counted_jacobian)
+    reused = quadratic.solve(p, theta0, p.mask, max_nfev=15)
+    with_reuse = dict(calls)
+
+    def fresh_jacobian(self, theta, mask, free_locals, r0=None):
+        calls["jac"] += 1
+        return jacobian(self, theta, mask, free_locals)  # base point recomputed
+
+    calls.update(sim=0, jac=0)
+    monkeypatch.setattr(type(p), "jacobian", fresh_jacobian)
+    recomputed = quadratic.solve(p, theta0, p.mask, max_nfev=15)
+    assert reused.tobytes() == recomputed.tobytes()
+    assert with_reuse["jac"] == calls["jac"] > 0
+    assert calls["sim"] - with_reuse["sim"] == calls["jac"]

@@ -34,7 +34,7 @@ _EXPORTS = {
     "loop_margins": ".pd", "margin_table": ".pd", "pd_gains": ".pd",
     "autopilot_html_section": ".report_section",
     "AutopilotResult": ".design", "build_autopilot": ".design", "nomoto_from_fits": ".design",
-    "write_autopilot_outputs": ".outputs",
+    "write_autopilot_outputs": ".outputs", "write_autopilot_outputs_and_section": ".outputs",
     "HeadingRecord": ".waves_fit", "WaveFit": ".waves_fit", "fit_wave_record": ".waves_fit",
     "fit_wave_spectrum": ".waves_fit", "read_heading_record": ".waves_fit", "welch_psd": ".waves_fit",
 }

@@ -19,7 +19,33 @@ from .report_section import autopilot_html_section
 
 def write_autopilot_outputs(result: AutopilotResult, out_dir: str | Path, toml_name: str = "autopilot.toml",
                             figures: bool = True) -> dict[str, Path]:
-    """Write the stage's files into ``out_dir``.
+    """Write the stage's files into ``out_dir`` (:func:`write_autopilot_outputs_and_section` without the section).
+
+    Parameters
+    ----------
+    result : AutopilotResult
+    out_dir : str or Path
+        Folder (created).
+    toml_name : str
+        File name of the config.
+    figures : bool
+        Write PNG figures.
+
+    Returns
+    -------
+    dict
+        File role -> path written.
+    """
+    return write_autopilot_outputs_and_section(result, out_dir, toml_name, figures)[0]
+
+
+def write_autopilot_outputs_and_section(result: AutopilotResult, out_dir: str | Path,
+                                        toml_name: str = "autopilot.toml", figures: bool = True
+                                        ) -> tuple[dict[str, Path], tuple[str, str]]:
+    """Write the stage's files into ``out_dir`` and return the report section they embed.
+
+    The section is :func:`pipeline.autopilot.report_section.autopilot_html_section` with the figures
+    just written (each closed-loop figure is drawn once, not again for the report page).
 
     Files: ``autopilot.toml``; ``ardupilot_steering.param``; with a closed-loop check
     ``closed_loop.json`` and, if ``figures``, ``closed_loop_<scenario>.png``; with a wave fit
@@ -37,8 +63,10 @@ def write_autopilot_outputs(result: AutopilotResult, out_dir: str | Path, toml_n
 
     Returns
     -------
-    dict
+    written : dict
         File role -> path written.
+    section : tuple of str
+        ``(title, html_fragment)`` of the report page (``figures`` embedded when requested).
     """
     out = Path(out_dir)
     try:
@@ -70,7 +98,7 @@ def write_autopilot_outputs(result: AutopilotResult, out_dir: str | Path, toml_n
     p = out / "autopilot.html"
     atomic_write_bytes(p, f"<section>\n<h2>{title}</h2>\n{frag}\n</section>\n".encode())
     written["html"] = p
-    return written
+    return written, (title, frag)
 
 
 def _clean(obj):

@@ -62,6 +62,7 @@ import numpy as np
 from scipy import sparse
 
 from ..errors import FitError
+from ..parallel import ordered_map
 from ..model.vessel5dof import Vessel5DofParams, vessel5dof_rhs
 from ..records import DOFS, Segment, Segments, Trial
 from ..vessel import Vessel
@@ -904,6 +905,32 @@ def covariance_from_fisher(fisher: np.ndarray, s2: float = 1.0, rcond: float = 1
     return cov, stderr
 
 
+#: Groups of records whose residual tests are one unit of :func:`pipeline.parallel.ordered_map`.
+RESIDUAL_TEST_GROUPS = 8
+
+
+def _record_residual_tests(inputs: tuple, indices: tuple[int, ...]) -> list[tuple[list[ResidualTest], list]]:
+    """Residual tests of the grey-box records ``indices`` (``inputs``: records, their continuous
+    simulations, the measured output channels): per record its tests, one per output channel, and
+    ``(state index, residual count, long-run variance ratio)`` of each channel long enough for it."""
+    records, y_fit, outputs = inputs
+    out = []
+    for i in indices:
+        rec, yf = records[i], y_fit[i]
+        inputs_ = {ch: rec.tau[:, j] for j, ch in ((1, "tau_y"), (2, "tau_k"), (3, "tau_m"), (4, "tau_n"))
+                   if np.ptp(rec.tau[:, j]) > 0}
+        tests, ratios = [], []
+        for c in outputs:
+            kk = STATES.index(c)
+            e = rec.y[:, kk] - yf[:, kk]
+            tests.append(residual_test(e, inputs_, f"grey-box {c} [{rec.t[0]:.1f}-{rec.t[-1]:.1f} s]"))
+            e = e[np.isfinite(e)]
+            if e.size > 4 * KAPPA_LAGS:
+                ratios.append((kk, e.size, long_run_variance_ratio(e, KAPPA_LAGS)))
+        out.append((tests, ratios))
+    return out
+
+
 def fit_coupled_damping(trial: Trial, segments: Segments, vessel: Vessel, d_start: np.ndarray | None = None,
                         estimate: Sequence[str] = tuple(COEFFICIENTS), shooting_interval: float = 5.0,
                         max_nfev: int = 40, jit: bool = True, solve: bool = True) -> GreyBoxFit:
@@ -1068,21 +1095,21 @@ def fit_coupled_damping(trial: Trial, segments: Segments, vessel: Vessel, d_star
         damping[COEFFICIENTS[n]] = theta[i]
 
     # The continuous simulation of each record from its fitted initial state, and its residual tests.
-    y_fit, tests = [], []
+    y_fit = list(prob.continuous(z)) if solve else []
+    tests = []
     kappa_num = np.zeros(NX)
     kappa_den = np.zeros(NX)
-    for rec, yf in zip(records, prob.continuous(z) if solve else ()):
-        y_fit.append(yf)
-        inputs = {ch: rec.tau[:, j] for j, ch in ((1, "tau_y"), (2, "tau_k"), (3, "tau_m"), (4, "tau_n"))
-                  if np.ptp(rec.tau[:, j]) > 0}
-        for c in outputs:
-            kk = STATES.index(c)
-            e = rec.y[:, kk] - yf[:, kk]
-            tests.append(residual_test(e, inputs, f"grey-box {c} [{rec.t[0]:.1f}-{rec.t[-1]:.1f} s]"))
-            e = e[np.isfinite(e)]
-            if e.size > 4 * KAPPA_LAGS:
-                kappa_num[kk] += e.size * long_run_variance_ratio(e, KAPPA_LAGS)
-                kappa_den[kk] += e.size
+    # The records' residual tests are independent: groups of records in worker processes when the
+    # cores allow; summed here in record order, as one loop would.
+    groups = [g for g in np.array_split(np.arange(len(y_fit)), max(min(len(y_fit), RESIDUAL_TEST_GROUPS), 1))
+              if g.size]
+    for group in ordered_map(_record_residual_tests, [tuple(int(i) for i in g) for g in groups],
+                             context=(records, y_fit, outputs)):
+        for rec_tests, ratios in group:
+            tests.extend(rec_tests)
+            for kk, size, ratio in ratios:
+                kappa_num[kk] += size * ratio
+                kappa_den[kk] += size
     kappa = np.where(kappa_den > 0, np.maximum(kappa_num / np.maximum(kappa_den, 1), 1.0), 1.0)
     coloured = [f"{c} x{math.sqrt(kappa[STATES.index(c)]):.2g}" for c in outputs if kappa[STATES.index(c)] > 1.5]
     if coloured:

@@ -482,7 +482,8 @@ class JointProblem:
         """
         return np.concatenate([self.residual_matrix(theta, mask)[mask], self.steady_rows(theta)])
 
-    def jacobian(self, theta: np.ndarray, mask: np.ndarray, free_locals: np.ndarray) -> sparse.csr_matrix:
+    def jacobian(self, theta: np.ndarray, mask: np.ndarray, free_locals: np.ndarray,
+                 r0: np.ndarray | None = None) -> sparse.csr_matrix:
         """Forward differences: one simulation per shared parameter, one per local-parameter type
         (every record's local perturbed at once: a record's output depends only on its own).
 
@@ -498,13 +499,17 @@ class JointProblem:
             Samples that count.
         free_locals : numpy.ndarray
             Records x locals: which locals get a column (others stay zero).
+        r0 : numpy.ndarray, optional
+            ``residual_matrix(theta, mask)`` when the caller has it already (the solver evaluated the
+            residuals at ``theta`` just before asking for the Jacobian there): one simulation fewer.
 
         Returns
         -------
         scipy.sparse.csr_matrix
             Rows: masked samples, then steady-state rows; columns: ``theta``.
         """
-        r0 = self.residual_matrix(theta, mask)
+        if r0 is None:
+            r0 = self.residual_matrix(theta, mask)
         s0 = self.steady_rows(theta)
         ng, k = len(self.names), len(self.records)
         n_mask = int(mask.sum())
@@ -617,13 +622,23 @@ def _solve(p: JointProblem, theta0: np.ndarray, mask: np.ndarray, fixed_shared: 
         th[free] = x
         return th
 
+    # The solver asks for the Jacobian where it last evaluated the residuals (the accepted point):
+    # that residual matrix is kept and reused as the Jacobian's base point (the same numbers, one
+    # simulation fewer per Jacobian).
+    last: dict[str, object] = {}
+
     def fun(x):
-        return p.residuals(full(x), mask)
+        th = full(x)
+        rm = p.residual_matrix(th, mask)
+        last["x"], last["r"] = x.copy(), rm
+        return np.concatenate([rm[mask], p.steady_rows(th)])
 
     dense = int(free.sum()) <= DENSE_MAX_PARAMETERS
 
     def jac(x):
-        j = p.jacobian(full(x), mask, loc_free)[:, free]
+        x_last = last.get("x")
+        r0 = last["r"] if x_last is not None and x_last.tobytes() == np.asarray(x).tobytes() else None
+        j = p.jacobian(full(x), mask, loc_free, r0=r0)[:, free]
         return j.toarray() if dense else j
 
     res = optimize.least_squares(fun, x0[free], jac=jac, bounds=(lo[free], hi[free]), x_scale="jac",
