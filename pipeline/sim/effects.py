@@ -87,12 +87,12 @@ def apply_delay(u_history: np.ndarray, k: int, delay_steps: int) -> np.ndarray:
     ----------
     u_history : numpy.ndarray, shape (N, m)
         Commands so far (rows up to ``k`` are filled).
-    k : int
-        Current step.
+    k : int or numpy.ndarray of int
+        Current step, or several steps (one applied row each).
     delay_steps : int
         Delay in integration steps (delay [s] / dt [s], rounded).
     """
-    return u_history[max(k - delay_steps, 0)]
+    return u_history[np.maximum(np.asarray(k) - delay_steps, 0)]
 
 
 def apply_rate_limit(previous: np.ndarray, target: np.ndarray, max_step: np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ from ..model.vessel5dof import INPUTS_5DOF, STATES_5DOF, params_from_vessel, ves
 from ..model.waves import simulate_waves
 from ..records import Channel, IngestSummary, RawLog, Segment, Segments
 from ..vessel import Vessel
-from .effects import Effects, apply_rate_limit, apply_thrust_asymmetry, check_effects
+from .effects import Effects, apply_delay, apply_rate_limit, apply_thrust_asymmetry, check_effects
 from .manoeuvres import Schedule
 from .sensors import SensorSpec, default_sensors
 
@@ -167,10 +167,12 @@ def simulate(vessel: Vessel, schedule: Schedule, effects: Effects = Effects(),
     limited = np.zeros(len(channels))
     unlimited = bool(np.all(np.isinf(max_step)))
     for m_idx, man in enumerate(schedule.manoeuvres):
+        k = int(bounds[m_idx])
+        if k == bounds[m_idx + 1]:
+            continue  # shorter than one step: no sample of it, and its initial state is never applied
         for name, value in man.initial.items():
             if name in states:
                 xk[states.index(name)] = value
-        k = int(bounds[m_idx])
         while k < bounds[m_idx + 1]:
             # A stretch whose commands are known before it is integrated: up to the next tick when
             # the manoeuvre reads the state (a zig-zag watches the heading), else a whole chunk.
@@ -186,7 +188,7 @@ def simulate(vessel: Vessel, schedule: Schedule, effects: Effects = Effects(),
                 else:
                     cmd[j] = cmd[j - 1]
             rows = np.arange(k, k_end)
-            target = cmd[np.maximum(rows - delay_steps, 0)]
+            target = apply_delay(cmd, rows, delay_steps)
             # The rate limiter tracks the actuator's own position; the reverse-thrust loss acts on
             # what the propeller makes of it and must not feed back into the limiter's state.
             if unlimited:
