@@ -49,8 +49,9 @@ def _num(x) -> float | None:
     return float(x) if finite(x) else None
 
 
-def _matrix(a: np.ndarray) -> list[list[float | None]]:
-    return [[_num(x) for x in row] for row in a]
+def _square(a: np.ndarray) -> list[list[float | None]]:
+    """A matrix as JSON rows, None for NaN/inf."""
+    return [[_num(x) for x in row] for row in np.asarray(a, float)]
 
 
 def estimate_to_dict(est: FitParameter | None, name: str = "") -> dict[str, Any]:
@@ -120,7 +121,7 @@ def fits_to_dict(fits: Fits) -> dict[str, Any]:
     return {
         "vessel": str(fits.vessel),
         "convention": str(fits.convention),
-        "damping_matrix": {"dofs": list(DOFS), "values": _matrix(D), "stderr": _matrix(D_se)},
+        "damping_matrix": {"dofs": list(DOFS), "values": _square(D), "stderr": _square(D_se)},
         "coefficients": {name: estimate_to_dict(params.get(name), name) for name in ordered_names(params)},
         **model_structure_to_dict(fits),
         **decay_analysis_to_dict(fits),
@@ -185,10 +186,6 @@ def _damping_fit_dict(fit) -> dict[str, Any]:
             "rmse_noise_units": _num(stats["rmse_noise_units"]), "residual_lag1": _num(stats["residual_lag1"]),
             "n_residuals": int(shared.ndata), "inertia": _num(stats["inertia"]), "success": bool(shared.success),
             "message": shared.message}
-
-
-def _square(a: np.ndarray) -> list[list[float | None]]:
-    return [[_num(x) for x in row] for row in np.asarray(a, float)]
 
 
 def model_structure_to_dict(fits: Fits) -> dict[str, Any]:
