@@ -31,7 +31,7 @@ import numpy as np
 
 from ..geo import wrap_pi
 from ..records import Segment, Trial
-from .quality import detection_quality, noise_std
+from .quality import detection_quality, noise_std, true_runs
 
 #: Lowest steady speed a coast-down starts from [m/s].
 V_MIN = 0.5
@@ -114,12 +114,6 @@ def _smooth(y: np.ndarray, w: int) -> np.ndarray:
     den = np.convolve(ok.astype(float), k, mode="same")
     out = np.where(den >= 0.5 * w, num / np.maximum(den, 1e-12), np.nan)
     return out
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(start, stop) index pairs of the True runs of ``mask``."""
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
 def _turn_rate(trial: Trial, i0: int, i1: int) -> tuple[float, str]:
@@ -240,7 +234,7 @@ def find_coast_downs(trial: Trial, channel: str | None = None) -> tuple[list[Seg
     segs: list[Segment] = []
     cands: list[Candidate] = []
     busy_until = -math.inf
-    for a, b in _runs(decel):
+    for a, b in true_runs(decel):
         if b - a < A_MIN_S * fs or t[a] < busy_until:
             continue
         # The cut: a change point (steady before, declining after) near the strongest deceleration
@@ -287,7 +281,7 @@ def find_coast_downs(trial: Trial, channel: str | None = None) -> tuple[list[Seg
                 cands.append(Candidate(float(t[s0]), float(t[i0]), False, unsteady))
                 continue
         mid = np.nan_to_num(acc[min(i0 + w, i_drop):i_drop], nan=0.0) > -A_END
-        if any(e - s >= w for s, e in _runs(mid)):
+        if any(e - s >= w for s, e in true_runs(mid)):
             cands.append(Candidate(float(t[i0]), float(t[i_drop]), False,
                                    f"deceleration from {t[i0]:.1f} s not sustained: the speed levelled off or rose "
                                    f"for a second or more before falling {DROP_MIN:.0%}"))
