@@ -181,7 +181,7 @@ def _damping_fit_dict(fit) -> dict[str, Any]:
     return {"terms": terms, "covariance": {"names": names, "matrix": _square(cov)},
             "correlation": {"names": names, "matrix": _square(corr)},
             "parameters": {n: {"value": _num(p.value), "stderr": _num(p.stderr)} for n, p in shared.params.items()},
-            "parameter_covariance": {"names": list(fit.names), "matrix": _square(fit.covariance),
+            "parameter_covariance": {"names": list(shared.names), "matrix": _square(shared.covariance),
                                      "method": "Newey-West (HAC) sandwich, records independent"},
             "rmse_noise_units": _num(stats["rmse_noise_units"]), "residual_lag1": _num(stats["residual_lag1"]),
             "n_residuals": int(shared.ndata), "inertia": _num(stats["inertia"]), "success": bool(shared.success),
@@ -228,14 +228,15 @@ def model_structure_to_dict(fits: Fits) -> dict[str, Any]:
             "models": {k: _damping_fit_dict(f) for k, f in ch.fits.items()},
         }
         sel = ch.fits[ch.selected]
-        if sel.terms:
-            names += list(sel.terms)
-            blocks.append(np.asarray(sel.term_covariance, float))
+        terms = sel.to_fit_result() if sel.terms else None  # the Fossen terms, not the shared parameters
+        if terms is not None:
+            names += list(terms.names)
+            blocks.append(terms.covariance)
         quad = TERM_NAMES[dof][1]
-        if ch.selected == "quadratic" and quad in sel.terms:
+        if ch.selected == "quadratic" and terms is not None and quad in terms.params:
             i = list(DOFS).index({"surge": "u", "sway": "v", "roll": "p", "pitch": "q", "yaw": "r"}[dof])
-            d2[i] = _num(-sel.terms[quad][0])
-            d2_se[i] = _num(sel.terms[quad][1])
+            d2[i] = _num(-terms.params[quad].value)
+            d2_se[i] = _num(terms.params[quad].stderr)
     n = len(names)
     cov = np.zeros((n, n))
     k = 0
