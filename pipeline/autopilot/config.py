@@ -424,22 +424,28 @@ def read_coefficients_json(path: str | Path) -> NomotoCoefficients:
         Missing file, bad JSON, K_nomoto or T_nomoto missing or null.
     """
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise AutopilotError(f"{p}: expected a coefficients.json, found no such file") from None
-    except IsADirectoryError:
-        raise AutopilotError(f"{p}: expected a coefficients.json file, found a folder") from None
-    except OSError as exc:
-        raise AutopilotError(f"{p}: expected a readable coefficients.json, found: {exc.strerror}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise AutopilotError(f"{p}: expected JSON, found: {exc}") from None
-    if not isinstance(doc, Mapping):
-        raise AutopilotError(f"{p}: expected a JSON object, found {type(doc).__name__}")
+    doc = _read_json_object(p, "coefficients.json")
     k, kse = _coef(doc, "K_nomoto", str(p))
     t, tse = _coef(doc, "T_nomoto", str(p))
     return NomotoCoefficients(K=k, K_stderr=kse, T=t, T_stderr=tse, vessel=str(doc.get("vessel", "")),
                               source=source_file("coefficients", p))
+
+
+def _read_json_object(p: Path, what: str) -> Mapping:
+    """The JSON object in ``p``; an AutopilotError naming ``what`` was expected and what was found."""
+    try:
+        doc = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise AutopilotError(f"{p}: expected a {what}, found no such file") from None
+    except IsADirectoryError:
+        raise AutopilotError(f"{p}: expected a {what} file, found a folder") from None
+    except OSError as exc:
+        raise AutopilotError(f"{p}: expected a readable {what}, found: {exc.strerror}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise AutopilotError(f"{p}: expected JSON, found: {exc}") from None
+    if not isinstance(doc, Mapping):
+        raise AutopilotError(f"{p}: expected a JSON object, found {type(doc).__name__}")
+    return doc
 
 
 def read_waves_json(path: str | Path) -> tuple[WaveParams, dict[str, float]]:
@@ -462,16 +468,7 @@ def read_waves_json(path: str | Path) -> tuple[WaveParams, dict[str, float]]:
         Missing file, bad JSON, missing or non-positive parameters.
     """
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise AutopilotError(f"{p}: expected a waves JSON, found no such file") from None
-    except IsADirectoryError:
-        raise AutopilotError(f"{p}: expected a wave-fit JSON file, found a folder") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise AutopilotError(f"{p}: expected JSON, found: {exc}") from None
-    if not isinstance(doc, Mapping):
-        raise AutopilotError(f"{p}: expected a JSON object, found {type(doc).__name__}")
+    doc = _read_json_object(p, "wave-fit JSON")
     vals, ses = {}, {}
     for key in ("omega0", "lambda", "kw"):
         entry = doc.get(key)
