@@ -154,3 +154,18 @@ def test_damping_fit_converts_terms_and_shared_parameters():
                       covariance=np.array([[1e-4]]), terms={}, term_covariance=np.zeros((0, 0)), rmse=1.0, lag1=0.0,
                       n=100, dof_resid=99)
     assert bare.to_fit_result().names == ("a",)
+
+
+def test_autopilot_config_gives_the_coefficients_its_design_used():
+    from pipeline.autopilot.config import build_autopilot_config
+
+    waves = WaveParams(omega0=0.8, lam=0.1, kw=0.02)
+    cfg = build_autopilot_config(0.3, 8.0, K_stderr=0.01, T_stderr=0.4, waves=waves,
+                                 waves_stderr={"omega0": 0.05, "lambda": 0.02}, wave_source="test")
+    fr = as_fit_result(cfg)
+    assert fr.names == ("K", "T", "omega0", "lam", "kw")
+    assert (fr.value("K"), fr.stderr("K"), fr.params["K"].unit) == (0.3, 0.01, "1/s")
+    assert (fr.value("T"), fr.stderr("T"), fr.params["T"].unit) == (8.0, 0.4, "s")
+    assert fr.stderr("lam") == 0.02 and fr.value("omega0") == 0.8
+    assert math.isnan(fr.stderr("kw"))   # not in waves_stderr: no error bar, not a made-up one
+    assert np.isnan(fr.covariance).all()  # K, T and the waves come from different fits

@@ -32,6 +32,7 @@ from .. import __version__
 from ..atomic import atomic_write_bytes
 from ..errors import AutopilotError
 from ..model.waves import WaveParams
+from ..records import FitResult, fit_result_from_arrays, parameter_unit
 from .defaults import DEFAULT_TS  # the default lives where the CLI's --help can read it
 from .kalman import DEFAULT_P0, DEFAULT_Q, DEFAULT_R, KALMAN_STATES, KalmanModel, kalman_model
 from .pd import DEFAULT_PHASE_MARGIN, PDGains, pd_gains
@@ -132,6 +133,19 @@ class AutopilotConfig:
     sources: tuple[SourceFile, ...] = ()
     notes: tuple[str, ...] = ()
     version: str = __version__
+
+    def to_fit_result(self) -> FitResult:
+        """The coefficients the design used, as a :class:`~pipeline.records.FitResult`: ``K``, ``T`` and
+        the wave model's ``omega0``, ``lam``, ``kw``, with the standard errors they came with (no
+        covariance: they come from different fits)."""
+        names = ("K", "T", "omega0", "lam", "kw")
+        ws = self.waves_stderr
+        return fit_result_from_arrays(
+            "autopilot_design_coefficients", names, [self.K, self.T, self.waves.omega0, self.waves.lam, self.waves.kw],
+            [self.K_stderr, self.T_stderr, ws.get("omega0", math.nan), ws.get("lambda", math.nan), ws.get("kw", math.nan)],
+            None, {n: parameter_unit(n) for n in names}, message="standard errors only: K, T and the wave model "
+                                                                   "come from different fits",
+            provenance={"fitter": "pipeline.autopilot.config.build_autopilot_config", "waves": self.wave_source})
 
 
 def build_autopilot_config(K: float, T: float, *, K_stderr: float = math.nan, T_stderr: float = math.nan,
@@ -384,6 +398,17 @@ class NomotoCoefficients:
     T_stderr: float
     vessel: str = ""
     source: SourceFile | None = None
+
+    def to_fit_result(self) -> FitResult:
+        """K and T as a :class:`~pipeline.records.FitResult` (standard errors only: the file holds no
+        covariance)."""
+        source = self.source
+        return fit_result_from_arrays(
+            "nomoto_coefficients", ("K", "T"), [self.K, self.T], [self.K_stderr, self.T_stderr], None,
+            {"K": "1/s", "T": "s"}, success=math.isfinite(self.K) and math.isfinite(self.T),
+            message="read from coefficients.json: only the standard errors are known, not the covariance",
+            provenance={"fitter": "pipeline.autopilot.config.read_coefficients_json", "vessel": self.vessel,
+                        **({"data": f"{source.path} (sha256 {source.sha256})"} if source is not None else {})})
 
 
 def _coef(doc: Mapping, name: str, path: str) -> tuple[float, float]:
