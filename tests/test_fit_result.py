@@ -169,3 +169,17 @@ def test_autopilot_config_gives_the_coefficients_its_design_used():
     assert fr.stderr("lam") == 0.02 and fr.value("omega0") == 0.8
     assert math.isnan(fr.stderr("kw"))   # not in waves_stderr: no error bar, not a made-up one
     assert np.isnan(fr.covariance).all()  # K, T and the waves come from different fits
+
+
+def test_extinction_carries_the_derived_damping_with_its_errors():
+    from pipeline.records import Extinction
+
+    cov = np.array([[4e-4, -1e-4], [-1e-4, 9e-4]])
+    ext = Extinction("combined", np.linspace(0.2, 0.05, 6), np.linspace(0.04, 0.01, 6), 0.12, 0.3, cov, 0.14, 0.01,
+                     2.1, 0.02, 55.0, 4.0, 80.0, 9.0, 70.0, 5.0, 0.1, 12.0, 0.3, 2)
+    fr = as_fit_result(ext)
+    assert fr.names == ("a", "b", "a_linear", "wn", "B1", "B2", "B_eq", "inertia_fit")
+    assert fr.stderr("b") == pytest.approx(0.03) and np.array_equal(fr.covariance[:2, :2], cov)
+    assert (fr.value("B_eq"), fr.stderr("B_eq"), fr.params["B_eq"].unit) == (70.0, 5.0, "kg m^2/s")
+    assert fr.params["wn"].unit == "rad/s" and fr.statistics["amplitude"] == 0.1
+    assert np.isnan(fr.covariance[2:, :]).all()   # derived quantities: errors only, no covariance claimed

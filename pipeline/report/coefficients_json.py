@@ -147,13 +147,15 @@ def decay_analysis_to_dict(fits: Fits) -> dict[str, Any]:
     for dof, a in analyses.items():
         curves = {}
         for k, c in a.curves.items():
+            fr = c.to_fit_result()
+            p = fr.params
             curves[k] = {"n_decays": c.n_decays, "phi_m": [_num(x) for x in c.phi_m], "dphi": [_num(x) for x in c.dphi],
-                         "a": _num(c.a), "b": _num(c.b), "cov_ab": _square(c.cov_ab),
-                         "a_linear": _num(c.a_linear), "a_linear_stderr": _num(c.a_linear_se),
-                         "wn": _num(c.wn), "wn_stderr": _num(c.wn_se), "B1": _num(c.B1), "B1_stderr": _num(c.B1_se),
-                         "B2": _num(c.B2), "B2_stderr": _num(c.B2_se), "B_eq": _num(c.B_eq),
-                         "B_eq_stderr": _num(c.B_eq_se), "amplitude": _num(c.amplitude),
-                         "inertia_fit": _num(c.inertia_fit), "inertia_fit_stderr": _num(c.inertia_fit_se)}
+                         "a": _num(p["a"].value), "b": _num(p["b"].value), "cov_ab": _square(fr.covariance[:2, :2])}
+            for n in ("a_linear", "wn", "B1", "B2", "B_eq"):
+                curves[k].update({n: _num(p[n].value), f"{n}_stderr": _num(p[n].stderr)})
+            curves[k]["amplitude"] = _num(fr.statistics["amplitude"])
+            curves[k].update({"inertia_fit": _num(p["inertia_fit"].value),
+                              "inertia_fit_stderr": _num(p["inertia_fit"].stderr)})
         out[dof] = {"curves": curves, "inertia_config": _num(a.inertia_config), "restoring": _num(a.restoring),
                     "consistency_p": _num(a.consistency_p), "message": a.message}
     return {"decay_analysis": out}

@@ -165,17 +165,5 @@ def _(result: NomotoCoefficients) -> FitResult:
 
 @as_fit_result.register
 def _(result: Extinction) -> FitResult:
-    names = ("a", "b")
-    cov = np.asarray(result.cov_ab, float)
-    se = np.sqrt(np.clip(np.diag(cov), 0, None)) if cov.shape == (2, 2) else np.full(2, math.nan)
-    ok = math.isfinite(result.a)
-    return fit_result_from_arrays(
-        f"extinction_{result.label.replace(' ', '_')}", names, [result.a, result.b], se,
-        cov if cov.shape == (2, 2) else None, {"a": "", "b": "1/rad"},
-        dof=max(result.phi_m.size - 2, 1), success=ok,
-        message="" if math.isfinite(result.b) else "b not estimated (too few half cycles)",
-        ndata=int(result.phi_m.size),
-        provenance={"fitter": "pipeline.fit.decay_analysis", "data": f"{result.n_decays} free decay(s)",
-                    "covariance": "least squares on the extinction curve dphi = a phi_m + b phi_m^2"},
-        statistics={"wn": float(result.wn), "wn_se": float(result.wn_se)})
+    return result.to_fit_result()
 
