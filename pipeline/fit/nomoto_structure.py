@@ -60,9 +60,10 @@ from .nomoto import whole_record_window
 from .nomoto_oe import GainFloor, SecondOrderNoGain
 from .nomoto_problem import SERVO_PARAMS, Problem, prepare
 from .nomoto_records import NomotoFit
-from .nomoto_segment import (ORDER2_EXTRA_PARAMS, NomotoWindow, equivalent_t_stderr, fit_nomoto_window, fit_window,
-                             fit_window_order, first_order_start_values, prepare_window, rec_channel,
-                             structure_ambiguity)
+from .nomoto_oe import fit_nomoto
+from .nomoto_segment import (ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order, equivalent_t_stderr, fit_nomoto_window,
+                             fit_window, fit_window_order, first_order_start_values, prepare_window, rec_channel,
+                             segment_fit_of, slow_noise_note, structure_ambiguity)
 from .nomoto_segment import structure_note as per_segment_structure_note
 from .segment_fit import failed_segment_fit
 
@@ -72,6 +73,11 @@ STRUCTURE_PREFIX = "model structure chosen once across"
 DISAGREEMENT_PREFIX = "segments disagree beyond their errors"
 #: |t| of an amplitude trend (or a between-kind difference) that explains a disagreement.
 TREND_T = 3.0
+#: Start of the note on a segment fitted jointly with others whose K, T and the other coefficients
+#: are counted once, on the first segment of the joint fit (read by :func:`is_joint_follower`).
+JOINT_FOLLOWER = "fitted jointly with"
+#: Start of the note on the joint fit of sinusoids (:func:`joint_sinusoids`).
+JOINT_PREFIX = "sinusoids fitted jointly"
 
 
 @dataclass(frozen=True)
@@ -146,6 +152,11 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
     usable = [c for c in cands if c.first is not None]
     if len(usable) < 2:
         return {}
+    joint_note = ""
+    if all(c.win.segment.kind == "sinusoid" for c in usable):
+        joint, joint_note = joint_sinusoids(usable)
+        if joint:
+            return joint
     choice = choose_structure(usable)
     undecided = undecided_note(usable) if choice.near_tie and choice.order == 1 else ""
     clear, why = choice_is_clear(choice)
@@ -175,10 +186,127 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
     ok = [out[c.index] for c in usable if out[c.index].success]
     amps = {c.index: float(np.max(np.abs(c.win.rec.delta))) for c in usable}
     extra = disagreement_note(ok, [amps[c.index] for c in usable if out[c.index].success])
-    extra = "; ".join(n for n in (undecided, extra) if n)
+    extra = "; ".join(n for n in (undecided, extra, joint_note) if n)
     if extra:
         out = {i: replace(sf, message=f"{sf.message}; {extra}") for i, sf in out.items()}
     return out
+
+
+def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit], str]:
+    """Sinusoids at several frequencies fitted jointly, when the held-out data choose the second order.
+
+    One sinusoid shows a gain and a phase at one frequency: a first-order model matches any ship
+    there, and a second-order one (K, T1 + T2, T1 T2, T3) is not identified by it alone, so each
+    sinusoid's own second-order fit fails or stops (:class:`pipeline.fit.nomoto_oe.GainFloor`) and
+    the leave-one-segment-out choice has nothing to pool. Fitted together (one ship, per-record
+    initial states, one rudder bias and servo), sinusoids at two frequencies give four numbers, which
+    determine the second order (measured: PythonVehicleSimulator's Clarke83 ship, sinusoids at 0.037 and
+    0.15 rad/s with the measured rudder, K +0.35 %, T1 + T2 - T3 -0.2 %; first order per frequency
+    +4 % / +20 %). The structure is chosen on the held-out end of every record, fitted jointly
+    (:func:`pipeline.fit.nomoto_segment.choose_order`). When the second order wins, the whole records
+    are fitted jointly with it; the first segment carries the fit's K, T and the rest, the others the
+    same fit (their own record's simulation) with a ``JOINT_FOLLOWER`` note, counted once
+    (:func:`is_joint_follower`).
+
+    With a logged command the servo lag is fitted too: then ``2 n`` numbers (``n`` frequencies)
+    meet ``4 + 1`` unknowns, and with ``2 n < 5`` the lag trades off against the pole-zero pair
+    (measured: the Clarke83 commanded sinusoids, noise-free, lag 1.7 s against 1.0, T -40 % with a
+    standard error of 1 %): T is then marked unsure (``STRUCTURE_UNDECIDED``), K is not.
+
+    A wave noise model whose peak lies below the corner frequency (:func:`pipeline.fit.nomoto_segment.slow_noise_note`)
+    is checked against the output-error fit of the same records (consistent for sinusoids, which are
+    open loop): when their K and T agree within ``DISAGREE_Z`` combined errors the noise model did not
+    take up the ship's response and the note does not apply.
+
+    Parameters
+    ----------
+    cands : sequence of _Candidate
+        The sinusoid segments with a usable first-order fit (two or more).
+
+    Returns
+    -------
+    fits : dict
+        Segment index -> SegmentFit (empty when the first order is kept or the joint fit fails).
+    note : str
+        How the joint structure choice went ('' when it was not made).
+    """
+    wins = [c.win for c in cands]
+    command = {any(n.startswith("rudder logged as a command") for n in w.notes) for w in wins}
+    channels = tuple(ch for ch in ("psi", "r") if all(ch in w.channels for w in wins))
+    if len(command) != 1 or not channels:
+        return {}, ""
+    servo: tuple[str, ...] = ("t_servo",) if command.pop() else ()
+    recs = [w.rec for w in wins]
+    head = f"{JOINT_PREFIX} ({len(recs)} records, one ship)"
+    try:
+        choice = choose_order(recs, channels, servo)
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        return {}, f"{head}: the joint structure check failed ({exc})"
+    if choice.order == 1:
+        return {}, f"{head}: {choice.note}"
+    notes = [f"{head}: {choice.note}"]
+    try:
+        fit = fit_nomoto(recs, order=ORDER2_SUM_PRODUCT, noise="auto", channels=channels, servo=servo)
+        if servo and any(n in SERVO_PARAMS for n in fit.at_bound):
+            servo = ()
+            fit = fit_nomoto(recs, order=ORDER2_SUM_PRODUCT, noise="auto", channels=channels)
+            notes.append("the servo lag left its range in the joint fit: rudder taken as the command")
+        slow_checked = _slow_noise_check(fit, recs, channels, servo) if slow_noise_note(fit) else ""
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        return {}, f"{head}: {choice.note}, but the joint second-order fit failed ({exc})"
+    if not _usable(fit):
+        return {}, f"{head}: {choice.note}, but the joint second-order fit did not converge in range"
+    n_servo = sum(n in SERVO_PARAMS for n in fit.names)
+    unsure = ""
+    if 2 * len(recs) < 4 + n_servo:
+        unsure = (f"{STRUCTURE_UNDECIDED} T: {len(recs)} sinusoids give {2 * len(recs)} numbers (a gain and a phase "
+                  f"per frequency) for the second order's 4 and the servo's {n_servo}: the servo lag trades off "
+                  f"against the pole-zero pair, so T1 + T2 - T3 is not identified (add a rudder step, a zig-zag or "
+                  f"a sinusoid at a third frequency)")
+    lead = segment_label(wins[0].segment)
+    out = {}
+    for i, (c, w) in enumerate(zip(cands, wins)):
+        own = [n for n in w.notes if not (n.startswith("servo ") or n.startswith("first-order compass residuals"))]
+        seg_notes = ([f"{JOINT_FOLLOWER} {lead}: its K, T and the other coefficients are that joint fit's, "
+                      f"counted once"] if i else []) + own + notes + ([unsure] if unsure else [])
+        out[c.index] = segment_fit_of(w.segment, fit, w.rec, channels, w.t_rel, seg_notes, record=i,
+                                      slow_noise_checked=slow_checked)
+    return out, ""
+
+
+def _slow_noise_check(fit: NomotoFit, recs: Sequence, channels: tuple[str, ...], servo: tuple[str, ...]) -> str:
+    """Why a joint fit's slow wave noise model does not bias K and T ('' when it may: the note then applies).
+
+    The output-error fit of the same records and structure is made; the noise model took up none of
+    the ship's response when its K and T agree with it within ``DISAGREE_Z`` combined standard errors."""
+    try:
+        oe = fit_nomoto(recs, order=fit.order, noise="white", channels=channels, servo=servo,
+                        start=first_order_start_values(fit))
+    except FitError:
+        return ""
+    if not _usable(oe):
+        return ""
+    parts = []
+    for name, a, sa, b, sb in (("K", fit.K, fit.error("K"), oe.K, oe.error("K")),
+                               ("T", fit.T, equivalent_t_stderr(fit), oe.T, equivalent_t_stderr(oe))):
+        se = math.hypot(sa, sb)
+        if not (math.isfinite(se) and se > 0 and abs(a - b) <= DISAGREE_Z * se):
+            return ""
+        parts.append(f"{name} {a:.4g} against {b:.4g} (z = {(a - b) / se:+.2f})")
+    return (f"the wave noise model's peak, omega0 = {fit.value('omega0'):.3g} rad/s, lies below the corner "
+            f"frequency, but the output-error fit of the same records agrees ({', '.join(parts)}, within "
+            f"{DISAGREE_Z:g}): the noise model took up none of the ship's response")
+
+
+def is_joint_follower(sf: SegmentFit) -> bool:
+    """Whether ``sf`` is a segment of a joint fit whose coefficients are counted on another segment.
+
+    Parameters
+    ----------
+    sf : SegmentFit
+        A segment fit.
+    """
+    return sf.message.startswith(JOINT_FOLLOWER) or f"; {JOINT_FOLLOWER} " in sf.message
 
 
 def choice_is_clear(choice: StructureChoice) -> tuple[bool, str]:
