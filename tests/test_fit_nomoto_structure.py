@@ -356,3 +356,64 @@ def test_rate_limit_not_tried_when_the_lag_is_below_a_sample():
     win = prepare_window(trial, seg, 0.0, seg.t_end)
     assert win.servo == ("t_servo",)
     assert any("a rate limit not tried" in n for n in win.notes)
+
+
+# --------------------------------------------------------------------------- sinusoids fitted jointly
+def _sine_pair(T_scale):
+    """3 periods at 2/T, a 10 T hold, 3 periods at 0.5/T, a 4 T hold (the independent benchmark's pair) [rad]."""
+    parts = []
+    for w in (2.0 / T_scale, 0.5 / T_scale):
+        t = np.arange(0.0, 3 * 2 * math.pi / w, H)
+        parts += [math.radians(10) * np.sin(w * t), np.zeros(int(10 * T_scale / H))]
+    return np.concatenate(parts[:3] + [np.zeros(int(4 * T_scale / H))])
+
+
+def _fit_sine_pair(order1, measured):
+    from pipeline.fit import fit_trial
+    from pipeline.vessel import parse_vessel
+
+    trial = _ship_log(_sine_pair(T_TRUE if order1 else 13.5), tau=1.0, measured=measured, order1=order1)
+    segs = detect_segments(trial)
+    assert len(segs.of("sinusoid")) == 2
+    return fit_trial(trial, segs, parse_vessel({"name": "ship"}), extend=False)
+
+
+@pytest.mark.slow
+def test_sinusoids_of_a_second_order_ship_fitted_jointly():
+    # One sinusoid cannot identify the second order (a gain and a phase for four constants), so each
+    # frequency's own fit was first order, K and T spread between them and both were refused.
+    from pipeline.fit.nomoto_structure import is_joint_follower
+
+    fits = _fit_sine_pair(order1=False, measured=True)
+    k, t = fits.estimates["K_nomoto"], fits.estimates["T_nomoto"]
+    assert "sinusoids fitted jointly" in k.message or any(
+        "sinusoids fitted jointly" in sf.message for sf in fits.segment_fits), k.message
+    sines = [sf for sf in fits.segment_fits if sf.segment.kind == "sinusoid"]
+    assert [is_joint_follower(sf) for sf in sines] == [False, True]
+    assert all("T3" in sf.params for sf in sines)
+    assert k.n_segments == 1 and t.n_segments == 1
+    assert k.success and t.success, (k.message, t.message)
+    assert k.value == pytest.approx(0.09, rel=0.02)
+    assert t.value == pytest.approx(13.5 - 10.8, rel=0.05)
+    assert abs(t.value - 2.7) < 3 * t.stderr + 0.01 * 2.7
+
+
+@pytest.mark.slow
+def test_sinusoids_of_a_first_order_ship_keep_the_first_order():
+    fits = _fit_sine_pair(order1=True, measured=True)
+    k, t = fits.estimates["K_nomoto"], fits.estimates["T_nomoto"]
+    sines = [sf for sf in fits.segment_fits if sf.segment.kind == "sinusoid"]
+    assert all("T3" not in sf.params for sf in sines)
+    assert any("sinusoids fitted jointly" in sf.message and "first-order Nomoto" in sf.message for sf in sines)
+    assert k.success and t.success, (k.message, t.message)
+    assert k.value == pytest.approx(K_TRUE, rel=0.01) and t.value == pytest.approx(T_TRUE, rel=0.02)
+
+
+@pytest.mark.slow
+def test_two_commanded_sinusoids_leave_the_second_order_t_unsure():
+    # Two frequencies give four numbers; the second order and the servo lag are five unknowns.
+    fits = _fit_sine_pair(order1=False, measured=False)
+    t = fits.estimates["T_nomoto"]
+    sines = [sf for sf in fits.segment_fits if sf.segment.kind == "sinusoid"]
+    assert all("T3" in sf.params and "t_servo" in sf.params for sf in sines), [sf.message for sf in sines]
+    assert not t.success and "servo lag trades off against the pole-zero pair" in t.message, t.message

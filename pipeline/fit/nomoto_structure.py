@@ -251,7 +251,7 @@ def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit],
             servo = ()
             fit = fit_nomoto(recs, order=ORDER2_SUM_PRODUCT, noise="auto", channels=channels)
             notes.append("the servo lag left its range in the joint fit: rudder taken as the command")
-        slow_checked = _slow_noise_check(fit, recs, channels, servo) if slow_noise_note(fit) else ""
+        slow_checked, terms = _slow_noise_check(fit, recs, channels, servo) if slow_noise_note(fit) else ("", [])
     except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return {}, f"{head}: {choice.note}, but the joint second-order fit failed ({exc})"
     if not _usable(fit):
@@ -268,34 +268,44 @@ def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit],
     for i, (c, w) in enumerate(zip(cands, wins)):
         own = [n for n in w.notes if not (n.startswith("servo ") or n.startswith("first-order compass residuals"))]
         seg_notes = ([f"{JOINT_FOLLOWER} {lead}: its K, T and the other coefficients are that joint fit's, "
-                      f"counted once"] if i else []) + own + notes + ([unsure] if unsure else [])
+                      f"counted once"] if i else []) + own + notes + ([unsure] if unsure else []) + terms
         out[c.index] = segment_fit_of(w.segment, fit, w.rec, channels, w.t_rel, seg_notes, record=i,
                                       slow_noise_checked=slow_checked)
     return out, ""
 
 
-def _slow_noise_check(fit: NomotoFit, recs: Sequence, channels: tuple[str, ...], servo: tuple[str, ...]) -> str:
-    """Why a joint fit's slow wave noise model does not bias K and T ('' when it may: the note then applies).
+def _slow_noise_check(fit: NomotoFit, recs: Sequence, channels: tuple[str, ...], servo: tuple[str, ...]
+                      ) -> tuple[str, list[str]]:
+    """Why a joint fit's slow wave noise model does not bias K and T, and the terms it leaves ('' and
+    none when it may bias them: :func:`pipeline.fit.nomoto_segment.slow_noise_note` then applies).
 
-    The output-error fit of the same records and structure is made; the noise model took up none of
-    the ship's response when its K and T agree with it within ``DISAGREE_Z`` combined standard errors."""
+    The output-error fit of the same records and structure is made (consistent for open-loop
+    sinusoids, whatever the noise's colour); the noise model took up none of the ship's response when
+    its K and T agree with it within ``DISAGREE_Z`` combined standard errors. Their difference is then
+    a noise-model term (``STRUCTURE_TERM_PREFIX`` notes, added in quadrature to the combined error by
+    :func:`pipeline.fit.nomoto_quality.judge_nomoto`): two consistent estimators whose noise models
+    differ, and the PEM's error bars assume its noise model (measured: Clarke83 measured-rudder
+    sinusoids, T -2.6 % and -4.1 % with standard errors of 0.7 %)."""
     try:
         oe = fit_nomoto(recs, order=fit.order, noise="white", channels=channels, servo=servo,
                         start=first_order_start_values(fit))
     except FitError:
-        return ""
+        return "", []
     if not _usable(oe):
-        return ""
-    parts = []
-    for name, a, sa, b, sb in (("K", fit.K, fit.error("K"), oe.K, oe.error("K")),
-                               ("T", fit.T, equivalent_t_stderr(fit), oe.T, equivalent_t_stderr(oe))):
+        return "", []
+    parts, terms = [], []
+    for name, unit, a, sa, b, sb in (("K", "1/s", fit.K, fit.error("K"), oe.K, oe.error("K")),
+                                     ("T", "s", fit.T, equivalent_t_stderr(fit), oe.T, equivalent_t_stderr(oe))):
         se = math.hypot(sa, sb)
         if not (math.isfinite(se) and se > 0 and abs(a - b) <= DISAGREE_Z * se):
-            return ""
+            return "", []
         parts.append(f"{name} {a:.4g} against {b:.4g} (z = {(a - b) / se:+.2f})")
+        terms.append(f"{STRUCTURE_TERM_PREFIX} {name}: +-{abs(a - b):.6g} {unit} added in quadrature to its standard "
+                     f"error, the difference between the wave-noise and output-error fits of the same records (both "
+                     f"consistent for open-loop sinusoids; the first one's error bars assume its noise model)")
     return (f"the wave noise model's peak, omega0 = {fit.value('omega0'):.3g} rad/s, lies below the corner "
             f"frequency, but the output-error fit of the same records agrees ({', '.join(parts)}, within "
-            f"{DISAGREE_Z:g}): the noise model took up none of the ship's response")
+            f"{DISAGREE_Z:g}): the noise model took up none of the ship's response"), terms
 
 
 def is_joint_follower(sf: SegmentFit) -> bool:
