@@ -43,6 +43,7 @@ from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
 from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
 from .nomoto_oe import GainFloor, SecondOrderNoGain, fit_nomoto
 from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
+from .nomoto_pool import samples_window  # noqa: F401 - re-exported (trial.py, combine of windows)
 from .nomoto_quality import SPEED_RANGE, STRUCTURE_UNDECIDED
 from .nomoto_records import NomotoFit, NomotoRecord
 from .segment_fit import MAX_RELATIVE_STDERR
@@ -747,27 +748,6 @@ def rudder_step_lead_in(trial: Trial, segment: Segment) -> float:
             not any(g.t_start <= t[k] <= g.t_end for g in trial.gaps):
         k -= 1
     return float(t[min(k + 1, i0)]) if i0 > 0 else float(segment.t_start)
-
-
-def samples_window(sf: SegmentFit) -> tuple[float, float] | None:
-    """Start and end [s, trial clock] of the samples a whole-record Nomoto fit used (None for other fits).
-
-    A rudder step's window reaches back over the steady hold before it
-    (:func:`rudder_step_lead_in`), which is the previous step's new level: consecutive steps share
-    samples, and their combination treats them as correlated
-    (:func:`pipeline.fit.combine.overlap_correlation`).
-
-    Parameters
-    ----------
-    sf : SegmentFit
-        A segment fit; its ``t`` is relative to the segment's start.
-    """
-    if not sf.model.startswith(("nomoto_oe", "nomoto_pem")) or sf.t is None or len(sf.t) < 2:
-        return None
-    t = np.asarray(sf.t, float)
-    if not (math.isfinite(t[0]) and math.isfinite(t[-1])):
-        return None
-    return float(sf.segment.t_start + t[0]), float(sf.segment.t_start + t[-1])
 
 
 #: Extra Nomoto coefficients a segment fit may carry: parameter -> (estimate name, unit).

@@ -55,12 +55,13 @@ from ..records import Segment, SegmentFit, Trial
 from .combine import CONSISTENCY_ALPHA
 from .nomoto_quality import STRUCTURE_TERM, STRUCTURE_UNDECIDED
 from .data import segment_label
-from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
+from .heldout_test import ALPHA, ALPHA_ROBUST, MIN_EXPLAINED, MIN_SHRINK, channel_score, is_significant
 from .nomoto import whole_record_window
 from .nomoto_oe import GainFloor, SecondOrderNoGain
 from .nomoto_problem import SERVO_PARAMS, Problem, prepare
 from .nomoto_records import NomotoFit
 from .nomoto_oe import fit_nomoto
+from .nomoto_pool import JOINT_FOLLOWER, is_joint_follower  # noqa: F401 - is_joint_follower re-exported
 from .nomoto_segment import (ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order, equivalent_t_stderr, fit_nomoto_window,
                              fit_window, fit_window_order, first_order_start_values, prepare_window, rec_channel,
                              segment_fit_of, slow_noise_note, structure_ambiguity)
@@ -73,9 +74,6 @@ STRUCTURE_PREFIX = "model structure chosen once across"
 DISAGREEMENT_PREFIX = "segments disagree beyond their errors"
 #: |t| of an amplitude trend (or a between-kind difference) that explains a disagreement.
 TREND_T = 3.0
-#: Start of the note on a segment fitted jointly with others whose K, T and the other coefficients
-#: are counted once, on the first segment of the joint fit (read by :func:`is_joint_follower`).
-JOINT_FOLLOWER = "fitted jointly with"
 #: Start of the note on the joint fit of sinusoids (:func:`joint_sinusoids`).
 JOINT_PREFIX = "sinusoids fitted jointly"
 
@@ -306,17 +304,6 @@ def _slow_noise_check(fit: NomotoFit, recs: Sequence, channels: tuple[str, ...],
     return (f"the wave noise model's peak, omega0 = {fit.value('omega0'):.3g} rad/s, lies below the corner "
             f"frequency, but the output-error fit of the same records agrees ({', '.join(parts)}, within "
             f"{DISAGREE_Z:g}): the noise model took up none of the ship's response"), terms
-
-
-def is_joint_follower(sf: SegmentFit) -> bool:
-    """Whether ``sf`` is a segment of a joint fit whose coefficients are counted on another segment.
-
-    Parameters
-    ----------
-    sf : SegmentFit
-        A segment fit.
-    """
-    return sf.message.startswith(JOINT_FOLLOWER) or f"; {JOINT_FOLLOWER} " in sf.message
 
 
 def choice_is_clear(choice: StructureChoice) -> tuple[bool, str]:
@@ -749,15 +736,48 @@ def choose_structure(cands: Sequence[_Candidate]) -> StructureChoice:
     pv, p_rob = pv_of(cs), pv_of(robust)
     shrink = 100.0 * (1.0 - cs.gap_after / cs.gap_before) if cs.gap_before > 0 else 0.0
     sig = is_significant(pv, p_rob, shrink, cs.explained)
+    # Below the shrink the shared rule asks but significant, robust and fitted on most segments: chosen
+    # (significant_small_gain).
+    small = not sig and significant_small_gain(pv, p_rob, cs.explained, len(with_second), n)
     text = (f"held-out RMS error on channel {cs.channel} (each segment's spread = 1) first order {cs.gap_before:.4g}, "
             f"second order {cs.gap_after:.4g} ({shrink:+.1f} % shrink, p = {pv:.2g}, with the most favourable "
             f"segment left out p = {p_rob:.2g}, over {cs.n} samples of {scored} segments, shared rule p < {ALPHA:g}, "
             f"shrink >= {MIN_SHRINK:g} %)")
-    if sig:
+    if sig or small:
+        why = "" if sig else (f"; below the {MIN_SHRINK:g} % shrink but significant with the most favourable segment "
+                              f"left out (p < {ALPHA_ROBUST:g}) and fitted on {len(with_second)} of {n} segments")
         return StructureChoice(ORDER2_SUM_PRODUCT, f"{head}: second-order Nomoto (T1, T2, T3) selected, the first "
-                                                   f"order loses, {text}", shrink=shrink, p_value=pv)
+                                                   f"order loses, {text}{why}", shrink=shrink, p_value=pv)
     return StructureChoice(1, f"{head}: first-order Nomoto selected, the second order loses (not significant), "
                               f"{text}", near_tie=shrink > -MIN_SHRINK, shrink=shrink, p_value=pv)
+
+
+def significant_small_gain(p_value: float, p_robust: float, explained: float, n_second: int, n: int) -> bool:
+    """Whether a second order below the shared rule's shrink is still chosen across the segments.
+
+    The shared rule (:func:`pipeline.fit.heldout_test.is_significant`) also asks the held-out error
+    to shrink by ``MIN_SHRINK``. Here the held-out errors are the segments' one-step prediction errors
+    (whitened by each segment's wave noise filter): wave-induced yaw and sensor noise dominate them, so
+    a pole-zero pair the data show beyond doubt shrinks them by a few percent only (measured:
+    PythonVehicleSimulator's Clarke83 ship, six rudder steps with waves, p = 1e-37 and 1e-26 with the
+    most favourable segment left out, shrink 1.8-2.1 %; commanded steps without waves, shrink 7.9-9.8 %
+    at p = 1e-54 and 1e-81). The first order kept there gave T +44 % (unsure) or K +2.8 %, the second
+    order K +0.3-0.5 %. So the second order is chosen when it passes the rest of the rule (``p_value <
+    ALPHA``, ``p_robust < ALPHA_ROBUST``, ``explained >= MIN_EXPLAINED``) and was fitted in range on at
+    least half the segments (a first-order ship's second order stops early or collapses on most of
+    them, :class:`pipeline.fit.nomoto_oe.GainFloor`). Measured on the tanker at 20 m (measured steps,
+    waves): p = 5e-6, but 0.008 with the most favourable segment left out: still a near-tie.
+
+    Parameters
+    ----------
+    p_value, p_robust : float
+        Bonferroni-corrected held-out p-value, and the same with the most favourable segment left out.
+    explained : float
+        Scale-normalised RMS error explained [-].
+    n_second, n : int
+        Segments with a usable second-order fit, and all segments.
+    """
+    return bool(p_value < ALPHA and p_robust < ALPHA_ROBUST and explained >= MIN_EXPLAINED and 2 * n_second >= n)
 
 
 def _stack(rows: list[np.ndarray]) -> np.ndarray:
