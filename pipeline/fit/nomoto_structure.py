@@ -209,7 +209,10 @@ def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit],
     With a logged command the servo lag is fitted too: then ``2 n`` numbers (``n`` frequencies)
     meet ``4 + 1`` unknowns, and with ``2 n < 5`` the lag trades off against the pole-zero pair
     (measured: the Clarke83 commanded sinusoids, noise-free, lag 1.7 s against 1.0, T -40 % with a
-    standard error of 1 %): T is then marked unsure (``STRUCTURE_UNDECIDED``), K is not.
+    standard error of 1 %): T is then marked unsure (``STRUCTURE_UNDECIDED``), K is not. A logged command
+    counts its servo even when the joint fit dropped the lag (it left its range): the servo's phase then
+    goes into the ship's constants (measured: PythonVehicleSimulator's tanker at 25 m, rate-limited
+    servo, commanded sinusoids with waves, T +8 % with a 10.6 % standard error marked success).
 
     A wave noise model whose peak lies below the corner frequency (:func:`pipeline.fit.nomoto_segment.slow_noise_note`)
     is checked against the output-error fit of the same records (consistent for sinusoids, which are
@@ -233,7 +236,8 @@ def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit],
     channels = tuple(ch for ch in ("psi", "r") if all(ch in w.channels for w in wins))
     if len(command) != 1 or not channels:
         return {}, ""
-    servo: tuple[str, ...] = ("t_servo",) if command.pop() else ()
+    command_logged = command.pop()
+    servo: tuple[str, ...] = ("t_servo",) if command_logged else ()
     recs = [w.rec for w in wins]
     head = f"{JOINT_PREFIX} ({len(recs)} records, one ship)"
     try:
@@ -254,7 +258,9 @@ def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit],
         return {}, f"{head}: {choice.note}, but the joint second-order fit failed ({exc})"
     if not _usable(fit):
         return {}, f"{head}: {choice.note}, but the joint second-order fit did not converge in range"
-    n_servo = sum(n in SERVO_PARAMS for n in fit.names)
+    # A logged command always has a servo behind it, kept in the fit or not (dropped when its lag left
+    # the range: the fit then holds the ship's dynamics only, and the servo's phase goes into them).
+    n_servo = max(sum(n in SERVO_PARAMS for n in fit.names), 1 if command_logged else 0)
     unsure = ""
     if 2 * len(recs) < 4 + n_servo:
         unsure = (f"{STRUCTURE_UNDECIDED} T: {len(recs)} sinusoids give {2 * len(recs)} numbers (a gain and a phase "
