@@ -32,6 +32,11 @@ report, coefficients.json and the CLI show what was found and why it is not trus
   errors did not decide the structure clearly and the two structures' values differ beyond their
   errors (:func:`pipeline.fit.nomoto_structure.structure_term_notes`).
 
+First, when every segment behind K and T is a second-order fit, both are read from the pooled
+vector of the segments' (K, T1 + T2, T1 T2, T3) (:func:`pooled_estimates`,
+:mod:`pipeline.fit.nomoto_pool`); its segments' heterogeneity is in its Birge-scaled error, and the
+per-segment spread rule above is not applied to it (a segment's own second-order T is biased).
+
 Before these rules, a model-structure term (``STRUCTURE_TERM`` notes in the segment fits'
 messages: the difference between the first- and second-order values where the structure was not
 decided clearly or the two disagree) is added in quadrature to the combined standard error and the

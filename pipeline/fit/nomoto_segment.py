@@ -434,7 +434,7 @@ def choose_order(rec: NomotoRecord | Sequence[NomotoRecord], channels: tuple[str
             rows1.append(b / scale)
         if not rows0:
             continue
-        a, b = _stack_rows(rows0), _stack_rows(rows1)
+        a, b = stack_rows(rows0), stack_rows(rows1)
         cs = channel_score(ch, a, b, ORDER2_EXTRA_PARAMS, a.shape[0], math.nan)
         shrink = 100.0 * (1.0 - cs.gap_after / cs.gap_before) if cs.gap_before > 0 else 0.0
         robust = math.nan
@@ -464,8 +464,14 @@ def choose_order(rec: NomotoRecord | Sequence[NomotoRecord], channels: tuple[str
     return OrderChoice(1, f"first-order Nomoto selected: {text}", unsure, first_white=white)
 
 
-def _stack_rows(rows: list[np.ndarray]) -> np.ndarray:
-    """Rows of unequal length stacked, NaN-padded."""
+def stack_rows(rows: list[np.ndarray]) -> np.ndarray:
+    """Rows of unequal length stacked, NaN-padded (one row per record or segment).
+
+    Parameters
+    ----------
+    rows : list of numpy.ndarray
+        1-D arrays.
+    """
     width = max(r.size for r in rows)
     out = np.full((len(rows), width), np.nan)
     for i, r in enumerate(rows):

@@ -20,8 +20,16 @@ ship choose differently. Here the choice is made once:
    compared by the project's shared rule (:func:`pipeline.fit.heldout_test.is_significant`):
    Bartlett-corrected F test, Bonferroni over channels, the most favourable segment left out for
    the robustness p-value, the held-out shrink and the explained error. The second order wins
-   only when it passes; a near-tie whose structures differ materially marks the segments unsure
-   (:func:`pipeline.fit.nomoto_segment.structure_ambiguity`).
+   when it passes, or when it passes all but the shrink and was fitted on at least half the
+   segments (:func:`significant_small_gain`: wave-whitened held-out errors shrink little even for a
+   pole-zero pair beyond doubt); a near-tie whose structures differ materially marks the segments
+   unsure (:func:`pipeline.fit.nomoto_segment.structure_ambiguity`). When every segment ends
+   second order, K and T are read from the pooled vector of their constants
+   (:mod:`pipeline.fit.nomoto_pool`).
+
+   Sinusoids only: a sinusoid cannot identify the second order on its own, so their records are
+   fitted jointly and the structure chosen on their jointly fitted held-out ends
+   (:func:`joint_sinusoids`).
 
 4. Where the held-out errors do not decide the structure clearly (the first order kept on a near-tie,
    including a second order significantly better by less than ``MIN_SHRINK``; or a lone zig-zag or
@@ -64,7 +72,7 @@ from .nomoto_oe import fit_nomoto
 from .nomoto_pool import JOINT_FOLLOWER, is_joint_follower  # noqa: F401 - is_joint_follower re-exported
 from .nomoto_segment import (ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order, equivalent_t_stderr, fit_nomoto_window,
                              fit_window, fit_window_order, first_order_start_values, prepare_window, rec_channel,
-                             segment_fit_of, slow_noise_note, structure_ambiguity)
+                             segment_fit_of, slow_noise_note, stack_rows, structure_ambiguity)
 from .nomoto_segment import structure_note as per_segment_structure_note
 from .segment_fit import failed_segment_fit
 
@@ -730,7 +738,7 @@ def choose_structure(cands: Sequence[_Candidate]) -> StructureChoice:
                                   f"the second order")
     scores = []
     for ch in rows0:
-        e0, e1 = _stack(rows0[ch]), _stack(rows1[ch])
+        e0, e1 = stack_rows(rows0[ch]), stack_rows(rows1[ch])
         cs = channel_score(ch, e0, e1, ORDER2_EXTRA_PARAMS, e0.shape[0], math.nan)
         gain = np.nansum(e0**2, axis=1) - np.nansum(e1**2, axis=1)
         keep = np.arange(e0.shape[0]) != int(np.argmax(gain))
@@ -784,14 +792,6 @@ def significant_small_gain(p_value: float, p_robust: float, explained: float, n_
         Segments with a usable second-order fit, and all segments.
     """
     return bool(p_value < ALPHA and p_robust < ALPHA_ROBUST and explained >= MIN_EXPLAINED and 2 * n_second >= n)
-
-
-def _stack(rows: list[np.ndarray]) -> np.ndarray:
-    width = max(r.size for r in rows)
-    out = np.full((len(rows), width), np.nan)
-    for i, r in enumerate(rows):
-        out[i, : r.size] = r
-    return out
 
 
 def disagreement_note(fits: Sequence[SegmentFit], amplitudes: Sequence[float]) -> str:
