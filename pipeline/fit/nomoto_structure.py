@@ -134,8 +134,9 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
     -------
     dict
         Segment index -> :class:`SegmentFit` for those segments. A lone zig-zag or sinusoid chooses on
-        its own held-out end (:func:`lone_segment_fit`, with the model-structure term); empty when
-        fewer than two can be fitted whole otherwise (the per-segment fitter then serves them).
+        its own held-out end (:func:`lone_segment_fit`, with the model-structure term); sinusoids only
+        are fitted jointly when their joint held-out ends choose the second order (:func:`joint_sinusoids`);
+        empty when fewer than two can be fitted whole otherwise (the per-segment fitter then serves them).
     """
     spans = []
     for i, seg in enumerate(segments):
