@@ -366,6 +366,15 @@ def choose_order(rec: NomotoRecord | Sequence[NomotoRecord], channels: tuple[str
     are fitted jointly (one ship, per-record initial states): the end of each is held out, each
     record's errors scaled by its own spread, and the robustness p-value leaves the most favourable
     record out.
+
+    Parameters
+    ----------
+    rec : NomotoRecord or sequence of NomotoRecord
+        The record, or several records of one ship fitted jointly.
+    channels : tuple of str
+        Outputs fitted (``psi``, ``r``).
+    servo : tuple of str
+        Servo parameters estimated (a logged command), or empty.
     """
     recs = [rec] if isinstance(rec, NomotoRecord) else list(rec)
     n_fits = [int(round((1.0 - HOLDOUT_FRACTION) * r.t.size)) for r in recs]
@@ -586,8 +595,29 @@ def segment_fit_of(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels
                  notes: list[str], unsure: str = "", record: int = 0, slow_noise_checked: str = "") -> SegmentFit:
     """The SegmentFit of ``segment`` from ``fit``, whose record ``record`` is ``rec`` (a joint fit of
     several records gives each of its segments its own record's heading and simulation).
-    ``slow_noise_checked``: why a wave noise model below the corner frequency does not bias K and T
-    here (it then replaces :func:`slow_noise_note`, measured by the caller)."""
+
+    Parameters
+    ----------
+    segment : Segment
+        The segment the fit belongs to.
+    fit : NomotoFit
+        The whole-record fit (first order, or the second order as K, T12, T1T2, T3).
+    rec : NomotoRecord
+        The segment's record (its heading is the fit's ``y``).
+    channels : tuple of str
+        Outputs fitted; the first is the fit's channel.
+    t_rel : numpy.ndarray
+        Sample times relative to ``segment.t_start`` [s].
+    notes : list of str
+        What was decided, for the message.
+    unsure : str
+        Why K or T is undecided ('' when they are not): marks the fit failed.
+    record : int
+        Index of ``rec`` among the fit's records.
+    slow_noise_checked : str
+        Why a wave noise model below the corner frequency does not bias K and T here (it then
+        replaces :func:`slow_noise_note`, measured by the caller); '' to apply that note.
+    """
     main = channels[0]
     if fit.robust_covariance is not None:
         # Coloured residuals: the Newey-West errors are the ones to report (nomoto_oe).
