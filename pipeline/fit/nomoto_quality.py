@@ -32,6 +32,11 @@ report, coefficients.json and the CLI show what was found and why it is not trus
   errors did not decide the structure clearly and the two structures' values differ beyond their
   errors (:func:`pipeline.fit.nomoto_structure.structure_term_notes`).
 
+First, when every segment behind K and T is a second-order fit, both are read from the pooled
+vector of the segments' (K, T1 + T2, T1 T2, T3) (:func:`pooled_estimates`,
+:mod:`pipeline.fit.nomoto_pool`); its segments' heterogeneity is in its Birge-scaled error, and the
+per-segment spread rule above is not applied to it (a segment's own second-order T is biased).
+
 Before these rules, a model-structure term (``STRUCTURE_TERM`` notes in the segment fits'
 messages: the difference between the first- and second-order values where the structure was not
 decided clearly or the two disagree) is added in quadrature to the combined standard error and the
@@ -56,6 +61,8 @@ from typing import Sequence
 from ..records import Estimate, SegmentFit
 from .combine import CONSISTENCY_ALPHA
 from .least_squares import confidence_interval
+from .nomoto_pool import POOLED_NOTE, pool_second_order
+from .segment_fit import MAX_RELATIVE_STDERR
 
 #: Relative between-segment standard deviation that makes a significant disagreement material [-].
 HETEROGENEITY_MATERIAL = 0.10
@@ -104,7 +111,10 @@ def unsure_reasons(est: Estimate, kinds: Sequence[str] = ()) -> list[str]:
                        f"frequency's first-order match)")
             return out + _rel_reason(est)
     p = est.consistency_p
-    if x.size >= 2 and math.isfinite(p) and p < CONSISTENCY_ALPHA:
+    # K and T from the pooled second-order vector carry the segments' heterogeneity in their
+    # Birge-scaled error; a second-order segment's own T is biased, so its spread is not tested.
+    pooled = POOLED_NOTE in est.message
+    if x.size >= 2 and math.isfinite(p) and p < CONSISTENCY_ALPHA and not pooled:
         spread = float(np.std(x, ddof=1)) / abs(est.value)
         if spread > HETEROGENEITY_MATERIAL:
             out.append(f"unsure: the {x.size} segments disagree beyond their errors (chi-square p = {p:.2g} < "
@@ -139,7 +149,7 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         A new mapping; an unsure estimate keeps its value and error, gets ``success = False`` and
         the reasons at the start of its message.
     """
-    out = dict(estimates)
+    out = pooled_estimates(dict(estimates), fits)
     kinds = [f.segment.kind for f in fits]
     t_est = out.get("T_nomoto")
     # T's reasons first: sinusoids whose T spread marks a structure error make their K suspect too.
@@ -167,6 +177,41 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if why:
             out[name] = replace(est, success=False, message="; ".join(why + ([est.message] if est.message else [])))
     return out
+
+
+def pooled_estimates(estimates: dict[str, Estimate], fits: Sequence[SegmentFit]) -> dict[str, Estimate]:
+    """``estimates`` with K and T from the pooled second-order vector when every segment is second order
+    (:func:`pipeline.fit.nomoto_pool.pool_second_order`; unchanged otherwise).
+
+    The per-segment values stay in ``per_segment``; ``consistency_p`` becomes the test of them about
+    the pooled value, and the per-segment combination is kept in the message.
+
+    Parameters
+    ----------
+    estimates : dict[str, Estimate]
+        Name -> estimate (modified in place and returned).
+    fits : sequence of SegmentFit
+        The successful Nomoto segment fits behind them.
+    """
+    pooled = pool_second_order(fits)
+    if pooled is None:
+        return estimates
+    for name in NOMOTO_ESTIMATES:
+        est = estimates.get(name)
+        short = name.split("_")[0]
+        if est is None or not math.isfinite(est.value) or short not in pooled.values:
+            continue
+        pv = pooled.values[short]
+        kept = [m for m in est.message.split("; ") if m and not m.endswith(": not identified")]
+        rel = pv.stderr / abs(pv.value) if pv.value != 0 else math.inf
+        fail = ([f"relative standard error {rel:.0%} above {MAX_RELATIVE_STDERR:.0%}: not identified"]
+                if not rel <= MAX_RELATIVE_STDERR else [])
+        msg = fail + [f"{pooled.note}; {short} = {pv.value:.4g} +- {pv.stderr:.2g} {est.unit} (the segments' own "
+                      f"values gave {est.value:.4g} +- {est.stderr:.2g})"] + kept
+        estimates[name] = replace(est, value=pv.value, stderr=pv.stderr,
+                                  ci95=confidence_interval(pv.value, pv.stderr, math.inf), consistency_p=pv.p_value,
+                                  success=not fail, message="; ".join(msg))
+    return estimates
 
 
 def minority_note_kept(fits: Sequence[SegmentFit], part: str, short: str) -> str:

@@ -43,6 +43,7 @@ from .heldout_test import ALPHA, MIN_SHRINK, channel_score, is_significant
 from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
 from .nomoto_oe import GainFloor, SecondOrderNoGain, fit_nomoto
 from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
+from .nomoto_pool import samples_window  # noqa: F401 - re-exported (trial.py, combine of windows)
 from .nomoto_quality import SPEED_RANGE, STRUCTURE_UNDECIDED
 from .nomoto_records import NomotoFit, NomotoRecord
 from .segment_fit import MAX_RELATIVE_STDERR
@@ -89,7 +90,7 @@ def fit_nomoto_window(trial: Trial, segment: Segment, t0: float, t1: float) -> S
     """Whole-record Nomoto fit of the trial between ``t0`` and ``t1`` for ``segment``.
 
     The structure (first or second order) is chosen on this record alone, by its held-out end
-    (:func:`_choose_order`); a trial with several whole-record segments chooses it once across
+    (:func:`choose_order`); a trial with several whole-record segments chooses it once across
     them instead (:func:`pipeline.fit.nomoto_structure.fit_nomoto_trial`).
 
     Parameters
@@ -112,7 +113,7 @@ def fit_nomoto_window(trial: Trial, segment: Segment, t0: float, t1: float) -> S
         Wrong DOF, missing channels, gaps in the rudder, too few samples.
     """
     win = prepare_window(trial, segment, t0, t1)
-    choice = _choose_order(win.rec, win.channels, win.servo)
+    choice = choose_order(win.rec, win.channels, win.servo)
     return fit_window(win, choice.order, choice.note, choice.unsure)
 
 
@@ -266,7 +267,7 @@ def fit_window(win: NomotoWindow, order: int, order_note: str, unsure: str = "",
             unsure = ("unsure: the held-out data call for the second-order structure, whose fit of the whole "
                       "record failed; the first-order K and T kept are biased by the missing pole-zero pair")
             fit = first
-    return _segment_fit(win.segment, fit, win.rec, win.channels, win.t_rel, notes, unsure)
+    return segment_fit_of(win.segment, fit, win.rec, win.channels, win.t_rel, notes, unsure)
 
 
 def _choose_channels(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...]) -> tuple[tuple[str, ...], str]:
@@ -346,7 +347,8 @@ class OrderChoice:
     first_white: bool = False
 
 
-def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...]) -> OrderChoice:
+def choose_order(rec: NomotoRecord | Sequence[NomotoRecord], channels: tuple[str, ...],
+                  servo: tuple[str, ...]) -> OrderChoice:
     """First or second order by the held-out one-step prediction errors of the record's end.
 
     Both orders are fitted on the first ``1 - HOLDOUT_FRACTION`` of the record with the noise model
@@ -359,14 +361,28 @@ def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str
     but is not clearly worse either (a near-tie: held-out gap shrink above ``-MIN_SHRINK``) while
     the two structures' K or T differ materially (:func:`structure_ambiguity`), the choice is
     marked unsure.
+
+    Several records (sinusoids at different frequencies, :func:`pipeline.fit.nomoto_structure.joint_sinusoids`)
+    are fitted jointly (one ship, per-record initial states): the end of each is held out, each
+    record's errors scaled by its own spread, and the robustness p-value leaves the most favourable
+    record out.
+
+    Parameters
+    ----------
+    rec : NomotoRecord or sequence of NomotoRecord
+        The record, or several records of one ship fitted jointly.
+    channels : tuple of str
+        Outputs fitted (``psi``, ``r``).
+    servo : tuple of str
+        Servo parameters estimated (a logged command), or empty.
     """
-    n = rec.t.size
-    n_fit = int(round((1.0 - HOLDOUT_FRACTION) * n))
-    if n_fit < MIN_SAMPLES or n - n_fit < 10:
+    recs = [rec] if isinstance(rec, NomotoRecord) else list(rec)
+    n_fits = [int(round((1.0 - HOLDOUT_FRACTION) * r.t.size)) for r in recs]
+    if any(nf < MIN_SAMPLES or r.t.size - nf < 10 for r, nf in zip(recs, n_fits)):
         return OrderChoice(1, "first-order Nomoto (record too short to hold out a part for the second-order check)")
-    part = NomotoRecord(t=rec.t[:n_fit], delta=rec.delta[:n_fit],
-                        psi=None if rec.psi is None else rec.psi[:n_fit],
-                        r=None if rec.r is None else rec.r[:n_fit], name=rec.name)
+    parts = [NomotoRecord(t=r.t[:nf], delta=r.delta[:nf], psi=None if r.psi is None else r.psi[:nf],
+                          r=None if r.r is None else r.r[:nf], name=r.name) for r, nf in zip(recs, n_fits)]
+    part = parts[0] if len(parts) == 1 else parts
     try:
         first = fit_nomoto(part, order=1, noise="auto", channels=channels, servo=servo)
     except FitError as exc:
@@ -374,6 +390,20 @@ def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str
     if not _usable(first):
         return OrderChoice(1, "first-order Nomoto (its fit on the training part left the plausible range: "
                               "no held-out check)")
+    first_peak = first.value("omega0") if "omega0" in first.names else math.nan
+    slow = ""
+    if len(recs) > 1 and first.noise_model == "waves" and slow_noise_note(first):
+        # Joint sinusoids are open loop (output error is consistent): a wave noise model peaking below the
+        # first order's corner frequency takes up its misfit of the other frequency, and its filter would
+        # whiten away the very error the structures are compared on.
+        try:
+            oe = fit_nomoto(part, order=1, noise="white", channels=channels, servo=servo)
+        except FitError:
+            oe = None
+        if oe is not None and _usable(oe):
+            first = oe
+            slow = (f"; the first order's wave noise model peaked below its corner frequency (omega0 = "
+                    f"{first_peak:.3g} rad/s), taking up its misfit: output errors compared")
     white = all(t.white for t in first.residual_tests)
     noise = first.noise_model
     floor = GainFloor.from_first_order(first, part)
@@ -398,33 +428,64 @@ def _choose_order(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str
         return OrderChoice(1, f"first-order Nomoto: the second order did not converge in range on the training "
                               f"part{how} ({white_note})", first_white=white)
     filt = first if noise == "waves" else None
-    e0 = _heldout_errors(first, rec, channels, servo, n_fit, filt)
-    e1 = _heldout_errors(second, rec, channels, servo, n_fit, filt)
+    e0 = _heldout_errors(first, recs, channels, servo, n_fits, filt)
+    e1 = _heldout_errors(second, recs, channels, servo, n_fits, filt)
     scores = []
     for ch in channels:
-        a, b = e0[ch], e1[ch]
-        ok = np.isfinite(a) & np.isfinite(b)
-        if ok.sum() < 10:
+        rows0, rows1 = [], []
+        for i, r in enumerate(recs):
+            a, b = e0[i][ch], e1[i][ch]
+            if (np.isfinite(a) & np.isfinite(b)).sum() < 10:
+                continue
+            y = rec_channel(r, ch)
+            scale = max(float(np.std(y[np.isfinite(y)])), 1e-12)
+            rows0.append(a / scale)
+            rows1.append(b / scale)
+        if not rows0:
             continue
-        scale = max(float(np.std(rec_channel(rec, ch)[np.isfinite(rec_channel(rec, ch))])), 1e-12)
-        cs = channel_score(ch, a[None, :] / scale, b[None, :] / scale, ORDER2_EXTRA_PARAMS, 1, math.nan)
+        a, b = stack_rows(rows0), stack_rows(rows1)
+        cs = channel_score(ch, a, b, ORDER2_EXTRA_PARAMS, a.shape[0], math.nan)
         shrink = 100.0 * (1.0 - cs.gap_after / cs.gap_before) if cs.gap_before > 0 else 0.0
-        scores.append((cs, shrink))
+        robust = math.nan
+        if a.shape[0] > 1:
+            gain = np.nansum(a**2, axis=1) - np.nansum(b**2, axis=1)
+            keep = np.arange(a.shape[0]) != int(np.argmax(gain))
+            robust = channel_score(ch, a[keep], b[keep], ORDER2_EXTRA_PARAMS, int(keep.sum()), math.nan).p_value
+        scores.append((cs, shrink, robust))
     if not scores:
         return OrderChoice(1, "first-order Nomoto (no held-out samples to compare)", first_white=white)
-    cs, shrink = min(scores, key=lambda s: s[0].p_value if math.isfinite(s[0].p_value) else 1.0)
+    cs, shrink, robust = min(scores, key=lambda s: s[0].p_value if math.isfinite(s[0].p_value) else 1.0)
     pv = min(1.0, (cs.p_value if math.isfinite(cs.p_value) else 1.0) * len(scores))
-    sig = is_significant(pv, math.nan, shrink, cs.explained)
+    p_rob = min(1.0, robust * len(scores)) if math.isfinite(robust) else math.nan
+    sig = is_significant(pv, p_rob, shrink, cs.explained)
     kind = "wave-whitened one-step prediction errors" if filt is not None else "output errors"
-    text = (f"held-out {kind} ({HOLDOUT_FRACTION:.0%} of the record, channel {cs.channel}): RMS first order "
+    where = (f"{HOLDOUT_FRACTION:.0%} of the record" if len(recs) == 1 else
+             f"the last {HOLDOUT_FRACTION:.0%} of each of {len(recs)} records fitted jointly, with the most "
+             f"favourable record left out p = {p_rob:.2g}")
+    text = (f"held-out {kind} ({where}, channel {cs.channel}): RMS first order "
             f"{cs.gap_before:.4g}, second order {cs.gap_after:.4g} ({shrink:+.1f} % shrink, p = {pv:.2g}, "
-            f"shared rule p < {ALPHA:g} and shrink >= {MIN_SHRINK:g} %); {white_note}")
+            f"shared rule p < {ALPHA:g} and shrink >= {MIN_SHRINK:g} %){slow}; {white_note}")
     if sig:
         return OrderChoice(ORDER2_SUM_PRODUCT, f"second-order Nomoto (T1, T2, T3) selected: {text}", first_white=white)
     unsure = ""
     if shrink > -MIN_SHRINK:
         unsure = structure_ambiguity(first, second)
     return OrderChoice(1, f"first-order Nomoto selected: {text}", unsure, first_white=white)
+
+
+def stack_rows(rows: list[np.ndarray]) -> np.ndarray:
+    """Rows of unequal length stacked, NaN-padded (one row per record or segment).
+
+    Parameters
+    ----------
+    rows : list of numpy.ndarray
+        1-D arrays.
+    """
+    width = max(r.size for r in rows)
+    out = np.full((len(rows), width), np.nan)
+    for i, r in enumerate(rows):
+        out[i, : r.size] = r
+    return out
 
 
 #: Parameters the second-order model adds on the held-out test (T12, T1T2, T3 for T; rdot0).
@@ -506,29 +567,57 @@ def _usable(fit: NomotoFit) -> bool:
     return fit.converged and all(n in SERVO_PARAMS for n in fit.at_bound) and bool(np.all(np.isfinite(fit.values)))
 
 
-def _heldout_errors(fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...],
-                    n_fit: int, noise: NomotoFit | None) -> dict[str, np.ndarray]:
-    """Held-out errors per channel (NaN outside the held-out part): the fit simulated over the whole
-    record from its training start; the compass error whitened by ``noise``'s wave filter if given."""
+def _heldout_errors(fit: NomotoFit, recs: Sequence[NomotoRecord], channels: tuple[str, ...],
+                    servo: tuple[str, ...], n_fits: Sequence[int], noise: NomotoFit | None) -> list[dict[str, np.ndarray]]:
+    """Held-out errors per record and channel (NaN outside each record's held-out part): the fit
+    simulated over the whole records from their training starts; the compass error whitened by
+    ``noise``'s wave filter if given."""
     waves = noise.waves if noise is not None else None
     var = noise.noise_var.get("psi") if noise is not None else None
     kind = "waves" if waves is not None and var is not None and var > 0 else "white"
-    prob = Problem([prepare(rec, 0, channels)], fit.order, "b" in fit.names, channels, kind,
-                   waves if kind == "waves" else None, var if kind == "waves" else None, servo)
+    prob = Problem([prepare(r, i, channels) for i, r in enumerate(recs)], fit.order, "b" in fit.names, channels,
+                   kind, waves if kind == "waves" else None, var if kind == "waves" else None, servo)
     z = prob.solver_vector(np.array([fit.value(nm) for nm in prob.names]))
-    per = prob.channel_residuals(z)[0]
-    out = {}
-    for ch in channels:
-        m = prob.recs[0].mask[ch]
-        e = np.full(m.size, np.nan)
-        e[m] = per[ch]
-        e[:n_fit] = np.nan
-        out[ch] = e
+    out = []
+    for i, per in enumerate(prob.channel_residuals(z)):
+        rec_out = {}
+        for ch in channels:
+            m = prob.recs[i].mask[ch]
+            e = np.full(m.size, np.nan)
+            e[m] = per[ch]
+            e[: n_fits[i]] = np.nan
+            rec_out[ch] = e
+        out.append(rec_out)
     return out
 
 
-def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], t_rel: np.ndarray,
-                 notes: list[str], unsure: str = "") -> SegmentFit:
+def segment_fit_of(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: tuple[str, ...], t_rel: np.ndarray,
+                 notes: list[str], unsure: str = "", record: int = 0, slow_noise_checked: str = "") -> SegmentFit:
+    """The SegmentFit of ``segment`` from ``fit``, whose record ``record`` is ``rec`` (a joint fit of
+    several records gives each of its segments its own record's heading and simulation).
+
+    Parameters
+    ----------
+    segment : Segment
+        The segment the fit belongs to.
+    fit : NomotoFit
+        The whole-record fit (first order, or the second order as K, T12, T1T2, T3).
+    rec : NomotoRecord
+        The segment's record (its heading is the fit's ``y``).
+    channels : tuple of str
+        Outputs fitted; the first is the fit's channel.
+    t_rel : numpy.ndarray
+        Sample times relative to ``segment.t_start`` [s].
+    notes : list of str
+        What was decided, for the message.
+    unsure : str
+        Why K or T is undecided ('' when they are not): marks the fit failed.
+    record : int
+        Index of ``rec`` among the fit's records.
+    slow_noise_checked : str
+        Why a wave noise model below the corner frequency does not bias K and T here (it then
+        replaces :func:`slow_noise_note`, measured by the caller); '' to apply that note.
+    """
     main = channels[0]
     if fit.robust_covariance is not None:
         # Coloured residuals: the Newey-West errors are the ones to report (nomoto_oe).
@@ -571,16 +660,16 @@ def _segment_fit(segment: Segment, fit: NomotoFit, rec: NomotoRecord, channels: 
     notes = [fit.message] + notes
     slow = slow_noise_note(fit)
     if slow:
-        notes.append(slow)
+        notes.append(slow_noise_checked or slow)
     if segment.kind == "zigzag" and not all(t.independent for t in fit.residual_tests):
         notes.append("a zig-zag switches the rudder on the heading, so residuals that lead the rudder "
                      "(negative lags) are the expected feedback, not a model error")
     y = rec.psi if main == "psi" else rec.r
     y = unwrap_heading(y) if main == "psi" else np.asarray(y, float)
-    e = fit.residuals[0][main]
+    e = fit.residuals[record][main]
     rmse = float(np.sqrt(np.nanmean(e**2)))
     return SegmentFit(segment=segment, model=model, channel=main, param_names=fit.names, params=params,
-                      stderr=stderr, covariance=fit.covariance, t=t_rel, y=y, y_fit=fit.y_fit[0][main], rmse=rmse,
+                      stderr=stderr, covariance=fit.covariance, t=t_rel, y=y, y_fit=fit.y_fit[record][main], rmse=rmse,
                       aic=fit.aic, bic=fit.bic, success=not fail, message="; ".join(fail + notes))
 
 
@@ -695,27 +784,6 @@ def rudder_step_lead_in(trial: Trial, segment: Segment) -> float:
             not any(g.t_start <= t[k] <= g.t_end for g in trial.gaps):
         k -= 1
     return float(t[min(k + 1, i0)]) if i0 > 0 else float(segment.t_start)
-
-
-def samples_window(sf: SegmentFit) -> tuple[float, float] | None:
-    """Start and end [s, trial clock] of the samples a whole-record Nomoto fit used (None for other fits).
-
-    A rudder step's window reaches back over the steady hold before it
-    (:func:`rudder_step_lead_in`), which is the previous step's new level: consecutive steps share
-    samples, and their combination treats them as correlated
-    (:func:`pipeline.fit.combine.overlap_correlation`).
-
-    Parameters
-    ----------
-    sf : SegmentFit
-        A segment fit; its ``t`` is relative to the segment's start.
-    """
-    if not sf.model.startswith(("nomoto_oe", "nomoto_pem")) or sf.t is None or len(sf.t) < 2:
-        return None
-    t = np.asarray(sf.t, float)
-    if not (math.isfinite(t[0]) and math.isfinite(t[-1])):
-        return None
-    return float(sf.segment.t_start + t[0]), float(sf.segment.t_start + t[-1])
 
 
 #: Extra Nomoto coefficients a segment fit may carry: parameter -> (estimate name, unit).

@@ -20,7 +20,7 @@ from .first_order import fit_coast_down, fit_step, step_steadiness
 from .nomoto import fit_rudder_step
 from .nomoto_quality import judge_nomoto
 from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment, samples_window
-from .nomoto_structure import fit_nomoto_trial, structure_note
+from .nomoto_structure import fit_nomoto_trial, is_joint_follower, structure_note
 from .second_order import fit_free_decay
 from .segment_fit import failed_segment_fit
 
@@ -157,6 +157,11 @@ class _Collector:
             self.add("T_nomoto", "s", method, kind, self._param(sf, "T"))
             self._nomoto_extras(sf, method)
         elif kind in WHOLE_RECORD_KINDS and dof == "yaw":
+            if is_joint_follower(sf):
+                # Its coefficients are a joint fit's, counted once on that fit's first segment.
+                if sf.success:
+                    self.nomoto_fits.append(sf)
+                return
             for name, unit in (("K", "1/s"), ("T", "s"), ("b", "rad")):
                 if name == "b" and "b" not in sf.params and sf.success:
                     continue
