@@ -153,6 +153,17 @@ def test_ce6_nmea_recordings_that_do_not_overlap_are_two_runs():
     assert "2 run(s)" in text and "throt15012W" in text
 
 
+def test_a_folder_of_eight_ce6_coast_downs_is_eight_runs_each_named_beside_its_nearest():
+    import re
+
+    trial = load_trial([CE6])
+    assert len(trial.runs) == 8 and all(len(r.sources) == 1 for r in trial.runs)
+    run = next(r for r in trial.runs if r.name == "throt15003W")
+    # Before: the first other run in the list was named (throt11866E.txt, 177.2 s apart).
+    assert re.search(r"no overlap with throt15012W.txt \(51\.[45] s apart, the nearest run\): never merged", run.reason), \
+        run.reason
+
+
 # --------------------------------------------------------------------------- inputs and GNSS
 def test_commands_are_held_and_measured_inputs_interpolated():
     t = np.array([0.0, 1.0, 2.0])
