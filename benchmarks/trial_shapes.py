@@ -34,6 +34,7 @@ Usage::
 
     .venv/bin/python benchmarks/trial_shapes.py [--rates 1 2 5 10 50] [--no-diagnose] [--out DIR]
     .venv/bin/python benchmarks/trial_shapes.py --seeds 1-20 --no-diagnose --layouts "one file" --workers 2
+    .venv/bin/python benchmarks/trial_shapes.py --summary-of run1.json run2.json   # the seeds table again
 """
 
 from __future__ import annotations
@@ -399,7 +400,16 @@ def main(argv=None) -> int:
     ap.add_argument("--no-pvs", action="store_true", help="skip the PythonVehicleSimulator frigate")
     ap.add_argument("--out", type=Path, default=None, help="folder for the written logs (default: temporary)")
     ap.add_argument("--json", type=Path, default=None, help="write every shape's z values here")
+    ap.add_argument("--summary-of", type=Path, nargs="+", default=None, metavar="JSON",
+                    help="print the seeds table of earlier --json outputs (nothing is simulated)")
     args = ap.parse_args(argv)
+    if args.summary_of:
+        import json
+
+        rows = [r for f in args.summary_of for r in json.loads(f.read_text())]
+        print(f"{len(rows)} shapes from {', '.join(str(f) for f in args.summary_of)}\n")
+        print("\n".join(seed_summary(rows)))
+        return 0
     tmp = tempfile.TemporaryDirectory()
     base = args.out or Path(tmp.name)
     seeds = args.seeds or [args.seed]
