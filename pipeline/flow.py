@@ -18,7 +18,7 @@ import json
 import math
 import sys
 import threading
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, Sequence
 
@@ -31,7 +31,7 @@ from .errors import AutopilotError, DiagnoseError, SegmentError
 from .ingest import read_log, read_recordings
 from .manifest import expand_logs
 from .records import Fits, Provenance, RawLog, Segment, Segments, Trial
-from .segment import apply_manifest_segments, detect_segments
+from .segment import segment_trial
 from .terminal import show_progress
 from .vessel import Vessel
 
@@ -185,26 +185,6 @@ def runs_text(trial: Trial) -> str:
         if run.reason:
             lines.append(f"    why: {run.reason}")
     return "\n".join(lines)
-
-
-def segment_trial(trial: Trial, manual: Sequence[Mapping[str, Any]] = (), mode: str = "replace") -> Segments:
-    """Detect segments, then apply hand-named ones from a manifest; each is tagged with its run.
-
-    ``Segment.run`` is the index of the run (``Trial.run_list()``) the segment starts in; no
-    segment spans a run boundary (the NaN gap between runs cuts every detector).
-
-    Parameters
-    ----------
-    trial : Trial
-        The aligned trial.
-    manual : Sequence[Mapping[str, Any]]
-        The manifest's ``[[segments]]`` tables; empty keeps the detected segments.
-    mode : str
-        ``replace`` (only the manifest's segments) or ``add`` (manifest segments plus detected
-        ones that do not overlap them); see :func:`pipeline.segment.apply_manifest_segments`.
-    """
-    segs = apply_manifest_segments(trial, detect_segments(trial), manual, mode)
-    return Segments(segs.trial, tuple(replace(s, run=trial.run_index(s.t_start)) for s in segs.items))
 
 
 def segments_to_json(segments: Segments) -> dict:

@@ -763,6 +763,32 @@ class Extinction:
     inertia_fit_se: float
     n_decays: int
 
+    #: Parameters of :meth:`to_fit_result` and their units.
+    FIT_UNITS = {"a": "", "b": "1/rad", "a_linear": "", "wn": "rad/s", "B1": "kg m^2/s", "B2": "kg m^2",
+                 "B_eq": "kg m^2/s", "inertia_fit": "kg m^2"}
+
+    def to_fit_result(self) -> "FitResult":
+        """This curve as a :class:`FitResult`: ``a``, ``b`` with their covariance, and the quantities
+        derived from the curve (``a_linear``, ``wn``, ``B1``, ``B2``, ``B_eq`` at ``amplitude``,
+        ``inertia_fit``) with their standard errors (covariance NaN outside the ``a``, ``b`` block)."""
+        names = tuple(self.FIT_UNITS)
+        cov_ab = np.asarray(self.cov_ab, float)
+        se_ab = np.sqrt(np.clip(np.diag(cov_ab), 0, None)) if cov_ab.shape == (2, 2) else np.full(2, math.nan)
+        cov = np.full((len(names), len(names)), math.nan)
+        if cov_ab.shape == (2, 2):
+            cov[:2, :2] = cov_ab
+        values = [self.a, self.b, self.a_linear, self.wn, self.B1, self.B2, self.B_eq, self.inertia_fit]
+        errors = [*se_ab, self.a_linear_se, self.wn_se, self.B1_se, self.B2_se, self.B_eq_se, self.inertia_fit_se]
+        return fit_result_from_arrays(
+            f"extinction_{self.label.replace(' ', '_')}", names, values, errors, cov, self.FIT_UNITS,
+            dof=max(self.phi_m.size - 2, 1), success=math.isfinite(self.a),
+            message="" if math.isfinite(self.b) else "b not estimated (too few half cycles)",
+            ndata=int(self.phi_m.size),
+            provenance={"fitter": "pipeline.fit.decay_analysis", "data": f"{self.n_decays} free decay(s)",
+                        "covariance": "least squares on the extinction curve dphi = a phi_m + b phi_m^2; "
+                                      "the derived quantities' errors by propagation"},
+            statistics={"wn": float(self.wn), "wn_se": float(self.wn_se), "amplitude": float(self.amplitude)})
+
 
 @dataclass(frozen=True)
 class DecayAnalysis:

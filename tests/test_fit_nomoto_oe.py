@@ -24,9 +24,10 @@ from benchmarks.baselines import fit_arx_nomoto, nomoto_amplitude_method, nomoto
 from pipeline.fit import fit_nomoto, fit_trial, nomoto2_rhs
 from pipeline.fit.nomoto_oe import (Nomoto2Params, NomotoRecord, nomoto_matrices, simulate_zoh,
                                     zoh_discretise)
-from pipeline.fit.nomoto_pem import (augmented_matrices, dare_filter_2x2, expm_small, innovation_filter,
+from pipeline.fit.nomoto_pem import (dare_filter_2x2, expm_small, innovation_filter,
                                      kalman_innovations, wave_discrete, wave_std, whiten)
 from pipeline.model import NomotoParams, integrate_rk4, nomoto_rhs
+from pipeline.model.nomoto import heading_model_matrices
 from pipeline.model.waves import WaveParams, simulate_waves
 
 K_SEED, T_SEED = 0.156, 72.4
@@ -112,7 +113,7 @@ def test_amplitude_reading_matches_the_transfer_function_without_disturbances(se
 
 # --------------------------------------------------------------------------- discretisation
 def test_zoh_matches_expm_of_the_augmented_matrix_and_cont2discrete():
-    a5, b5, e5, c5 = augmented_matrices(0.156, 72.44, SEED_WAVES)
+    a5, b5, e5, c5 = heading_model_matrices(0.156, 72.44, SEED_WAVES)
     bb = np.hstack([b5, e5])
     ad, bd = zoh_discretise(a5, bb, H)
     big = np.zeros((8, 8))
@@ -163,7 +164,7 @@ def test_decoupled_innovations_equal_the_augmented_kalman_filter():
     t, u, psi = zigzag_design(1200.0)
     rng = np.random.default_rng(1)
     y = psi + simulate_waves(t, SEED_WAVES, rng) + math.sqrt(COMPASS_VAR) * rng.standard_normal(t.size)
-    a5, b5, e5, c5 = augmented_matrices(K_SEED, T_SEED, SEED_WAVES)
+    a5, b5, e5, c5 = heading_model_matrices(K_SEED, T_SEED, SEED_WAVES)
     ad, bd = zoh_discretise(a5, b5, H)
     wad, wqd = wave_discrete(SEED_WAVES, H)
     qd = np.zeros((5, 5))

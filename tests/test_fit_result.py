@@ -154,3 +154,32 @@ def test_damping_fit_converts_terms_and_shared_parameters():
                       covariance=np.array([[1e-4]]), terms={}, term_covariance=np.zeros((0, 0)), rmse=1.0, lag1=0.0,
                       n=100, dof_resid=99)
     assert bare.to_fit_result().names == ("a",)
+
+
+def test_autopilot_config_gives_the_coefficients_its_design_used():
+    from pipeline.autopilot.config import build_autopilot_config
+
+    waves = WaveParams(omega0=0.8, lam=0.1, kw=0.02)
+    cfg = build_autopilot_config(0.3, 8.0, K_stderr=0.01, T_stderr=0.4, waves=waves,
+                                 waves_stderr={"omega0": 0.05, "lambda": 0.02}, wave_source="test")
+    fr = as_fit_result(cfg)
+    assert fr.names == ("K", "T", "omega0", "lam", "kw")
+    assert (fr.value("K"), fr.stderr("K"), fr.params["K"].unit) == (0.3, 0.01, "1/s")
+    assert (fr.value("T"), fr.stderr("T"), fr.params["T"].unit) == (8.0, 0.4, "s")
+    assert fr.stderr("lam") == 0.02 and fr.value("omega0") == 0.8
+    assert math.isnan(fr.stderr("kw"))   # not in waves_stderr: no error bar, not a made-up one
+    assert np.isnan(fr.covariance).all()  # K, T and the waves come from different fits
+
+
+def test_extinction_carries_the_derived_damping_with_its_errors():
+    from pipeline.records import Extinction
+
+    cov = np.array([[4e-4, -1e-4], [-1e-4, 9e-4]])
+    ext = Extinction("combined", np.linspace(0.2, 0.05, 6), np.linspace(0.04, 0.01, 6), 0.12, 0.3, cov, 0.14, 0.01,
+                     2.1, 0.02, 55.0, 4.0, 80.0, 9.0, 70.0, 5.0, 0.1, 12.0, 0.3, 2)
+    fr = as_fit_result(ext)
+    assert fr.names == ("a", "b", "a_linear", "wn", "B1", "B2", "B_eq", "inertia_fit")
+    assert fr.stderr("b") == pytest.approx(0.03) and np.array_equal(fr.covariance[:2, :2], cov)
+    assert (fr.value("B_eq"), fr.stderr("B_eq"), fr.params["B_eq"].unit) == (70.0, 5.0, "kg m^2/s")
+    assert fr.params["wn"].unit == "rad/s" and fr.statistics["amplitude"] == 0.1
+    assert np.isnan(fr.covariance[2:, :]).all()   # derived quantities: errors only, no covariance claimed

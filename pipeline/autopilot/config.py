@@ -32,6 +32,7 @@ from .. import __version__
 from ..atomic import atomic_write_bytes
 from ..errors import AutopilotError
 from ..model.waves import WaveParams
+from ..records import FitResult, fit_result_from_arrays, parameter_unit
 from .defaults import DEFAULT_TS  # the default lives where the CLI's --help can read it
 from .kalman import DEFAULT_P0, DEFAULT_Q, DEFAULT_R, KALMAN_STATES, KalmanModel, kalman_model
 from .pd import DEFAULT_PHASE_MARGIN, PDGains, pd_gains
@@ -132,6 +133,19 @@ class AutopilotConfig:
     sources: tuple[SourceFile, ...] = ()
     notes: tuple[str, ...] = ()
     version: str = __version__
+
+    def to_fit_result(self) -> FitResult:
+        """The coefficients the design used, as a :class:`~pipeline.records.FitResult`: ``K``, ``T`` and
+        the wave model's ``omega0``, ``lam``, ``kw``, with the standard errors they came with (no
+        covariance: they come from different fits)."""
+        names = ("K", "T", "omega0", "lam", "kw")
+        ws = self.waves_stderr
+        return fit_result_from_arrays(
+            "autopilot_design_coefficients", names, [self.K, self.T, self.waves.omega0, self.waves.lam, self.waves.kw],
+            [self.K_stderr, self.T_stderr, ws.get("omega0", math.nan), ws.get("lambda", math.nan), ws.get("kw", math.nan)],
+            None, {n: parameter_unit(n) for n in names}, message="standard errors only: K, T and the wave model "
+                                                                   "come from different fits",
+            provenance={"fitter": "pipeline.autopilot.config.build_autopilot_config", "waves": self.wave_source})
 
 
 def build_autopilot_config(K: float, T: float, *, K_stderr: float = math.nan, T_stderr: float = math.nan,
@@ -385,6 +399,17 @@ class NomotoCoefficients:
     vessel: str = ""
     source: SourceFile | None = None
 
+    def to_fit_result(self) -> FitResult:
+        """K and T as a :class:`~pipeline.records.FitResult` (standard errors only: the file holds no
+        covariance)."""
+        source = self.source
+        return fit_result_from_arrays(
+            "nomoto_coefficients", ("K", "T"), [self.K, self.T], [self.K_stderr, self.T_stderr], None,
+            {"K": "1/s", "T": "s"}, success=math.isfinite(self.K) and math.isfinite(self.T),
+            message="read from coefficients.json: only the standard errors are known, not the covariance",
+            provenance={"fitter": "pipeline.autopilot.config.read_coefficients_json", "vessel": self.vessel,
+                        **({"data": f"{source.path} (sha256 {source.sha256})"} if source is not None else {})})
+
 
 def _coef(doc: Mapping, name: str, path: str) -> tuple[float, float]:
     coefs = doc.get("coefficients")
@@ -424,22 +449,28 @@ def read_coefficients_json(path: str | Path) -> NomotoCoefficients:
         Missing file, bad JSON, K_nomoto or T_nomoto missing or null.
     """
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise AutopilotError(f"{p}: expected a coefficients.json, found no such file") from None
-    except IsADirectoryError:
-        raise AutopilotError(f"{p}: expected a coefficients.json file, found a folder") from None
-    except OSError as exc:
-        raise AutopilotError(f"{p}: expected a readable coefficients.json, found: {exc.strerror}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise AutopilotError(f"{p}: expected JSON, found: {exc}") from None
-    if not isinstance(doc, Mapping):
-        raise AutopilotError(f"{p}: expected a JSON object, found {type(doc).__name__}")
+    doc = _read_json_object(p, "coefficients.json")
     k, kse = _coef(doc, "K_nomoto", str(p))
     t, tse = _coef(doc, "T_nomoto", str(p))
     return NomotoCoefficients(K=k, K_stderr=kse, T=t, T_stderr=tse, vessel=str(doc.get("vessel", "")),
                               source=source_file("coefficients", p))
+
+
+def _read_json_object(p: Path, what: str) -> Mapping:
+    """The JSON object in ``p``; an AutopilotError naming ``what`` was expected and what was found."""
+    try:
+        doc = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise AutopilotError(f"{p}: expected a {what}, found no such file") from None
+    except IsADirectoryError:
+        raise AutopilotError(f"{p}: expected a {what} file, found a folder") from None
+    except OSError as exc:
+        raise AutopilotError(f"{p}: expected a readable {what}, found: {exc.strerror}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise AutopilotError(f"{p}: expected JSON, found: {exc}") from None
+    if not isinstance(doc, Mapping):
+        raise AutopilotError(f"{p}: expected a JSON object, found {type(doc).__name__}")
+    return doc
 
 
 def read_waves_json(path: str | Path) -> tuple[WaveParams, dict[str, float]]:
@@ -462,16 +493,7 @@ def read_waves_json(path: str | Path) -> tuple[WaveParams, dict[str, float]]:
         Missing file, bad JSON, missing or non-positive parameters.
     """
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise AutopilotError(f"{p}: expected a waves JSON, found no such file") from None
-    except IsADirectoryError:
-        raise AutopilotError(f"{p}: expected a wave-fit JSON file, found a folder") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise AutopilotError(f"{p}: expected JSON, found: {exc}") from None
-    if not isinstance(doc, Mapping):
-        raise AutopilotError(f"{p}: expected a JSON object, found {type(doc).__name__}")
+    doc = _read_json_object(p, "wave-fit JSON")
     vals, ses = {}, {}
     for key in ("omega0", "lambda", "kw"):
         entry = doc.get(key)

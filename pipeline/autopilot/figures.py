@@ -100,8 +100,9 @@ def wave_fit_figure(fit: WaveFit) -> bytes:
     hi = min(4.0 * fit.omega0, w[-1])
     sel = w <= hi
     wm = np.linspace(w[0], hi, 800)
-    label = (f"fit: omega0 {fit.omega0:.4f}+-{fit.omega0_se:.2g} rad/s, lambda {fit.lam:.3f}+-{fit.lam_se:.2g}, "
-             f"K_w {fit.kw:.4g}+-{fit.kw_se:.2g}")
+    par = fit.to_fit_result().params
+    label = (f"fit: omega0 {par['omega0'].value:.4f}+-{par['omega0'].stderr:.2g} rad/s, "
+             f"lambda {par['lam'].value:.3f}+-{par['lam'].stderr:.2g}, K_w {par['kw'].value:.4g}+-{par['kw'].stderr:.2g}")
     for ax, log in ((ax_lin, False), (ax_log, True)):
         ax.plot(w[sel], p[sel], color="0.4", lw=0.8, label="Welch PSD (two-sided, per rad/s)")
         ax.plot(wm, model_psd(wm, fit), color="tab:red", lw=1.5, label=label)

@@ -65,14 +65,14 @@ def autopilot_html_section(result: AutopilotResult, figures: bool = True,
     imgs = dict(images or {})
     deg = math.degrees
     parts = []
-    ws = cfg.waves_stderr
+    used = cfg.to_fit_result().params
     parts.append(_table(
         ["quantity", "value"],
-        [["Nomoto K", _pm(cfg.K, cfg.K_stderr, ".4g", "1/s")],
-         ["Nomoto T", _pm(cfg.T, cfg.T_stderr, ".4g", "s")],
-         ["wave omega<sub>0</sub>", _pm(cfg.waves.omega0, ws.get("omega0", math.nan), ".4g", "rad/s")],
-         ["wave &lambda;", _pm(cfg.waves.lam, ws.get("lambda", math.nan), ".3g")],
-         ["wave K<sub>w</sub>", _pm(cfg.waves.kw, ws.get("kw", math.nan), ".4g", "rad s<sup>-1/2</sup>")],
+        [["Nomoto K", _pm(used["K"].value, used["K"].stderr, ".4g", "1/s")],
+         ["Nomoto T", _pm(used["T"].value, used["T"].stderr, ".4g", "s")],
+         ["wave omega<sub>0</sub>", _pm(used["omega0"].value, used["omega0"].stderr, ".4g", "rad/s")],
+         ["wave &lambda;", _pm(used["lam"].value, used["lam"].stderr, ".3g")],
+         ["wave K<sub>w</sub>", _pm(used["kw"].value, used["kw"].stderr, ".4g", "rad s<sup>-1/2</sup>")],
          ["wave model source", html.escape(cfg.wave_source)],
          ["PD K<sub>pd</sub>, T<sub>d</sub>, T<sub>f</sub>",
           f"{cfg.pd.kpd:.4g}, {cfg.pd.td:.4g} s, {cfg.pd.tf:.4g} s"],
@@ -141,11 +141,14 @@ def autopilot_html_section(result: AutopilotResult, figures: bool = True,
                              + _img(png, f"closed loop, scenario {s.name}") + "</details>")
     if result.wave_fit is not None:
         f = result.wave_fit
+        fr = f.to_fit_result()
+        w, st = fr.params, fr.statistics
         parts.append(
             f"<p>Wave model fitted by least squares to the Welch PSD of the wave-induced heading "
             f"(Hann, {f.nperseg} samples, {f.fs:.3g} Hz, band {f.band[0]:.3g}&ndash;{f.band[1]:.3g} rad/s): "
-            f"omega<sub>0</sub> = {_pm(f.omega0, f.omega0_se, '.4f', 'rad/s')}, &lambda; = {_pm(f.lam, f.lam_se, '.3f')}, "
-            f"K<sub>w</sub> = {_pm(f.kw, f.kw_se, '.4g')}, &sigma; = {_pm(f.sigma, f.sigma_se, '.4g')} with "
+            f"omega<sub>0</sub> = {_pm(w['omega0'].value, w['omega0'].stderr, '.4f', 'rad/s')}, "
+            f"&lambda; = {_pm(w['lam'].value, w['lam'].stderr, '.3f')}, "
+            f"K<sub>w</sub> = {_pm(w['kw'].value, w['kw'].stderr, '.4g')}, &sigma; = {_pm(st['sigma'], st['sigma_se'], '.4g')} with "
             f"&sigma;<sup>2</sup> the peak of the PSD and K<sub>w</sub> = 2&lambda;omega<sub>0</sub>&sigma;. "
             f"PSD convention: two-sided per rad/s for unit-intensity w<sub>w</sub>; the course's convention "
             f"gives &sigma; = {f.course_sigma:.4g}, K<sub>w</sub> = {f.course_kw:.4g} (divided by &radic;&pi;)."

@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import AutopilotError
+from ..records import FitResult, fit_result_from_arrays, parameter_unit
 from ..model.waves import WaveParams, wave_psd
 
 #: Factor from our sigma and K_w to the course's (``G/(2 pi)`` one-sided per rad/s convention).
@@ -184,6 +185,23 @@ class WaveFit:
             "expected_rel_std": _json_num(self.expected_rel_std),
             "success": bool(self.success), "message": self.message,
         }
+
+    def to_fit_result(self) -> FitResult:
+        """This fit as a :class:`~pipeline.records.FitResult`: ``omega0``, ``lam``, ``kw`` with their
+        covariance; ``sigma`` and its error, and the misfit measures, in ``statistics``."""
+        names = ("omega0", "lam", "kw")
+        return fit_result_from_arrays(
+            "wave_spectrum", names, [self.omega0, self.lam, self.kw],
+            [self.omega0_se, self.lam_se, self.kw_se], self.covariance,
+            {n: parameter_unit(n) for n in names}, success=bool(self.success), message=self.message,
+            ndata=int(np.size(self.omega)),
+            provenance={"fitter": "pipeline.autopilot.waves_fit.fit_wave_spectrum",
+                        "data": f"Welch PSD of {self.n_samples} samples at {self.fs:g} Hz "
+                                f"(nperseg {self.nperseg}), band {self.band[0]:g}-{self.band[1]:g} rad/s",
+                        "covariance": "least squares on the log PSD"},
+            statistics={"sigma": float(self.sigma), "sigma_se": float(self.sigma_se),
+                        "rel_residual_std": float(self.rel_residual_std),
+                        "expected_rel_std": float(self.expected_rel_std)})
 
 
 def _json_num(x: float) -> float | None:

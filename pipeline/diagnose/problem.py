@@ -20,6 +20,7 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import DiagnoseError
+from ..fit.data import first_present_channel
 from ..records import Segment, Segments, Trial
 from ..segment import noise_std
 from ..vessel import Vessel
@@ -512,27 +513,6 @@ def _blocks(windows: list[Window], own: list[Window], t_const: float, t: np.ndar
             a, b = int(edges[j]), int(edges[j + 1])
             out.append(Window(a, b, float(t[a]), float(t[b - 1]), w.kinds, w.dofs, f"{w.label} ({j + 1}/{k})"))
     return out
-
-
-def first_present_channel(trial: Trial, names: tuple[str, ...]) -> str | None:
-    """First of ``names`` that the trial holds.
-
-    Parameters
-    ----------
-    trial : Trial
-        The trial.
-    names : tuple of str
-        Canonical channel names in order of preference.
-
-    Returns
-    -------
-    str or None
-        The channel name; None when the trial holds none of them.
-    """
-    for c in names:
-        if trial.has(c):
-            return c
-    return None
 
 
 def dof_inputs(trial: Trial, vessel: Vessel | None, dof: str) -> tuple[str, ...]:

@@ -1,178 +1,18 @@
 """Segments for the diagnosis: the segment stage's detector, plus what it cannot see.
 
-Input-driven segments are extended to the next change of any input: the detector ends a step once
-it judges the response settled (from a time constant it estimates, which noise can fool on a slow
-ship), but an open-loop replay stays valid, and informative, as long as the inputs hold.
-
-Two additions, both for logs without a usable input record:
-
-- a velocity *free decay* (surge speed after the throttle is cut, yaw rate after a spin-up) when
-  the trial logs no input that drives that DOF: the decay is found in the response itself;
-- a *free run* per continuous stretch of data when a DOF has a varying input but the detector
-  finds no manoeuvre (closed-loop autopilot runs): the recorded input is simply replayed.
+Every segment comes from the segment stage (:mod:`pipeline.segment`): the detected ones
+(:func:`pipeline.segment.segment_trial`), run on to the next input change, and, per DOF, the
+replay segments of :mod:`pipeline.segment.replay` where the detector finds nothing: velocity free
+decays in a DOF with no input logged, free runs in a DOF whose input varies.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
-
-import numpy as np
-import scipy.ndimage
-
-from ..flow import segment_trial
-from ..records import INPUT_UNITS, Segment, Segments, Trial
-from ..segment import noise_std
-from .problem import FORCE, RESPONSE, dof_inputs, first_present_channel
-
-#: Smallest free decay: its peak over the noise, and its length in samples.
-DECAY_SNR = 8.0
-DECAY_MIN_SAMPLES = 10
-#: A free run is cut into pieces of at most this length [s] so it can be cross-validated.
-FREE_RUN_PIECE = 60.0
-
-
-def _runs(ok: np.ndarray, min_len: int) -> list[tuple[int, int]]:
-    """Index ranges [a, b) of consecutive True values at least ``min_len`` long."""
-    idx = np.flatnonzero(ok)
-    if len(idx) == 0:
-        return []
-    breaks = np.flatnonzero(np.diff(idx) > 1)
-    starts = np.concatenate([[idx[0]], idx[breaks + 1]])
-    ends = np.concatenate([idx[breaks] + 1, [idx[-1] + 1]])
-    return [(int(a), int(b)) for a, b in zip(starts, ends) if b - a >= min_len]
-
-
-def velocity_decays(trial: Trial, dof: str, channel: str) -> list[Segment]:
-    """Free decays of a velocity with no input logged: from where it starts to fall, to where it
-    has lost 90% of its peak or the data ends.
-
-    Parameters
-    ----------
-    trial : Trial
-        Aligned trial.
-    dof : str
-        DOF name.
-    channel : str
-        Response channel (``u``, ``sog``, ``r``, ...).
-
-    Returns
-    -------
-    list[Segment]
-        ``coast_down`` segments with ``input_channel=None``.
-    """
-    y = trial.data[channel].to_numpy(float)
-    t = trial.t
-    fs = trial.fs
-    noise = noise_std(y)
-    if not np.isfinite(noise):
-        return []
-    noise = max(noise, 1e-12)
-    w = max(int(0.5 * fs), 1)
-    out = []
-    for a, b in _runs(np.isfinite(y), DECAY_MIN_SAMPLES):
-        seg = y[a:b]
-        # A median over half a second ignores the gyro spikes digitised records carry; edges are
-        # held, not zero-padded, which would fake a decay at the end of the data.
-        ys = scipy.ndimage.median_filter(seg, size=w, mode="nearest") if len(seg) > 2 * w else seg
-        i = 0
-        while i < len(seg) - DECAY_MIN_SAMPLES:
-            mag = np.abs(ys[i:])
-            k = int(np.argmax(mag))
-            peak = float(mag[k])
-            if peak < DECAY_SNR * noise:
-                break
-            k += i
-            # Start: the last sample near the peak level before it falls below 90% of it.
-            below = np.flatnonzero(np.abs(ys[k:]) < 0.9 * peak)
-            if len(below) == 0:
-                i = k + w
-                continue
-            k90 = k + int(below[0])
-            near = np.flatnonzero(np.abs(ys[k:k90 + 1]) >= 0.99 * peak)
-            start = k + int(near[-1]) if len(near) else k
-            gone = np.flatnonzero(np.abs(ys[k90:]) < 0.1 * peak)
-            end = k90 + int(gone[0]) if len(gone) else len(seg) - 1
-            # A decay loses most of its peak; a plateau that merely wobbles does not.
-            fell = np.abs(ys[end]) < 0.4 * peak
-            if end - start >= DECAY_MIN_SAMPLES and fell:
-                out.append(Segment("coast_down", dof, float(t[a + start]), float(t[a + end]), None, float(seg[start]),
-                                   0.0, quality=float(np.clip(1 - np.exp(-peak / noise / 20), 0, 1)),
-                                   label=f"{channel} free decay from {seg[start]:.3g} (no input logged)"))
-            i = end + 1
-    return out
-
-
-def free_runs(trial: Trial, dof: str, channel: str, inputs: tuple[str, ...]) -> list[Segment]:
-    """The recorded input replayed over each continuous stretch of data, in pieces.
-
-    Parameters
-    ----------
-    trial : Trial
-        Aligned trial.
-    dof : str
-        DOF name.
-    channel : str
-        Response channel.
-    inputs : tuple[str, ...]
-        The DOF's input channels.
-    """
-    y = trial.data[channel].to_numpy(float)
-    t = trial.t
-    piece = max(int(FREE_RUN_PIECE * trial.fs), 2)
-    out = []
-    for a, b in _runs(np.isfinite(y), max(int(5 * trial.fs), DECAY_MIN_SAMPLES)):
-        n = int(np.ceil((b - a) / piece))
-        edges = np.linspace(a, b, n + 1).astype(int)
-        for i0, i1 in zip(edges[:-1], edges[1:]):
-            out.append(Segment("free_run", dof, float(t[i0]), float(t[i1 - 1]), inputs[0], 0.0, 0.0, quality=0.5,
-                               label=f"free run ({', '.join(inputs)} replayed)"))
-    return out
-
-
-def input_changes(trial: Trial) -> np.ndarray:
-    """Times [s] at which any logged input changes by more than 1% of its range.
-
-    Parameters
-    ----------
-    trial : Trial
-        Aligned trial.
-    """
-    t = trial.t
-    times = [t[-1]]
-    for c in INPUT_UNITS:
-        if not trial.has(c):
-            continue
-        u = trial.data[c].to_numpy(float)
-        ok = np.isfinite(u)
-        tol = max(0.01 * float(np.ptp(u[ok])), 1e-12)
-        idx = np.flatnonzero(ok[1:] & ok[:-1] & (np.abs(np.diff(u)) > tol)) + 1
-        times += list(t[idx])
-    return np.unique(np.asarray(times, float))
-
-
-def extend_segments(trial: Trial, items: list[Segment]) -> list[Segment]:
-    """Input-driven segments run on to the next input change (never across a dropout).
-
-    Parameters
-    ----------
-    trial : Trial
-        Aligned trial.
-    items : list[Segment]
-        Segments.
-    """
-    changes = input_changes(trial)
-    out = []
-    for s in items:
-        if s.input_channel is None or s.kind == "free_run":
-            out.append(s)
-            continue
-        later = changes[changes > s.t_end - 1.5 / trial.fs]
-        end = float(later[0]) - 1.0 / trial.fs if len(later) else s.t_end
-        for g in trial.gaps:
-            if s.t_start < g.t_start < end:
-                end = g.t_start
-        out.append(replace(s, t_end=max(s.t_end, end)))
-    return out
+from ..fit.data import first_present_channel
+from ..records import Segments, Trial
+from ..segment import segment_trial
+from ..segment.replay import extend_segments, free_runs, velocity_decays
+from .problem import FORCE, RESPONSE, dof_inputs
 
 
 def diagnose_segments(trial: Trial) -> Segments:

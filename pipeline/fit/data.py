@@ -26,8 +26,29 @@ def segment_label(segment: Segment) -> str:
     return f"{name} '{segment.label}'" if segment.label else name
 
 
+def first_present_channel(trial: Trial, names: Sequence[str]) -> str | None:
+    """First of ``names`` that the trial holds.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    names : sequence of str
+        Canonical channel names in order of preference.
+
+    Returns
+    -------
+    str or None
+        The channel name; None when the trial holds none of them.
+    """
+    for name in names:
+        if trial.has(name):
+            return name
+    return None
+
+
 def pick_channel(trial: Trial, segment: Segment, candidates: Sequence[str]) -> str:
-    """First of ``candidates`` that the trial holds.
+    """First of ``candidates`` that the trial holds (:func:`first_present_channel`), or an error.
 
     Parameters
     ----------
@@ -43,9 +64,9 @@ def pick_channel(trial: Trial, segment: Segment, candidates: Sequence[str]) -> s
     FitError
         None of the channels is present.
     """
-    for name in candidates:
-        if trial.has(name):
-            return name
+    name = first_present_channel(trial, candidates)
+    if name is not None:
+        return name
     present = sorted(c for c in trial.data.columns if c != "t")
     raise FitError(f"{segment_label(segment)}: expected channel {' or '.join(candidates)}, "
                    f"found only {present}")

@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import FitError
 from ..records import DOF_CHANNELS, Segment, SegmentFit, Trial
 from .data import input_levels, noise_sigma, pick_channel, segment_label, segment_samples, steady_before
-from ..model.first_order import decay, guess_step, step_response
+from ..model.first_order import decay, decay_jacobian, guess_step, step_jacobian, step_response
 from .least_squares import LeastSquaresResult, fit_least_squares
 from .robust_covariance import hac_covariance
 from .segment_fit import build_segment_fit
@@ -38,51 +38,6 @@ HAC_SIGNIFICANCE = 3.0
 
 DECAY_PARAMS = ("y0", "T")
 STEP_PARAMS = ("y0", "y_ss", "T")
-
-
-# --------------------------------------------------------------------------- models
-def decay_jacobian(t: np.ndarray, y0: float, T: float) -> np.ndarray:
-    """Jacobian of :func:`decay` with respect to ``(y0, T)``, shape (n, 2).
-
-    Parameters
-    ----------
-    t : numpy.ndarray
-        Time since the input was cut [s].
-    y0 : float
-        Value at ``t = 0`` [unit of y].
-    T : float
-        Time constant [s].
-
-    Returns
-    -------
-    numpy.ndarray
-        Columns ``dy/dy0`` [-] and ``dy/dT`` [unit of y / s].
-    """
-    e = np.exp(-np.asarray(t, float) / T)
-    return np.column_stack([e, y0 * e * t / T**2])
-
-
-def step_jacobian(t: np.ndarray, y0: float, y_ss: float, T: float) -> np.ndarray:
-    """Jacobian of :func:`step_response` with respect to ``(y0, y_ss, T)``, shape (n, 3).
-
-    Parameters
-    ----------
-    t : numpy.ndarray
-        Time since the input change [s].
-    y0 : float
-        Value at ``t = 0`` [unit of y].
-    y_ss : float
-        Steady state [unit of y].
-    T : float
-        Time constant [s].
-
-    Returns
-    -------
-    numpy.ndarray
-        Columns ``dy/dy0``, ``dy/dy_ss`` [-] and ``dy/dT`` [unit of y / s].
-    """
-    e = np.exp(-np.asarray(t, float) / T)
-    return np.column_stack([e, 1.0 - e, (y0 - y_ss) * e * t / T**2])
 
 
 # --------------------------------------------------------------------------- closed-form starts
@@ -307,6 +262,49 @@ def resolution_failures(t: np.ndarray, res: LeastSquaresResult) -> list[str]:
 
 
 # --------------------------------------------------------------------------- segment fits
+def velocity_samples(trial: Trial, segment: Segment) -> tuple[str, np.ndarray, np.ndarray, int, str]:
+    """The samples a first-order fit of ``segment`` uses, checked for the fewest a fit accepts.
+
+    Parameters
+    ----------
+    trial : Trial
+        Trial holding the velocity channel.
+    segment : Segment
+        A surge, sway or yaw segment.
+
+    Returns
+    -------
+    channel : str
+        The velocity channel read (``u``, ``v``, ``r`` or ``sog``).
+    t, y : numpy.ndarray
+        Time since the segment's start [s] and the channel [m/s or rad/s], at the measured sample
+        times where the channel is measured slower than the grid.
+    dropped : int
+        Non-finite samples dropped.
+    real_note : str
+        A note on the measured sample times ("" when none).
+
+    Raises
+    ------
+    FitError
+        Fewer than ``MIN_SAMPLES`` samples.
+    """
+    channel = _velocity_channel(trial, segment)
+    t, y, dropped = segment_samples(trial, segment, channel)
+    t, y, real_note = measured_samples(trial, segment, channel, t, y)
+    if t.size < MIN_SAMPLES:
+        check_first_order_length(segment, t, math.nan, math.nan, math.nan)
+    return channel, t, y, dropped, real_note
+
+
+def _least_squares(model, jacobian, t: np.ndarray, y: np.ndarray, p0: list[float], names: tuple[str, ...],
+                   lower: list[float], upper: list[float]) -> tuple[LeastSquaresResult, str]:
+    """Least-squares fit of ``model(t, *p)`` with its analytic Jacobian, errors from
+    :func:`coloured_noise_errors`; returns the result and that function's note."""
+    res = fit_least_squares(lambda tt, p: model(tt, *p), lambda tt, p: jacobian(tt, *p), t, y, p0, names, lower, upper)
+    return coloured_noise_errors(res, jacobian(t, *res.values))
+
+
 def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     """Fit ``y = y0 exp(-t/T)`` to a coast-down (input cut to zero at ``segment.t_start``).
 
@@ -334,11 +332,7 @@ def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
     FitError
         Missing channel, too few samples, too short or no excitation.
     """
-    channel = _velocity_channel(trial, segment)
-    t, y, dropped = segment_samples(trial, segment, channel)
-    t, y, real_note = measured_samples(trial, segment, channel, t, y)
-    if t.size < MIN_SAMPLES:
-        check_first_order_length(segment, t, math.nan, math.nan, math.nan)
+    channel, t, y, dropped, real_note = velocity_samples(trial, segment)
     p0 = guess_decay(t, y)
     sigma = noise_sigma(y)
     notes = [f"start (log-linear guess): y0 = {p0['y0']:.4g}, T = {p0['T']:.4g} s"]
@@ -348,9 +342,8 @@ def fit_coast_down(trial: Trial, segment: Segment) -> SegmentFit:
         notes.append(f"{dropped} non-finite samples dropped")
     notes += [real_note] if real_note else []
     lo_T, hi_T = time_constant_bounds(t)
-    res = fit_least_squares(lambda tt, p: decay(tt, *p), lambda tt, p: decay_jacobian(tt, *p), t, y,
-                            [p0["y0"], p0["T"]], DECAY_PARAMS, [-np.inf, lo_T], [np.inf, hi_T])
-    res, hac_note = coloured_noise_errors(res, decay_jacobian(t, *res.values))
+    res, hac_note = _least_squares(decay, decay_jacobian, t, y, [p0["y0"], p0["T"]], DECAY_PARAMS,
+                                   [-np.inf, lo_T], [np.inf, hi_T])
     notes += [hac_note] if hac_note else []
     return build_segment_fit(segment, "first_order_decay", channel, t, y, res, ("T",), notes,
                              resolution_failures(t, res))
@@ -376,11 +369,7 @@ def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
     FitError
         Missing channel, too few samples, too short or no excitation.
     """
-    channel = _velocity_channel(trial, segment)
-    t, y, dropped = segment_samples(trial, segment, channel)
-    t, y, real_note = measured_samples(trial, segment, channel, t, y)
-    if t.size < MIN_SAMPLES:
-        check_first_order_length(segment, t, math.nan, math.nan, math.nan)
+    channel, t, y, dropped, real_note = velocity_samples(trial, segment)
     p0 = guess_step(t, y)
     sigma = noise_sigma(y)
     notes = [f"start (integral-regression guess): y0 = {p0['y0']:.4g}, y_ss = {p0['y_ss']:.4g}, "
@@ -390,10 +379,8 @@ def fit_step(trial: Trial, segment: Segment) -> SegmentFit:
     _, _, level_note = input_levels(trial, segment)
     notes += [n for n in (level_note, f"{dropped} non-finite samples dropped" if dropped else "", real_note) if n]
     lo_T, hi_T = time_constant_bounds(t)
-    res = fit_least_squares(lambda tt, p: step_response(tt, *p), lambda tt, p: step_jacobian(tt, *p), t, y,
-                            [p0["y0"], p0["y_ss"], p0["T"]], STEP_PARAMS,
-                            [-np.inf, -np.inf, lo_T], [np.inf, np.inf, hi_T])
-    res, hac_note = coloured_noise_errors(res, step_jacobian(t, *res.values))
+    res, hac_note = _least_squares(step_response, step_jacobian, t, y, [p0["y0"], p0["y_ss"], p0["T"]], STEP_PARAMS,
+                                   [-np.inf, -np.inf, lo_T], [np.inf, np.inf, hi_T])
     notes += [hac_note] if hac_note else []
     sf = build_segment_fit(segment, "first_order_step", channel, t, y, res, ("T",), notes,
                            resolution_failures(t, res))

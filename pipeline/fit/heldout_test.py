@@ -117,6 +117,43 @@ def channel_score(name: str, e0: np.ndarray, e1: np.ndarray, p: int, n_windows: 
     return ChannelScore(name, n, r0 / unit, r1 / unit, explained, rho, n_eff, float(f), pv)
 
 
+def heldout_gain(name: str, e0: np.ndarray, e1: np.ndarray, fold_of: np.ndarray, n_folds: int,
+                 noise: float) -> tuple[ChannelScore, float, float]:
+    """The held-out F test of a larger model over folds, its gap shrink, and the robust p-value.
+
+    Parameters
+    ----------
+    name : str
+        Channel name.
+    e0, e1 : numpy.ndarray
+        Held-out residual rows of the baseline and of the larger model (NaN outside the test data).
+    fold_of : numpy.ndarray
+        Fold index of each row.
+    n_folds : int
+        Folds.
+    noise : float
+        Noise level in the residuals' units.
+
+    Returns
+    -------
+    score : ChannelScore
+        :func:`channel_score` over every row (the larger model adds one parameter).
+    shrink : float
+        Held-out gap reduction [%].
+    p_robust : float
+        The same test without the fold the larger model gains most on (NaN with one fold).
+    """
+    cs = channel_score(name, e0, e1, 1, e0.shape[0], noise)
+    shrink = 100.0 * (1.0 - cs.gap_after / cs.gap_before) if cs.gap_before > 0 else 0.0
+    gains = np.zeros(n_folds)
+    np.add.at(gains, fold_of, np.nansum(e0**2 - e1**2, axis=1))
+    keep = fold_of != int(np.argmax(gains))
+    p_rob = np.nan
+    if n_folds > 1 and keep.any():
+        p_rob = channel_score(name, e0[keep], e1[keep], 1, int(keep.sum()), noise).p_value
+    return cs, shrink, float(p_rob)
+
+
 def is_significant(p_value: float, p_robust: float, shrink: float, explained: float) -> bool:
     """The rule's verdict from its four numbers (module docstring).
 

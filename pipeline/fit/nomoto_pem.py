@@ -50,14 +50,14 @@ import scipy.signal
 
 from ..errors import FitError
 from ..model.discretise import expm_small, noise_integral_fast
-from ..model.nomoto import HEADING_MODEL_STATES, heading_model_matrices
+from ..model.nomoto import HEADING_MODEL_STATES
 from ..model.waves import WaveParams, wave_matrices
 
 #: States of the seed's augmented model, in order (:data:`pipeline.model.nomoto.HEADING_MODEL_STATES`).
 AUGMENTED_STATES = HEADING_MODEL_STATES
-#: The augmented model is :func:`pipeline.model.nomoto.heading_model_matrices`; the exponential
-#: :func:`pipeline.model.discretise.expm_small` (both re-exported here for existing callers).
-__all__ = ["AUGMENTED_STATES", "InnovationFilter", "augmented_matrices", "dare_filter_2x2", "expm_small",
+#: The augmented model is :func:`pipeline.model.nomoto.heading_model_matrices` (not redefined here);
+#: the exponential :func:`pipeline.model.discretise.expm_small` (re-exported here for existing callers).
+__all__ = ["AUGMENTED_STATES", "InnovationFilter", "dare_filter_2x2", "expm_small",
            "guess_wave_noise", "initial_state_response", "innovation_filter", "kalman_innovations",
            "noise_from_ratio", "wave_discrete", "wave_std", "whiten", "whiten_profiled"]
 def _inv2(m: np.ndarray) -> np.ndarray:
@@ -373,21 +373,6 @@ def guess_wave_noise(w: np.ndarray, fs: float, noise_std: float) -> tuple[float,
     var_w = max(float(np.var(w)) - sv**2, 0.01 * sv**2)
     kw = math.sqrt(var_w * 4 * lam * omega0)
     return omega0, lam, kw / sv
-
-
-def augmented_matrices(K: float, T: float, waves: WaveParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Continuous ``(A, B, E, C)`` of the seed's augmented model: :func:`pipeline.model.nomoto.heading_model_matrices`.
-
-    Parameters
-    ----------
-    K : float
-        Nomoto gain [1/s].
-    T : float
-        Nomoto time constant [s].
-    waves : WaveParams
-        Wave model.
-    """
-    return heading_model_matrices(K, T, waves)
 
 
 def kalman_innovations(ad: np.ndarray, bd: np.ndarray, c: np.ndarray, qd: np.ndarray, noise_var: float,

@@ -25,7 +25,7 @@ from scipy import optimize
 from ..errors import FitError
 from ..model.nomoto import NomotoParams, nomoto_rhs
 from .data import noise_sigma
-from .heldout_test import channel_score, is_significant
+from .heldout_test import heldout_gain, is_significant
 from .least_squares import confidence_interval
 from .nomoto_oe import fit_nomoto
 from .nomoto_records import NomotoFit, NomotoRecord
@@ -438,14 +438,7 @@ def select_norrbin(records: NomotoRecord | Sequence[NomotoRecord], model: str = 
     r0, r1, fold_of = np.array(rows0), np.array(rows1), np.array(fold_of)
     rms = {"nomoto": float(np.sqrt(np.nanmean(r0**2))), "norrbin": float(np.sqrt(np.nanmean(r1**2)))}
     # Residuals are noise-weighted: the white-noise level is 1 in these units.
-    cs = channel_score("+".join(p_lin.channels), r0, r1, 1, r0.shape[0], 1.0)
-    shrink = 100.0 * (1.0 - cs.gap_after / cs.gap_before) if cs.gap_before > 0 else 0.0
-    gains = np.zeros(len(folds))
-    np.add.at(gains, fold_of, np.nansum(r0**2 - r1**2, axis=1))
-    keep = fold_of != int(np.argmax(gains))
-    p_rob = math.nan
-    if len(folds) > 1 and keep.any():
-        p_rob = channel_score("", r0[keep], r1[keep], 1, int(keep.sum()), 1.0).p_value
+    cs, shrink, p_rob = heldout_gain("+".join(p_lin.channels), r0, r1, fold_of, len(folds), 1.0)
     pv = cs.p_value if math.isfinite(cs.p_value) else 1.0
     # "explained" on the scale of the weighted output's spread, as the damping selection does.
     scale = max(float(np.nanstd(np.concatenate([(p_lin.Y[ch] * p_lin.W[ch])[p_lin.mask[ch]] for ch in p_lin.channels]))),

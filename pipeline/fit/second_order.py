@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import FitError
+from ..model.second_order import damped_oscillation, damped_oscillation_jacobian
 from ..records import DOF_ANGLE, DOF_CHANNELS, Segment, SegmentFit, Trial
 from .data import noise_sigma, pick_channel, segment_label, segment_samples
 from .least_squares import fit_least_squares
@@ -34,67 +35,6 @@ MIN_EXTREMA_WITH_RELEASE = 2
 MAX_ZETA = 0.99
 #: Extrema smaller than this many noise standard deviations are not used by the guess.
 MIN_PEAK_SNR = 5.0
-
-
-def damped_oscillation(t: np.ndarray, A: float, zeta: float, wn: float, phase: float, offset: float) -> np.ndarray:
-    """Free decay ``A exp(-zeta wn t) cos(wd t + phase) + offset`` with ``wd = wn sqrt(1 - zeta^2)``.
-
-    Parameters
-    ----------
-    t : numpy.ndarray
-        Time since release [s].
-    A : float
-        Amplitude [rad or rad/s].
-    zeta : float
-        Damping ratio [-], 0 <= zeta < 1.
-    wn : float
-        Undamped natural frequency [rad/s].
-    phase : float
-        Phase [rad].
-    offset : float
-        Static offset [rad or rad/s].
-    """
-    t = np.asarray(t, float)
-    wd = wn * math.sqrt(max(1.0 - zeta**2, 0.0))
-    return A * np.exp(-zeta * wn * t) * np.cos(wd * t + phase) + offset
-
-
-def damped_oscillation_jacobian(t: np.ndarray, A: float, zeta: float, wn: float, phase: float,
-                                offset: float) -> np.ndarray:
-    """Jacobian of :func:`damped_oscillation` with respect to ``PARAMS``, shape (n, 5).
-
-    Parameters
-    ----------
-    t : numpy.ndarray
-        Time since release [s].
-    A : float
-        Amplitude [rad or rad/s].
-    zeta : float
-        Damping ratio [-]; ``1 - zeta^2`` is floored at 1e-12 so the derivative stays finite at
-        ``zeta = 1``.
-    wn : float
-        Undamped natural frequency [rad/s].
-    phase : float
-        Phase [rad].
-    offset : float
-        Static offset [rad or rad/s]; its column is ones.
-
-    Returns
-    -------
-    numpy.ndarray
-        Columns in ``PARAMS`` order: derivatives with respect to ``A``, ``zeta``, ``wn``,
-        ``phase`` and ``offset``.
-    """
-    t = np.asarray(t, float)
-    root = math.sqrt(max(1.0 - zeta**2, 1e-12))
-    wd = wn * root
-    e = np.exp(-zeta * wn * t)
-    c = np.cos(wd * t + phase)
-    s = np.sin(wd * t + phase)
-    # d wd / d zeta = -wn zeta / sqrt(1 - zeta^2), d wd / d wn = sqrt(1 - zeta^2)
-    d_zeta = A * e * t * (-wn * c + s * wn * zeta / root)
-    d_wn = -A * e * t * (zeta * c + root * s)
-    return np.column_stack([e * c, d_zeta, d_wn, -A * e * s, np.ones_like(t)])
 
 
 def _extrema(t: np.ndarray, z: np.ndarray, h: float, keep_start: bool = False) -> tuple[np.ndarray, np.ndarray]:

@@ -27,7 +27,7 @@ from .coupling import coupling_note
 from .current import check_current
 from .start_transient import start_transient_note
 from .decay_analysis import analyse_decays
-from .heldout_test import channel_score, is_significant
+from .heldout_test import heldout_gain, is_significant
 from .least_squares import confidence_interval
 from .segment_fit import MAX_RELATIVE_STDERR
 from .steady_map import steady_points
@@ -153,14 +153,7 @@ def select_structure(records, dof: str, dt: float, mass: float, model: str = "au
                 rows1.append(np.where(test[i], e1[i], np.nan) / scale)
                 fold_of.append(f)
     r0, r1, fold_of = np.array(rows0), np.array(rows1), np.array(fold_of)
-    cs = channel_score(records[0].channel, r0, r1, 1, r0.shape[0], noise)
-    shrink = 100.0 * (1.0 - cs.gap_after / cs.gap_before) if cs.gap_before > 0 else 0.0
-    gains = np.zeros(len(folds))
-    np.add.at(gains, fold_of, np.nansum(r0**2 - r1**2, axis=1))
-    keep = fold_of != int(np.argmax(gains))
-    p_rob = math.nan
-    if len(folds) > 1 and keep.any():
-        p_rob = channel_score(records[0].channel, r0[keep], r1[keep], 1, int(keep.sum()), noise).p_value
+    cs, shrink, p_rob = heldout_gain(records[0].channel, r0, r1, fold_of, len(folds), noise)
     pv = cs.p_value if math.isfinite(cs.p_value) else 1.0
     sig = is_significant(pv, p_rob, shrink, cs.explained) and quad.success
     chosen = "quadratic" if (model == "quadratic" or (model == "auto" and sig)) else "linear"

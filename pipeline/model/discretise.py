@@ -106,17 +106,13 @@ def zoh_fast(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.nda
 
     Parameters
     ----------
-    a : numpy.ndarray, shape (n, n)
-        Continuous system matrix [1/s].
-    b : numpy.ndarray, shape (n, m)
-        Continuous input matrix.
-    h : float
-        Sample time [s].
+    a, b, h : numpy.ndarray, numpy.ndarray, float
+        As in :func:`zoh`.
 
     Returns
     -------
     ad, bd : numpy.ndarray
-        ``exp(A h)`` and ``int_0^h exp(A s) ds B``.
+        As :func:`zoh` returns them.
     """
     return _zoh_block(a, b, h, expm_small)
 
@@ -161,17 +157,13 @@ def noise_integral_fast(a: np.ndarray, g: np.ndarray, h: float) -> tuple[np.ndar
 
     Parameters
     ----------
-    a : numpy.ndarray, shape (n, n)
-        Continuous system matrix [1/s].
-    g : numpy.ndarray, shape (n, n)
-        Continuous noise intensity ``E Q E^T``.
-    h : float
-        Sample time [s].
+    a, g, h : numpy.ndarray, numpy.ndarray, float
+        As in :func:`noise_integral`.
 
     Returns
     -------
     ad, qd : numpy.ndarray
-        ``exp(A h)`` and the sampled noise covariance.
+        As :func:`noise_integral` returns them.
     """
     return _noise_block(a, g, h, expm_small)
 

@@ -1,5 +1,5 @@
-"""The first-order response ``T y_dot + y = y_ss`` of one DOF after an input change, and its
-closed-form estimate.
+"""The first-order response ``T y_dot + y = y_ss`` of one DOF after an input change, its
+Jacobians and its closed-form estimate.
 
 The fit stage (:mod:`pipeline.fit.first_order`) fits these by least squares; the segmenter
 (:mod:`pipeline.segment.speed_events`) uses the closed form to judge whether a speed change looks
@@ -43,6 +43,41 @@ def step_response(t: np.ndarray, y0: float, y_ss: float, T: float) -> np.ndarray
         Time constant [s].
     """
     return y_ss + (y0 - y_ss) * np.exp(-np.asarray(t, float) / T)
+
+
+def decay_jacobian(t: np.ndarray, y0: float, T: float) -> np.ndarray:
+    """Jacobian of :func:`decay` with respect to ``(y0, T)``, shape (n, 2).
+
+    Parameters
+    ----------
+    t, y0, T : numpy.ndarray, float, float
+        As in :func:`decay`: time [s], initial value [unit of y], time constant [s].
+
+    Returns
+    -------
+    numpy.ndarray
+        Columns ``dy/dy0`` [-] and ``dy/dT`` [unit of y / s].
+    """
+    e = np.exp(-np.asarray(t, float) / T)
+    return np.column_stack([e, y0 * e * t / T**2])
+
+
+def step_jacobian(t: np.ndarray, y0: float, y_ss: float, T: float) -> np.ndarray:
+    """Jacobian of :func:`step_response` with respect to ``(y0, y_ss, T)``, shape (n, 3).
+
+    Parameters
+    ----------
+    t, y0, y_ss, T : numpy.ndarray, float, float, float
+        As in :func:`step_response`: time [s], initial value and steady state [unit of y], time
+        constant [s].
+
+    Returns
+    -------
+    numpy.ndarray
+        Columns ``dy/dy0``, ``dy/dy_ss`` [-] and ``dy/dT`` [unit of y / s].
+    """
+    e = np.exp(-np.asarray(t, float) / T)
+    return np.column_stack([e, 1.0 - e, (y0 - y_ss) * e * t / T**2])
 
 
 def guess_step(t: np.ndarray, y: np.ndarray) -> dict[str, float]:

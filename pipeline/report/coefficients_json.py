@@ -49,8 +49,9 @@ def _num(x) -> float | None:
     return float(x) if finite(x) else None
 
 
-def _matrix(a: np.ndarray) -> list[list[float | None]]:
-    return [[_num(x) for x in row] for row in a]
+def _square(a: np.ndarray) -> list[list[float | None]]:
+    """A matrix as JSON rows, None for NaN/inf."""
+    return [[_num(x) for x in row] for row in np.asarray(a, float)]
 
 
 def estimate_to_dict(est: FitParameter | None, name: str = "") -> dict[str, Any]:
@@ -120,7 +121,7 @@ def fits_to_dict(fits: Fits) -> dict[str, Any]:
     return {
         "vessel": str(fits.vessel),
         "convention": str(fits.convention),
-        "damping_matrix": {"dofs": list(DOFS), "values": _matrix(D), "stderr": _matrix(D_se)},
+        "damping_matrix": {"dofs": list(DOFS), "values": _square(D), "stderr": _square(D_se)},
         "coefficients": {name: estimate_to_dict(params.get(name), name) for name in ordered_names(params)},
         **model_structure_to_dict(fits),
         **decay_analysis_to_dict(fits),
@@ -146,13 +147,15 @@ def decay_analysis_to_dict(fits: Fits) -> dict[str, Any]:
     for dof, a in analyses.items():
         curves = {}
         for k, c in a.curves.items():
+            fr = c.to_fit_result()
+            p = fr.params
             curves[k] = {"n_decays": c.n_decays, "phi_m": [_num(x) for x in c.phi_m], "dphi": [_num(x) for x in c.dphi],
-                         "a": _num(c.a), "b": _num(c.b), "cov_ab": _square(c.cov_ab),
-                         "a_linear": _num(c.a_linear), "a_linear_stderr": _num(c.a_linear_se),
-                         "wn": _num(c.wn), "wn_stderr": _num(c.wn_se), "B1": _num(c.B1), "B1_stderr": _num(c.B1_se),
-                         "B2": _num(c.B2), "B2_stderr": _num(c.B2_se), "B_eq": _num(c.B_eq),
-                         "B_eq_stderr": _num(c.B_eq_se), "amplitude": _num(c.amplitude),
-                         "inertia_fit": _num(c.inertia_fit), "inertia_fit_stderr": _num(c.inertia_fit_se)}
+                         "a": _num(p["a"].value), "b": _num(p["b"].value), "cov_ab": _square(fr.covariance[:2, :2])}
+            for n in ("a_linear", "wn", "B1", "B2", "B_eq"):
+                curves[k].update({n: _num(p[n].value), f"{n}_stderr": _num(p[n].stderr)})
+            curves[k]["amplitude"] = _num(fr.statistics["amplitude"])
+            curves[k].update({"inertia_fit": _num(p["inertia_fit"].value),
+                              "inertia_fit_stderr": _num(p["inertia_fit"].stderr)})
         out[dof] = {"curves": curves, "inertia_config": _num(a.inertia_config), "restoring": _num(a.restoring),
                     "consistency_p": _num(a.consistency_p), "message": a.message}
     return {"decay_analysis": out}
@@ -180,15 +183,11 @@ def _damping_fit_dict(fit) -> dict[str, Any]:
     return {"terms": terms, "covariance": {"names": names, "matrix": _square(cov)},
             "correlation": {"names": names, "matrix": _square(corr)},
             "parameters": {n: {"value": _num(p.value), "stderr": _num(p.stderr)} for n, p in shared.params.items()},
-            "parameter_covariance": {"names": list(fit.names), "matrix": _square(fit.covariance),
+            "parameter_covariance": {"names": list(shared.names), "matrix": _square(shared.covariance),
                                      "method": "Newey-West (HAC) sandwich, records independent"},
             "rmse_noise_units": _num(stats["rmse_noise_units"]), "residual_lag1": _num(stats["residual_lag1"]),
             "n_residuals": int(shared.ndata), "inertia": _num(stats["inertia"]), "success": bool(shared.success),
             "message": shared.message}
-
-
-def _square(a: np.ndarray) -> list[list[float | None]]:
-    return [[_num(x) for x in row] for row in np.asarray(a, float)]
 
 
 def model_structure_to_dict(fits: Fits) -> dict[str, Any]:
@@ -231,14 +230,15 @@ def model_structure_to_dict(fits: Fits) -> dict[str, Any]:
             "models": {k: _damping_fit_dict(f) for k, f in ch.fits.items()},
         }
         sel = ch.fits[ch.selected]
-        if sel.terms:
-            names += list(sel.terms)
-            blocks.append(np.asarray(sel.term_covariance, float))
+        terms = sel.to_fit_result() if sel.terms else None  # the Fossen terms, not the shared parameters
+        if terms is not None:
+            names += list(terms.names)
+            blocks.append(terms.covariance)
         quad = TERM_NAMES[dof][1]
-        if ch.selected == "quadratic" and quad in sel.terms:
+        if ch.selected == "quadratic" and terms is not None and quad in terms.params:
             i = list(DOFS).index({"surge": "u", "sway": "v", "roll": "p", "pitch": "q", "yaw": "r"}[dof])
-            d2[i] = _num(-sel.terms[quad][0])
-            d2_se[i] = _num(sel.terms[quad][1])
+            d2[i] = _num(-terms.params[quad].value)
+            d2_se[i] = _num(terms.params[quad].stderr)
     n = len(names)
     cov = np.zeros((n, n))
     k = 0

@@ -241,11 +241,10 @@ def fit_figure_name(index: int, sf: SegmentFit) -> str:
 
 def _param_text(sf: SegmentFit) -> str:
     """``tau = 4.52 ± 0.13, u0 = 1.234 ± 0.005`` in SI; says why an error bar is missing."""
-    names = tuple(sf.param_names) or tuple(sf.params)
+    params = sf.to_fit_result().params
     parts = []
-    for name in names:
-        v = sf.params.get(name, math.nan)
-        se = sf.stderr.get(name, math.nan)
+    for name, par in params.items():
+        v, se = par.value, par.stderr
         if not finite(v):
             parts.append(f"{name} = n/a")
             continue

@@ -26,7 +26,7 @@ from functools import singledispatch
 
 import numpy as np
 
-from ..autopilot.config import NomotoCoefficients
+from ..autopilot.config import AutopilotConfig, NomotoCoefficients
 from ..autopilot.waves_fit import WaveFit
 from ..diagnose.candidates import Fitted
 from ..fit.greybox import UNITS as GREYBOX_UNITS
@@ -49,7 +49,7 @@ def as_fit_result(result) -> FitResult:
         A :class:`~pipeline.records.SegmentFit`, :class:`~pipeline.records.DampingFit`,
         :class:`~pipeline.records.Fits`, :class:`~pipeline.records.Estimate`,
         :class:`~pipeline.records.Extinction`, ``LeastSquaresResult``, ``NomotoFit``,
-        ``GreyBoxFit``, ``WaveFit``, diagnosis ``Fitted`` or ``NomotoCoefficients``.
+        ``GreyBoxFit``, ``WaveFit``, diagnosis ``Fitted``, ``NomotoCoefficients`` or ``AutopilotConfig``.
 
     Returns
     -------
@@ -132,19 +132,7 @@ def _(result: GreyBoxFit) -> FitResult:
 
 @as_fit_result.register
 def _(result: WaveFit) -> FitResult:
-    names = ("omega0", "lam", "kw")
-    return fit_result_from_arrays(
-        "wave_spectrum", names, [result.omega0, result.lam, result.kw],
-        [result.omega0_se, result.lam_se, result.kw_se], result.covariance,
-        {n: parameter_unit(n) for n in names}, success=bool(result.success), message=result.message,
-        ndata=int(np.size(result.omega)),
-        provenance={"fitter": "pipeline.autopilot.waves_fit.fit_wave_spectrum",
-                    "data": f"Welch PSD of {result.n_samples} samples at {result.fs:g} Hz "
-                            f"(nperseg {result.nperseg}), band {result.band[0]:g}-{result.band[1]:g} rad/s",
-                    "covariance": "least squares on the log PSD"},
-        statistics={"sigma": float(result.sigma), "sigma_se": float(result.sigma_se),
-                    "rel_residual_std": float(result.rel_residual_std),
-                    "expected_rel_std": float(result.expected_rel_std)})
+    return result.to_fit_result()
 
 
 @as_fit_result.register
@@ -166,29 +154,16 @@ def _(result: Fitted) -> FitResult:
 
 
 @as_fit_result.register
+def _(result: AutopilotConfig) -> FitResult:
+    return result.to_fit_result()
+
+
+@as_fit_result.register
 def _(result: NomotoCoefficients) -> FitResult:
-    source = result.source
-    return fit_result_from_arrays(
-        "nomoto_coefficients", ("K", "T"), [result.K, result.T], [result.K_stderr, result.T_stderr], None,
-        {"K": "1/s", "T": "s"}, success=math.isfinite(result.K) and math.isfinite(result.T),
-        message="read from coefficients.json: only the standard errors are known, not the covariance",
-        provenance={"fitter": "pipeline.autopilot.config.read_coefficients_json", "vessel": result.vessel,
-                    **({"data": f"{source.path} (sha256 {source.sha256})"} if source is not None else {})})
+    return result.to_fit_result()
 
 
 @as_fit_result.register
 def _(result: Extinction) -> FitResult:
-    names = ("a", "b")
-    cov = np.asarray(result.cov_ab, float)
-    se = np.sqrt(np.clip(np.diag(cov), 0, None)) if cov.shape == (2, 2) else np.full(2, math.nan)
-    ok = math.isfinite(result.a)
-    return fit_result_from_arrays(
-        f"extinction_{result.label.replace(' ', '_')}", names, [result.a, result.b], se,
-        cov if cov.shape == (2, 2) else None, {"a": "", "b": "1/rad"},
-        dof=max(result.phi_m.size - 2, 1), success=ok,
-        message="" if math.isfinite(result.b) else "b not estimated (too few half cycles)",
-        ndata=int(result.phi_m.size),
-        provenance={"fitter": "pipeline.fit.decay_analysis", "data": f"{result.n_decays} free decay(s)",
-                    "covariance": "least squares on the extinction curve dphi = a phi_m + b phi_m^2"},
-        statistics={"wn": float(result.wn), "wn_se": float(result.wn_se)})
+    return result.to_fit_result()
 

@@ -25,8 +25,8 @@ import numpy as np
 from ..errors import ReportError
 from ..records import DOFS, Fits, Provenance, Segment, Trial
 from ..text_format import esc
-from .rows import Formatted, check_fits, checked_matrices, coefficient_rows, finite, format_uncertain, \
-    note_labels
+from .rows import (Markup, check_fits, checked_matrices, coefficient_rows, finite, format_uncertain, note_labels,
+                   render_ci, render_number, render_unit)
 from .summary import SummaryRow, method_key, method_label
 from .tables import GREEK
 
@@ -77,27 +77,9 @@ def _html_symbol(name: str) -> str:
     return esc(name)
 
 
-def _html_unit(unit: str) -> str:
-    """``kg m^2/s`` -> ``kg&nbsp;m<sup>2</sup>/s``, escaped."""
-    pieces = re.split(r"\^(-?\d+)", str(unit))
-    return "".join(f"<sup>{p}</sup>" if k % 2 else esc(p).replace(" ", "&nbsp;") for k, p in enumerate(pieces))
-
-
-def _html_number(f: Formatted) -> str:
-    """``-2.860 ± 0.030`` or ``(1.23 ± 0.05)×10<sup>5</sup>``, escaped."""
-    core = f"{f.value} ± {f.stderr}" if f.stderr is not None else f.value
-    if f.exponent:
-        core = (f"({core})" if f.stderr is not None else core)
-        return esc(core) + f"×10<sup>{f.exponent}</sup>"
-    return esc(core)
-
-
-def _html_ci(f: Formatted | None) -> str:
-    """``[lo, hi]`` or ``n/a``."""
-    if f is None or f.ci is None:
-        return "n/a"
-    tail = f"×10<sup>{f.exponent}</sup>" if f.exponent else ""
-    return esc(f"[{f.ci[0]}, {f.ci[1]}]") + tail
+#: Numbers and units in HTML (escaped; narrow spaces as ``&nbsp;``).
+HTML_MARKUP = Markup(pm=" ± ", power=lambda e: f"×10<sup>{e}</sup>", math=lambda s: s,
+                     superscript=lambda p: f"<sup>{p}</sup>", text=lambda p: esc(p).replace(" ", "&nbsp;"))
 
 
 def method_footnotes(fits: Fits) -> dict[str, int]:
@@ -150,11 +132,11 @@ def coefficient_table_html(fits: Fits, added_mass: Mapping[str, float] | None = 
         else:
             method = "--"
         if row.identified:
-            num = _html_number(row.number) + (" ± n/a" if row.number.stderr is None else "")
-            cells = f'<td class="num">{num}{marks}</td><td class="num">{_html_ci(row.number)}</td>'
+            num = render_number(row.number, HTML_MARKUP) + (" ± n/a" if row.number.stderr is None else "")
+            cells = f'<td class="num">{num}{marks}</td><td class="num">{render_ci(row.number, HTML_MARKUP)}</td>'
         else:
             cells = f'<td class="na" colspan="2">not identified{marks}</td>'
-        out.append(f"<tr><td>{_html_symbol(row.name)}</td>{cells}<td>{_html_unit(row.unit)}</td>"
+        out.append(f"<tr><td>{_html_symbol(row.name)}</td>{cells}<td>{render_unit(row.unit, HTML_MARKUP)}</td>"
                    f'<td class="num">{row.n_segments}</td><td>{method}</td></tr>')
     out.append("</tbody></table>")
     if labels:
@@ -195,7 +177,7 @@ def damping_table_html(fits: Fits) -> str:
         cells = []
         for j in range(len(DOFS)):
             if finite(D[i, j]):
-                cells.append(f'<td class="num">{_html_number(format_uncertain(D[i, j], D_se[i, j]))}</td>')
+                cells.append(f'<td class="num">{render_number(format_uncertain(D[i, j], D_se[i, j]), HTML_MARKUP)}</td>')
             else:
                 cells.append('<td class="num">--</td>')
         out.append(f"<tr><th>{dof}</th>{''.join(cells)}</tr>")
@@ -362,7 +344,7 @@ def summary_html(rows: Sequence[SummaryRow], headline: str = "", n_warnings: int
         flags = "; ".join(esc(f) for f in r.flags)
         if r.name:
             out.append(f"<tr><td>{esc(r.label)}</td><td class=\"num\">{esc(r.value)}</td>"
-                       f"<td class=\"num\">{esc(r.ci)}</td><td>{_html_unit(r.unit)}</td>"
+                       f"<td class=\"num\">{esc(r.ci)}</td><td>{render_unit(r.unit, HTML_MARKUP)}</td>"
                        f'<td class="flag">{flags}</td></tr>')
         else:
             out.append(f'<tr><td>{esc(r.label)}</td><td colspan="4">{esc(r.value)}</td></tr>')

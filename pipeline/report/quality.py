@@ -96,7 +96,8 @@ def segment_quality(sf: SegmentFit, trial: Trial | None = None) -> SegmentQualit
         The trial, for the input cross-correlation (without it only whiteness is tested).
     """
     pct = fit_percent(sf.y, sf.y_fit)
-    corr = correlation_matrix(sf.covariance) if np.size(sf.covariance) else np.empty((0, 0))
+    cov = sf.to_fit_result().covariance
+    corr = correlation_matrix(cov) if np.size(cov) else np.empty((0, 0))
     try:
         resid = segment_fit_residual_test(sf, trial) if sf.success else None
         why = "" if sf.success else "the fit failed"

@@ -9,8 +9,9 @@ are read in one shape, :class:`~pipeline.records.FitParameter` of the
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
-from typing import Iterable, Mapping, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -181,6 +182,92 @@ def format_uncertain(value: float, stderr: float = math.nan,
     if ci is not None and len(ci) == 2 and finite(ci[0]) and finite(ci[1]):
         ci_txt = (_fixed(float(ci[0]) * f, decimals), _fixed(float(ci[1]) * f, decimals))
     return Formatted(_fixed(v, decimals), s_txt, ci_txt, exponent)
+
+
+@dataclass(frozen=True)
+class Markup:
+    """How one output format (HTML, LaTeX, plain text) writes a :class:`Formatted` number and a unit.
+
+    Attributes
+    ----------
+    pm : str
+        Between a value and its error (`` ± ``, `` \\pm ``).
+    power : callable
+        ``power(exponent) -> str``: the common power of ten after a number.
+    math : callable
+        ``math(text) -> str``: wraps a whole number (LaTeX's ``$...$``; identity elsewhere).
+    superscript : callable
+        ``superscript(digits) -> str``: a unit's power.
+    text : callable
+        ``text(piece) -> str``: a unit's text between powers, escaped, spaces as the format's
+        narrow space.
+    """
+
+    pm: str
+    power: Callable[[int], str]
+    math: Callable[[str], str]
+    superscript: Callable[[str], str]
+    text: Callable[[str], str]
+
+
+def render_number(f: Formatted, markup: Markup) -> str:
+    """``-2.860 ± 0.030`` or ``(1.23 ± 0.05)×10^5`` in ``markup``; the value alone without an error.
+
+    Parameters
+    ----------
+    f : Formatted
+        The number (:func:`format_uncertain`).
+    markup : Markup
+        The output format.
+
+    Returns
+    -------
+    str
+        The number in that format (digits, signs and brackets need no escaping in any of them).
+    """
+    core = f"{f.value}{markup.pm}{f.stderr}" if f.stderr is not None else f.value
+    if f.exponent:
+        core = f"({core})" if f.stderr is not None else core
+        return markup.math(core + markup.power(f.exponent))
+    return markup.math(core)
+
+
+def render_ci(f: Formatted | None, markup: Markup) -> str:
+    """``[lo, hi]`` (with the common power of ten) in ``markup``, or ``n/a``.
+
+    Parameters
+    ----------
+    f, markup : Formatted or None, Markup
+        As in :func:`render_number` (None: no number).
+
+    Returns
+    -------
+    str
+        The interval in that format.
+    """
+    if f is None or f.ci is None:
+        return "n/a"
+    tail = markup.power(f.exponent) if f.exponent else ""
+    return markup.math(f"[{f.ci[0]}, {f.ci[1]}]{tail}")
+
+
+def render_unit(unit: str, markup: Markup) -> str:
+    """A unit with its powers raised: ``kg m^2/s`` -> ``kg&nbsp;m<sup>2</sup>/s`` (HTML).
+
+    Parameters
+    ----------
+    unit : str
+        Unit text, powers written ``^2``, ``^-1``.
+    markup : Markup
+        The output format.
+
+    Returns
+    -------
+    str
+        The unit in that format.
+    """
+    pieces = re.split(r"\^(-?\d+)", str(unit))
+    return "".join(markup.superscript(p) if k % 2 else markup.text(p) for k, p in enumerate(pieces))
 
 
 def format_number(x: float, sig: int = 3) -> str:

@@ -11,7 +11,8 @@ from __future__ import annotations
 import re
 
 from ..records import DOFS, Fits
-from .rows import Formatted, Row, check_fits, checked_matrices, coefficient_rows, finite, format_uncertain, note_labels
+from .rows import (Formatted, Markup, Row, check_fits, checked_matrices, coefficient_rows, finite, format_uncertain,
+                   note_labels, render_ci, render_number, render_unit)
 from .summary import method_key
 
 GREEK = frozenset({"alpha", "beta", "gamma", "delta", "epsilon", "zeta", "eta", "theta", "kappa",
@@ -70,31 +71,9 @@ def latex_symbol(name: str) -> str:
     return f"${h}_{{{s}}}$" if sep else f"${h}$"
 
 
-def _latex_unit(unit: str) -> str:
-    """Unit in text mode with powers raised and thin spaces: ``kg m^2/s`` -> ``kg\\,m$^{2}$/s``."""
-    pieces = re.split(r"\^(-?\d+)", str(unit))
-    out = []
-    for k, piece in enumerate(pieces):
-        out.append(f"$^{{{piece}}}$" if k % 2 else latex_escape(piece).replace(" ", r"\,"))
-    return "".join(out)
-
-
-def _latex_number(f: Formatted) -> str:
-    """``$-2.860 \\pm 0.030$``, ``$(1.23 \\pm 0.05)\\times 10^{5}$``; no error bar: value alone."""
-    core = f"{f.value} \\pm {f.stderr}" if f.stderr is not None else f.value
-    if f.exponent:
-        core = f"({core})" if f.stderr is not None else core
-        return f"${core}\\times 10^{{{f.exponent}}}$"
-    return f"${core}$"
-
-
-def _latex_ci(f: Formatted | None) -> str:
-    """``$[lo, hi]$`` or ``n/a``."""
-    if f is None or f.ci is None:
-        return "n/a"
-    lo, hi = f.ci
-    tail = f"\\times 10^{{{f.exponent}}}" if f.exponent else ""
-    return f"$[{lo}, {hi}]{tail}$"
+#: Numbers and units in LaTeX (numbers in math mode, units in text mode with thin spaces).
+LATEX_MARKUP = Markup(pm=" \\pm ", power=lambda e: f"\\times 10^{{{e}}}", math=lambda s: f"${s}$",
+                      superscript=lambda p: f"$^{{{p}}}$", text=lambda p: latex_escape(p).replace(" ", r"\,"))
 
 
 def _marks(row: Row, labels: dict[str, str], fmt) -> str:
@@ -161,13 +140,13 @@ def latex_coefficient_table(fits: Fits, which: str = "all", added_mass=None) -> 
     for row in rows:
         marks = _marks(row, labels, sup)
         sym = latex_symbol(row.name)
-        unit = _latex_unit(row.unit)
+        unit = render_unit(row.unit, LATEX_MARKUP)
         meth = f" [{methods[method_key(row.method)]}]" if row.method else ""
         if row.identified:
-            num = _latex_number(row.number)
+            num = render_number(row.number, LATEX_MARKUP)
             if row.number.stderr is None:
                 num += r" $\pm$ n/a"
-            lines.append(f"{sym} & {num}{marks} & {_latex_ci(row.number)} & {unit} & {row.n_segments}{meth} \\\\")
+            lines.append(f"{sym} & {num}{marks} & {render_ci(row.number, LATEX_MARKUP)} & {unit} & {row.n_segments}{meth} \\\\")
         else:
             lines.append(f"{sym} & \\multicolumn{{2}}{{l}}{{not identified{marks}}} & {unit} & "
                          f"{row.n_segments}{meth} \\\\")
@@ -228,7 +207,7 @@ def latex_damping_table(fits: Fits) -> str:
         cells = []
         for j in range(len(DOFS)):
             f = _damping_cell(D[i, j], D_se[i, j])
-            cells.append("--" if f is None else _latex_number(f))
+            cells.append("--" if f is None else render_number(f, LATEX_MARKUP))
         lines.append(f"${dof}$ & " + " & ".join(cells) + r" \\")
     lines += [
         r"\bottomrule",
@@ -276,20 +255,9 @@ def _md_escape(text: str) -> str:
     return text
 
 
-def _plain_number(f: Formatted) -> str:
-    """``-2.860 ± 0.030`` or ``(1.23 ± 0.05)×10^5`` (Markdown and plain text)."""
-    core = f"{f.value} ± {f.stderr}" if f.stderr is not None else f.value
-    if f.exponent:
-        return (f"({core})" if f.stderr is not None else core) + f"×10^{f.exponent}"
-    return core
-
-
-def _plain_ci(f: Formatted | None) -> str:
-    """``[lo, hi]`` or ``n/a``."""
-    if f is None or f.ci is None:
-        return "n/a"
-    tail = f"×10^{f.exponent}" if f.exponent else ""
-    return f"[{f.ci[0]}, {f.ci[1]}]{tail}"
+#: Numbers in Markdown and plain text (``×10^5``).
+PLAIN_MARKUP = Markup(pm=" ± ", power=lambda e: f"×10^{e}", math=lambda s: s, superscript=lambda p: f"^{p}",
+                      text=lambda p: p)
 
 
 def markdown_coefficient_table(fits: Fits, added_mass=None) -> str:
@@ -322,8 +290,8 @@ def markdown_coefficient_table(fits: Fits, added_mass=None) -> str:
         marks = _marks(row, labels, lambda a: f" [{a}]")
         method = _md_escape(row.method) if row.method else "--"
         if row.identified:
-            num = _plain_number(row.number) + (" ± n/a" if row.number.stderr is None else "")
-            ci = _plain_ci(row.number)
+            num = render_number(row.number, PLAIN_MARKUP) + (" ± n/a" if row.number.stderr is None else "")
+            ci = render_ci(row.number, PLAIN_MARKUP)
         else:
             num, ci = "not identified", "--"
         lines.append(f"| `{row.name}` | {num}{marks} | {ci} | {_md_escape(row.unit)} | {row.n_segments} "
@@ -362,7 +330,7 @@ def markdown_damping_table(fits: Fits) -> str:
         cells = []
         for j in range(len(DOFS)):
             f = _damping_cell(D[i, j], D_se[i, j])
-            cells.append("--" if f is None else _plain_number(f))
+            cells.append("--" if f is None else render_number(f, PLAIN_MARKUP))
         lines.append(f"| **{dof}** | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

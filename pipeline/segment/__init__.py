@@ -2,5 +2,6 @@
 
 from .detect import detect_segments, noise_std, segment_table
 from .manifest_segments import apply_manifest_segments
+from .trial import segment_trial
 
-__all__ = ["detect_segments", "segment_table", "apply_manifest_segments", "noise_std"]
+__all__ = ["detect_segments", "segment_table", "apply_manifest_segments", "noise_std", "segment_trial"]

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..geo import wrap_pi
 from ..records import Segment, Trial
-from .quality import detection_quality, noise_std
+from .quality import detection_quality, noise_std, true_runs
 
 #: Lowest steady speed a coast-down starts from [m/s].
 V_MIN = 0.5
@@ -116,12 +116,6 @@ def _smooth(y: np.ndarray, w: int) -> np.ndarray:
     return out
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(start, stop) index pairs of the True runs of ``mask``."""
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
-
-
 def _turn_rate(trial: Trial, i0: int, i1: int) -> tuple[float, str]:
     """Median |turn rate| [rad/s] over samples i0..i1 from the gyro or the course, and its source."""
     if trial.has("r"):
@@ -172,6 +166,15 @@ def _steady(t: np.ndarray, y: np.ndarray, s0: int, s1: int) -> tuple[float, floa
                         f"over {STEADY_S:g} s (expected >= {V_MIN:g} m/s, std <= {STEADY_REL:.0%} and trend <= "
                         f"{TREND_REL:.0%} of it)")
     return v0, sd, ""
+
+
+def _steady_before(t: np.ndarray, y: np.ndarray, i0: int, n_steady: int, gaps=()) -> tuple[float, float, str]:
+    """:func:`_steady` over the ``n_steady`` samples before ``i0``; a stretch with dropouts (under 90 %
+    finite, or overlapping one of ``gaps``) is not steady either."""
+    s0, s1 = i0 - n_steady, i0
+    if np.isfinite(y[s0:s1]).sum() < 0.9 * n_steady or any(t[s0] < g.t_end and g.t_start < t[s1] for g in gaps):
+        return math.nan, math.nan, "dropout in the steady stretch before the cut"
+    return _steady(t, y, s0, s1)
 
 
 def _change_point(t: np.ndarray, y: np.ndarray, lo: int, hi: int, n_pre: int, w: int) -> int:
@@ -240,7 +243,7 @@ def find_coast_downs(trial: Trial, channel: str | None = None) -> tuple[list[Seg
     segs: list[Segment] = []
     cands: list[Candidate] = []
     busy_until = -math.inf
-    for a, b in _runs(decel):
+    for a, b in true_runs(decel):
         if b - a < A_MIN_S * fs or t[a] < busy_until:
             continue
         # The cut: a change point (steady before, declining after) near the strongest deceleration
@@ -253,14 +256,9 @@ def find_coast_downs(trial: Trial, channel: str | None = None) -> tuple[list[Seg
                                    f"deceleration at {t[a]:.1f} s without {STEADY_S:g} s of record before it"))
             continue
         i0 = _change_point(t, y, lo, hi, n_steady, w)
-        s0, s1 = i0 - n_steady, i0
-        steady = y[s0:s1]
-        if np.isfinite(steady).sum() < 0.9 * n_steady or any(t[s0] < g.t_end and g.t_start < t[s1] for g in trial.gaps):
-            cands.append(Candidate(float(t[s0]), float(t[i0]), False, "dropout in the steady stretch before the cut"))
-            continue
-        v0, sd, unsteady = _steady(t, y, s0, s1)
+        v0, sd, unsteady = _steady_before(t, y, i0, n_steady, trial.gaps)
         if unsteady:
-            cands.append(Candidate(float(t[s0]), float(t[i0]), False, unsteady))
+            cands.append(Candidate(float(t[i0 - n_steady]), float(t[i0]), False, unsteady))
             continue
         # Sustained: the speed falls by DROP_MIN without levelling off or rising on the way.
         below = np.flatnonzero(np.nan_to_num(ys[i0:], nan=np.inf) <= (1.0 - DROP_MIN) * v0)
@@ -278,16 +276,12 @@ def find_coast_downs(trial: Trial, channel: str | None = None) -> tuple[list[Seg
         in_band = np.flatnonzero(np.nan_to_num(light[:i_drop], nan=-np.inf) >= band)
         if len(in_band) and in_band[-1] >= n_steady and in_band[-1] != i0:
             i0 = int(in_band[-1])
-            s0, s1 = i0 - n_steady, i0
-            if np.isfinite(y[s0:s1]).sum() < 0.9 * n_steady:
-                cands.append(Candidate(float(t[s0]), float(t[i0]), False, "dropout in the steady stretch before the cut"))
-                continue
-            v0, sd, unsteady = _steady(t, y, s0, s1)
+            v0, sd, unsteady = _steady_before(t, y, i0, n_steady)
             if unsteady:
-                cands.append(Candidate(float(t[s0]), float(t[i0]), False, unsteady))
+                cands.append(Candidate(float(t[i0 - n_steady]), float(t[i0]), False, unsteady))
                 continue
         mid = np.nan_to_num(acc[min(i0 + w, i_drop):i_drop], nan=0.0) > -A_END
-        if any(e - s >= w for s, e in _runs(mid)):
+        if any(e - s >= w for s, e in true_runs(mid)):
             cands.append(Candidate(float(t[i0]), float(t[i_drop]), False,
                                    f"deceleration from {t[i0]:.1f} s not sustained: the speed levelled off or rose "
                                    f"for a second or more before falling {DROP_MIN:.0%}"))
@@ -323,7 +317,7 @@ def find_coast_downs(trial: Trial, channel: str | None = None) -> tuple[list[Seg
             cands.append(Candidate(t0, t1, False, f"speed fell only {drop:.2f} m/s from {v0:.2f} m/s (expected at "
                                                   f"least {DROP_MIN:.0%}): a slowdown, not a coast-down"))
             continue
-        turn, turn_src = _turn_rate(trial, max(s0, 0), i1)
+        turn, turn_src = _turn_rate(trial, max(i0 - n_steady, 0), i1)
         if math.isfinite(turn) and turn > TURN_RATE_MAX:
             cands.append(Candidate(t0, t1, False, f"turning: median |{turn_src}| {math.degrees(turn):.1f} deg/s "
                                                   f"(expected below {math.degrees(TURN_RATE_MAX):g} deg/s for a "

@@ -48,7 +48,7 @@ from ...errors import SimError
 from ...geo import latlon_to_ned
 from ...records import INPUT_UNITS, Channel, RawLog
 from ...vessel import ActuatorMap, Vessel
-from ._sampling import hold_channel as _hold, interp_channel as _interp
+from ._sampling import check_channel, hold_channel as _hold, interp_channel as _interp, to_int_field
 
 HEAD1, HEAD2 = 0xA3, 0x95
 FMT_TYPE = 128
@@ -169,7 +169,7 @@ def write_dataflash(log: RawLog, path: str | Path, vessel: Vessel | None = None,
         raise SimError(f"write_dataflash: expected boot_offset_s >= 0 [s], found {boot_offset_s}")
     ch = dict(log.channels)
     for name, c in ch.items():
-        _check_channel(name, c)
+        check_channel(name, c)
     ch = {k: c for k, c in ch.items() if len(c.t)}
     clock = _Clock(boot_offset_s, gps_start)
     tables: list[tuple[str, np.ndarray, np.ndarray]] = []  # (message, TimeUS, packed records)
@@ -204,19 +204,6 @@ def write_dataflash(log: RawLog, path: str | Path, vessel: Vessel | None = None,
 
 
 # ----------------------------------------------------------------------------- helpers
-def _check_channel(name: str, ch: Channel) -> None:
-    t = np.asarray(ch.t, float)
-    v = np.asarray(ch.values)
-    if t.ndim != 1 or t.shape != v.shape:
-        raise SimError(f"channel {name}: expected t and values of one length, found shapes {t.shape} and {v.shape}")
-    if len(t) and not np.all(np.isfinite(t)):
-        raise SimError(f"channel {name}: expected finite t [s], found {int((~np.isfinite(t)).sum())} non-finite")
-    if np.any(np.diff(t) <= 0):
-        i = int(np.flatnonzero(np.diff(t) <= 0)[0])
-        raise SimError(f"channel {name}: expected strictly increasing t [s], found t[{i}]={t[i]} "
-                       f"then t[{i + 1}]={t[i + 1]}")
-
-
 class _Clock:
     """Autopilot boot clock and GPS clock for a trial time ``t`` [s]."""
 
@@ -237,25 +224,15 @@ class _Clock:
         return ms // (_WEEK_S * 1000), ms % (_WEEK_S * 1000)
 
 
-def _to_int(values: np.ndarray, lo: int, hi: int, what: str) -> np.ndarray:
-    v = np.asarray(values, float)
-    if not np.all(np.isfinite(v)):
-        raise SimError(f"{what}: expected finite values, found {int((~np.isfinite(v)).sum())} NaN/inf")
-    r = np.round(v).astype(np.int64)
-    if r.size and (r.min() < lo or r.max() > hi):
-        raise SimError(f"{what}: expected field values in [{lo}, {hi}], found {r.min()}..{r.max()}")
-    return r
-
-
 def _cdeg_signed(angle: np.ndarray, what: str) -> np.ndarray:
     """Angle [rad] wrapped to (-180, 180] deg, in centidegrees (int16 ``c`` fields)."""
     a = math.pi - np.mod(math.pi - np.asarray(angle, float), 2 * math.pi)
-    return _to_int(np.degrees(a) * 100.0, -18000, 18000, what)
+    return to_int_field(np.degrees(a) * 100.0, -18000, 18000, what)
 
 
 def _cdeg_heading(angle: np.ndarray, what: str) -> np.ndarray:
     """Angle [rad] as 0..35999 centidegrees (uint16 ``C`` heading fields)."""
-    return np.mod(_to_int(np.degrees(np.mod(angle, 2 * math.pi)) * 100.0, 0, 36000, what), 36000)
+    return np.mod(to_int_field(np.degrees(np.mod(angle, 2 * math.pi)) * 100.0, 0, 36000, what), 36000)
 
 
 def _first(ch: Mapping[str, Channel], *names: str) -> Channel | None:
@@ -301,9 +278,9 @@ def _gps(ch, clock: _Clock, add) -> None:
         if f"lat{sfx}" not in ch or f"lon{sfx}" not in ch:
             continue
         t = np.asarray(ch[f"lat{sfx}"].t, float)
-        lat = _to_int(np.asarray(ch[f"lat{sfx}"].values, float) * 1e7, -900_000_000, 900_000_000,
+        lat = to_int_field(np.asarray(ch[f"lat{sfx}"].values, float) * 1e7, -900_000_000, 900_000_000,
                       f"GPS[{inst}].Lat (lat{sfx})")
-        lon = _to_int(_interp(ch[f"lon{sfx}"], t) * 1e7, -1_800_000_000, 1_800_000_000, f"GPS[{inst}].Lng (lon{sfx})")
+        lon = to_int_field(_interp(ch[f"lon{sfx}"], t) * 1e7, -1_800_000_000, 1_800_000_000, f"GPS[{inst}].Lng (lon{sfx})")
         spd = _interp(ch[f"sog{sfx}"], t) if f"sog{sfx}" in ch else np.full(len(t), np.nan)
         crs = (np.degrees(np.mod(_interp(ch[f"cog{sfx}"], t), 2 * math.pi)) if f"cog{sfx}" in ch
                else np.full(len(t), np.nan))
@@ -315,8 +292,8 @@ def _gps(ch, clock: _Clock, add) -> None:
 def _pos_and_ekf(ch, add) -> None:
     if "lat" in ch and "lon" in ch:
         t = np.asarray(ch["lat"].t, float)
-        lat = _to_int(np.asarray(ch["lat"].values, float) * 1e7, -900_000_000, 900_000_000, "POS.Lat (lat)")
-        lon = _to_int(_interp(ch["lon"], t) * 1e7, -1_800_000_000, 1_800_000_000, "POS.Lng (lon)")
+        lat = to_int_field(np.asarray(ch["lat"].values, float) * 1e7, -900_000_000, 900_000_000, "POS.Lat (lat)")
+        lon = to_int_field(_interp(ch["lon"], t) * 1e7, -1_800_000_000, 1_800_000_000, "POS.Lng (lon)")
         add("POS", t, {"Lat": lat, "Lng": lon, "Alt": 0.0, "RelHomeAlt": 0.0, "RelOriginAlt": 0.0})
     if "sog" not in ch or "cog" not in ch:
         return
@@ -356,7 +333,7 @@ def _inputs(ch, vessel: Vessel | None, add) -> None:
         cols: dict[str, np.ndarray] = {}
         for a in mine:
             share = sum(1 for b in mine if b.target == a.target)
-            cols[f"C{a.channel}"] = _to_int(a.to_pwm(_hold(ch[a.target], t) / share), 1, _UINT16_MAX - 1,
+            cols[f"C{a.channel}"] = to_int_field(a.to_pwm(_hold(ch[a.target], t) / share), 1, _UINT16_MAX - 1,
                                             f"{name}.C{a.channel} ({a.target} -> PWM [us])")
         add(name, t, cols)
 

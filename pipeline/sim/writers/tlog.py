@@ -36,7 +36,7 @@ from ...errors import SimError
 from ...geo import wrap_pi
 from ...records import INPUT_UNITS, Channel, RawLog
 from ...vessel import ActuatorMap, Vessel
-from ._sampling import hold_channel as _hold, interp_channel as _interp
+from ._sampling import check_channel, hold_channel as _hold, interp_channel as _interp, to_int_field
 
 #: Standard gravity [m/s^2], the one ArduPilot uses to turn m/s^2 into mG.
 G0 = 9.80665
@@ -103,7 +103,7 @@ def write_tlog(log: RawLog, path: str | Path, vessel: Vessel | None = None, mavl
     """
     target = Path(path)
     for name, ch in log.channels.items():
-        _check_channel(name, ch)
+        check_channel(name, ch)
     if isinstance(wall_start, datetime):
         if wall_start.tzinfo is None:
             raise SimError(f"write_tlog: expected a timezone-aware wall_start, found naive {wall_start}")
@@ -161,21 +161,6 @@ def _dialect(mavlink2: bool) -> Any:
     return ardupilotmega
 
 
-def _check_channel(name: str, ch: Channel) -> None:
-    t = np.asarray(ch.t, float)
-    v = np.asarray(ch.values)
-    if t.ndim != 1 or t.shape != v.shape:
-        raise SimError(f"channel {name}: expected t and values of one length, found shapes {t.shape} and {v.shape}")
-    if len(t) == 0:
-        return
-    if not np.all(np.isfinite(t)):
-        raise SimError(f"channel {name}: expected finite t [s], found {int((~np.isfinite(t)).sum())} non-finite")
-    if np.any(np.diff(t) <= 0):
-        i = int(np.flatnonzero(np.diff(t) <= 0)[0])
-        raise SimError(f"channel {name}: expected strictly increasing t [s], found t[{i}]={t[i]} "
-                       f"then t[{i + 1}]={t[i + 1]}")
-
-
 class _Clock:
     """Autopilot boot clock for a trial time ``t`` [s]."""
 
@@ -194,16 +179,6 @@ class _Clock:
         if us.size and us.min() < 0:
             raise SimError(f"time_usec: expected round(t*1e6) + boot_offset_ms*1000 >= 0, found {us.min()}")
         return us
-
-
-def _to_int(values: np.ndarray, lo: int, hi: int, what: str) -> np.ndarray:
-    v = np.asarray(values, float)
-    if not np.all(np.isfinite(v)):
-        raise SimError(f"{what}: expected finite values, found {int((~np.isfinite(v)).sum())} NaN/inf")
-    r = np.round(v).astype(np.int64)
-    if r.size and (r.min() < lo or r.max() > hi):
-        raise SimError(f"{what}: expected field values in [{lo}, {hi}], found {r.min()}..{r.max()}")
-    return r
 
 
 def _cdeg(angle: np.ndarray) -> np.ndarray:
@@ -244,13 +219,13 @@ def _global_position(ch, mav, clock, add) -> None:
         ve = np.gradient(np.radians(lon), t) * _R_EARTH * np.cos(np.radians(lat))
     else:
         vn = ve = np.zeros(1)
-    hdg = (_to_int(_cdeg(_interp(ch["psi"], t)), 0, 35999, "GLOBAL_POSITION_INT.hdg (psi)") if "psi" in ch
+    hdg = (to_int_field(_cdeg(_interp(ch["psi"], t)), 0, 35999, "GLOBAL_POSITION_INT.hdg (psi)") if "psi" in ch
            else np.full(len(t), _UINT16_MAX))
     ms = clock.ms(t)
-    lat_e7 = _to_int(np.asarray(lat, float) * 1e7, -900_000_000, 900_000_000, "GLOBAL_POSITION_INT.lat (lat)")
-    lon_e7 = _to_int(lon * 1e7, -1_800_000_000, 1_800_000_000, "GLOBAL_POSITION_INT.lon (lon)")
-    vx = _to_int(vn * 100.0, -32768, 32767, "GLOBAL_POSITION_INT.vx (north velocity)")
-    vy = _to_int(ve * 100.0, -32768, 32767, "GLOBAL_POSITION_INT.vy (east velocity)")
+    lat_e7 = to_int_field(np.asarray(lat, float) * 1e7, -900_000_000, 900_000_000, "GLOBAL_POSITION_INT.lat (lat)")
+    lon_e7 = to_int_field(lon * 1e7, -1_800_000_000, 1_800_000_000, "GLOBAL_POSITION_INT.lon (lon)")
+    vx = to_int_field(vn * 100.0, -32768, 32767, "GLOBAL_POSITION_INT.vx (north velocity)")
+    vy = to_int_field(ve * 100.0, -32768, 32767, "GLOBAL_POSITION_INT.vy (east velocity)")
     add(t, "GLOBAL_POSITION_INT", lambda i: mav.global_position_int_encode(
         int(ms[i] % 2**32), int(lat_e7[i]), int(lon_e7[i]), 0, 0, int(vx[i]), int(vy[i]), 0, int(hdg[i])))
 
@@ -259,11 +234,11 @@ def _gps_raw(ch, mav, clock, add) -> None:
     if "lat@gps" not in ch or "lon@gps" not in ch:
         return
     t = np.asarray(ch["lat@gps"].t, float)
-    lat = _to_int(ch["lat@gps"].values * 1e7, -900_000_000, 900_000_000, "GPS_RAW_INT.lat (lat@gps)")
-    lon = _to_int(_interp(ch["lon@gps"], t) * 1e7, -1_800_000_000, 1_800_000_000, "GPS_RAW_INT.lon (lon@gps)")
-    vel = (_to_int(_interp(ch["sog@gps"], t) * 100.0, 0, _UINT16_MAX - 1, "GPS_RAW_INT.vel (sog@gps)")
+    lat = to_int_field(ch["lat@gps"].values * 1e7, -900_000_000, 900_000_000, "GPS_RAW_INT.lat (lat@gps)")
+    lon = to_int_field(_interp(ch["lon@gps"], t) * 1e7, -1_800_000_000, 1_800_000_000, "GPS_RAW_INT.lon (lon@gps)")
+    vel = (to_int_field(_interp(ch["sog@gps"], t) * 100.0, 0, _UINT16_MAX - 1, "GPS_RAW_INT.vel (sog@gps)")
            if "sog@gps" in ch else np.full(len(t), _UINT16_MAX))
-    cog = (_to_int(_cdeg(_interp(ch["cog@gps"], t)), 0, 35999, "GPS_RAW_INT.cog (cog@gps)") if "cog@gps" in ch
+    cog = (to_int_field(_cdeg(_interp(ch["cog@gps"], t)), 0, 35999, "GPS_RAW_INT.cog (cog@gps)") if "cog@gps" in ch
            else np.full(len(t), _UINT16_MAX))
     us = clock.us(t)
     # 3D fix, 12 satellites, eph/epv 0.8/1.2 (cm-scaled HDOP/VDOP-like): a good open-water fix.
@@ -286,9 +261,9 @@ def _imu(ch, mav, clock, add) -> None:
                        f"(channels present: {sorted(ch)})")
     t = np.asarray(ch["ax"].t, float)
     ms = clock.ms(t)
-    a = [_to_int(_interp(ch[n], t) / G0 * 1000.0, -32768, 32767, f"SCALED_IMU.{x}acc ({n})")
+    a = [to_int_field(_interp(ch[n], t) / G0 * 1000.0, -32768, 32767, f"SCALED_IMU.{x}acc ({n})")
          for n, x in zip(("ax", "ay", "az"), "xyz")]
-    g = [_to_int(_interp(ch[n], t) * 1000.0, -32768, 32767, f"SCALED_IMU.{x}gyro ({n})")
+    g = [to_int_field(_interp(ch[n], t) * 1000.0, -32768, 32767, f"SCALED_IMU.{x}gyro ({n})")
          for n, x in zip(gyro, "xyz")]
     add(t, "SCALED_IMU", lambda i: mav.scaled_imu_encode(
         int(ms[i] % 2**32), int(a[0][i]), int(a[1][i]), int(a[2][i]), int(g[0][i]), int(g[1][i]), int(g[2][i]),
@@ -323,7 +298,7 @@ def _inputs(ch, vessel: Vessel | None, mav, clock, add, mavlink2: bool) -> None:
         for a in mine:
             share = sum(1 for b in mine if b.target == a.target)
             value = _hold(ch[a.target], t) / share
-            pwm[a.channel - 1] = _to_int(a.to_pwm(value), 1, _UINT16_MAX - 1,
+            pwm[a.channel - 1] = to_int_field(a.to_pwm(value), 1, _UINT16_MAX - 1,
                                          f"{kind} channel {a.channel} ({a.target} -> PWM [us])")
         if source == "servo":
             us = clock.us(t) % 2**32  # uint32 field: wraps after 71.6 min of boot time, as on the autopilot
