@@ -34,6 +34,7 @@ Usage::
 
     .venv/bin/python benchmarks/trial_shapes.py [--rates 1 2 5 10 50] [--no-diagnose] [--out DIR]
     .venv/bin/python benchmarks/trial_shapes.py --seeds 1-20 --no-diagnose --layouts "one file" --workers 2
+    .venv/bin/python benchmarks/trial_shapes.py --summary-of run1.json run2.json   # the seeds table again
 """
 
 from __future__ import annotations
@@ -166,6 +167,24 @@ def write_shape(res, layout: str, body_velocities: bool, folder: Path, fix_time:
 
 
 # --------------------------------------------------------------------------- one shape
+def statistical_stderr(est) -> float:
+    """The standard error of ``est`` before the terms the fit stage adds in quadrature [its unit].
+
+    The Nomoto K and T carry a model-structure term and a speed term (``fit/nomoto_quality.py``),
+    each noted as ``standard error A -> B``, the newest first; ``A`` of the last such note is the
+    statistical error of the combination. Without such a note it is ``est.stderr``.
+    """
+    stat = est.stderr
+    for part in est.message.split("; "):
+        head = part.split(" -> ", 1)[0]
+        if head.startswith("standard error ") and " -> " in part:
+            try:
+                stat = float(head[len("standard error "):])
+            except ValueError:
+                continue
+    return stat
+
+
 def run_shape(files, diagnose_it: bool, vessel=VESSEL, truth=TRUTH) -> dict:
     t0 = time.perf_counter()
     out: dict = {"error": ""}
@@ -184,7 +203,8 @@ def run_shape(files, diagnose_it: bool, vessel=VESSEL, truth=TRUTH) -> dict:
         if est is None or not est.success or not est.stderr > 0:
             missing[name] = (est.message if est is not None else "no segment")[:90]
             continue
-        z[name] = ((est.value - true) / est.stderr, est.value, est.stderr)
+        stat = statistical_stderr(est)
+        z[name] = ((est.value - true) / est.stderr, est.value, est.stderr, (est.value - true) / stat)
     out["z"], out["missing"] = z, missing
     out["effect"] = "-"
     if diagnose_it:
@@ -293,31 +313,72 @@ def run_day(seed: int, rate: float, bv: bool, layouts: tuple[str, ...], diagnose
     return rows
 
 
+def calibration(zs: np.ndarray) -> dict:
+    """How well z values over seeds fit an unbiased estimate with a right standard error.
+
+    Parameters
+    ----------
+    zs : numpy.ndarray
+        (estimate - truth) / standard error, one per seed [-].
+
+    Returns
+    -------
+    dict
+        ``within`` (count with ``|z| < 2``), ``n``, ``mean``, ``sd`` (NaN for one seed),
+        ``p_within`` (one-sided binomial probability of so few within 2 SE when each is within
+        with probability 0.9545, the normal's) and ``p_mean`` (two-sided t-test of mean z = 0;
+        NaN for one seed).
+    """
+    from scipy import stats
+
+    n = int(zs.size)
+    k = int((np.abs(zs) < 2).sum())
+    sd = float(zs.std(ddof=1)) if n > 1 else math.nan
+    p_mean = float(stats.ttest_1samp(zs, 0.0).pvalue) if n > 1 and sd > 0 else math.nan
+    return {"within": k, "n": n, "mean": float(zs.mean()), "sd": sd,
+            "p_within": float(stats.binom.cdf(k, n, WITHIN_2SE)), "p_mean": p_mean}
+
+
+#: Probability that a normal error lies within 2 standard deviations.
+WITHIN_2SE = 0.9545
+
+
 def seed_summary(rows: list[dict]) -> list[str]:
-    """Markdown rows: per rate, sensors, layout and coefficient, the share within 2 SE over the seeds."""
+    """Markdown rows: per rate, sensors, layout and coefficient, the share within 2 SE over the seeds.
+
+    For the Nomoto K and T, whose error the fit stage widens by a structure or speed term, a second
+    row ``(statistical SE)`` gives the z values on the error before those terms.
+    """
     groups: dict = defaultdict(lambda: defaultdict(list))
     missing: dict = defaultdict(lambda: defaultdict(int))
+    widened = set()
     for r in rows:
         key = (r["rate"], r["sensors"], r["layout"])
-        for name, (z, _, _) in r.get("z", {}).items():
-            groups[key][name].append(z)
+        for name, zv in r.get("z", {}).items():
+            groups[key][name].append(zv[0])
+            if len(zv) > 3:
+                groups[key][name + " (statistical SE)"].append(zv[3])
+                if zv[3] != zv[0]:
+                    widened.add(name)
         for name in r.get("missing", {}):
             missing[key][name] += 1
     lines = ["| rate Hz | sensors | layout | coefficient | seeds identified | within 2 SE | share | mean z | "
-             "sd z | worst z |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "sd z | worst z | p (so few within) | p (mean z = 0) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     totals: dict = defaultdict(lambda: [0, 0])
+    names = [n for t in TRUTH for n in ((t, t + " (statistical SE)") if t in widened else (t,))]
     for key in sorted(groups):
-        for name in TRUTH:
+        for name in names:
             zs = np.asarray(groups[key].get(name, []), float)
             if not zs.size:
                 continue
-            k = int((np.abs(zs) < 2).sum())
-            totals[name][0] += k
+            c = calibration(zs)
+            totals[name][0] += c["within"]
             totals[name][1] += zs.size
-            sd = f"{zs.std(ddof=1):.2f}" if zs.size > 1 else "-"
-            lines.append(f"| {key[0]:g} | {key[1]} | {key[2]} | {name} | {zs.size} (not: {missing[key][name]}) | "
-                         f"{k}/{zs.size} | {k / zs.size:.0%} | {zs.mean():+.2f} | {sd} | "
-                         f"{zs[np.argmax(np.abs(zs))]:+.1f} |")
+            sd = f"{c['sd']:.2f}" if zs.size > 1 else "-"
+            lines.append(f"| {key[0]:g} | {key[1]} | {key[2]} | {name} | {zs.size} (not: "
+                         f"{missing[key][name.split(' ')[0]]}) | {c['within']}/{zs.size} | {c['within'] / zs.size:.0%} | "
+                         f"{c['mean']:+.2f} | {sd} | {zs[np.argmax(np.abs(zs))]:+.1f} | {c['p_within']:.2g} | "
+                         f"{c['p_mean']:.2g} |")
     lines += ["", "| coefficient | within 2 SE, all shapes and seeds | share |", "|---|---|---|"]
     lines += [f"| {n} | {k}/{m} | {k / m:.0%} |" for n, (k, m) in totals.items()]
     return lines
@@ -339,7 +400,16 @@ def main(argv=None) -> int:
     ap.add_argument("--no-pvs", action="store_true", help="skip the PythonVehicleSimulator frigate")
     ap.add_argument("--out", type=Path, default=None, help="folder for the written logs (default: temporary)")
     ap.add_argument("--json", type=Path, default=None, help="write every shape's z values here")
+    ap.add_argument("--summary-of", type=Path, nargs="+", default=None, metavar="JSON",
+                    help="print the seeds table of earlier --json outputs (nothing is simulated)")
     args = ap.parse_args(argv)
+    if args.summary_of:
+        import json
+
+        rows = [r for f in args.summary_of for r in json.loads(f.read_text())]
+        print(f"{len(rows)} shapes from {', '.join(str(f) for f in args.summary_of)}\n")
+        print("\n".join(seed_summary(rows)))
+        return 0
     tmp = tempfile.TemporaryDirectory()
     base = args.out or Path(tmp.name)
     seeds = args.seeds or [args.seed]

@@ -96,8 +96,9 @@ def expand_logs(paths) -> list[Path]:
     """Log files from files and folders: a folder gives every log in it, sorted by name.
 
     A ROS 2 bag folder (it holds ``metadata.yaml``) is one log, not a folder of logs; ``.txt``
-    and ``.log`` files are taken only when they hold NMEA sentences; subfolders that are bags
-    are taken, other subfolders are not searched.
+    and ``.log`` files are taken only when their content is a log (NMEA sentences, UBX frames,
+    MAVLink, DataFlash, ULog; :func:`pipeline.ingest.sniff.sniff`); subfolders that are bags are
+    taken, other subfolders are not searched.
 
     Parameters
     ----------
@@ -112,7 +113,7 @@ def expand_logs(paths) -> list[Path]:
     Raises
     ------
     ConfigError
-        A folder with no log in it.
+        A folder with no log in it (naming what it holds and why each was not taken).
     """
     out: list[Path] = []
     for raw in paths:
@@ -120,23 +121,43 @@ def expand_logs(paths) -> list[Path]:
         if not p.is_dir() or (p / "metadata.yaml").is_file():
             out.append(p)
             continue
-        found = []
+        found, left = [], []
         for child in sorted(p.iterdir()):
             if child.is_dir():
                 if (child / "metadata.yaml").is_file():
                     found.append(child)
+                else:
+                    left.append(f"{child.name}/ (a subfolder: not searched)")
                 continue
             ext = child.suffix.lower()
             if ext in (".txt", ".log"):
-                if _holds_nmea(child):
+                if _holds_log(child):
                     found.append(child)
+                else:
+                    left.append(f"{child.name} (text without NMEA sentences or another log format)")
             elif ext in LOG_EXTENSIONS:
                 found.append(child)
+            else:
+                left.append(f"{child.name} (not a log extension)")
         if not found:
-            raise ConfigError(f"{p}: expected log files ({', '.join(LOG_EXTENSIONS)}) in the folder, found "
-                              f"{sorted(c.name for c in p.iterdir())[:10]}")
+            what = "an empty folder" if not left else (
+                f"{len(left)} entr{'y' if len(left) == 1 else 'ies'}, none a log: " + "; ".join(left[:6])
+                + (f"; and {len(left) - 6} more" if len(left) > 6 else ""))
+            raise ConfigError(f"{p}: expected log files ({', '.join(LOG_EXTENSIONS)}; .txt and .log holding NMEA "
+                              f"or another log format) in the folder, found {what}")
         out += found
     return out
+
+
+def _holds_log(p: Path) -> bool:
+    """True when ``p`` holds a log format the ingest reads (RTCM corrections alone are not a log)."""
+    from .ingest.sniff import sniff
+
+    try:
+        fmt, _ = sniff(p)
+    except OSError:
+        return False
+    return (fmt is not None and fmt != "rtcm3") or _holds_nmea(p)
 
 
 def _holds_nmea(p: Path) -> bool:

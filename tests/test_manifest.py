@@ -140,8 +140,42 @@ def test_a_folder_gives_every_log_in_it(folder):
 
 def test_empty_folder_is_named(folder):
     (folder / "empty").mkdir()
-    with pytest.raises(ConfigError, match=r"empty: expected log files \(.csv, .tlog, .*\) in the folder, found \[\]"):
+    with pytest.raises(ConfigError, match=r"empty: expected log files \(.csv, .tlog, .*\) in the folder, found an empty folder"):
         load_manifest(_manifest(folder, 'vessel = "v.toml"\nlogs = ["empty"]\n'))
+
+
+def test_a_folder_without_logs_names_each_entry_and_why():
+    # Like the CE6 actuator-test folders: text tables of encoder values, notes, a spreadsheet.
+    import tempfile
+    from pathlib import Path
+
+    from pipeline.manifest import expand_logs
+
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        (d / "step5000.txt").write_text("5000 0\n5100 10\n")
+        (d / "results.xlsx").write_bytes(b"PK\x03\x04")
+        (d / "old").mkdir()
+        with pytest.raises(ConfigError) as err:
+            expand_logs([d])
+    msg = str(err.value)
+    assert "found 3 entries, none a log" in msg
+    assert "step5000.txt (text without NMEA sentences or another log format)" in msg
+    assert "results.xlsx (not a log extension)" in msg and "old/ (a subfolder: not searched)" in msg
+
+
+def test_a_folder_takes_a_ubx_capture_saved_as_log_and_leaves_corrections_alone(tmp_path):
+    # The reader goes by content, so a folder does too (before: only .txt/.log with "$GP" and the
+    # like were taken, and a u-blox capture named .log was silently left out of the trial).
+    import shutil
+    from pathlib import Path
+
+    from pipeline.manifest import expand_logs
+
+    data = Path(__file__).parent / "data"
+    shutil.copy(data / "pyubx2" / "pygpsdata-ALL.log", tmp_path / "receiver.log")
+    shutil.copy(data / "pyrtcm" / "pygpsdata-MT1023.log", tmp_path / "corrections.log")
+    assert [p.name for p in expand_logs([tmp_path])] == ["receiver.log"]
 
 
 def test_runs_and_inputs(folder):

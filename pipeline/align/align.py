@@ -141,7 +141,7 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
         raise AlignError(f"align: expected a positive sample rate [Hz], found {fs}")
     fs = float(fs)
     frames, gaps, run_records = [], [], []
-    sample_times: dict[str, list[np.ndarray]] = {}
+    run_sample_times: list[tuple[pd.DataFrame, dict[str, np.ndarray]]] = []
     index = 0
     gap_rows = max(int(np.ceil(RUN_GAP_S * fs)), 2)
     for k, g in enumerate(groups):
@@ -150,9 +150,8 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
         frame, run_gaps, run_notes, kinds, t_first, run_times = _align_run(
             [by_source[s] for s in g.sources], g, fs, gap_threshold, vessel, input_kinds or {})
         shift = index / fs
-        for key, times in run_times.items():
-            sample_times.setdefault(key, []).append(times + shift)
         frame["t"] = frame["t"].to_numpy() + shift
+        run_sample_times.append((frame, {key: times + shift for key, times in run_times.items()}))
         gaps += [Gap(x.channel, x.t_start + shift, x.t_end + shift) for x in run_gaps]
         notes += [tag + n for n in run_notes]
         t_end = shift + (len(frame) - 1) / fs
@@ -172,7 +171,41 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
     data = as_float64_block(data[_ordered(data.columns)])
     return Trial(name=name, data=data, fs=fs, gaps=tuple(gaps), sources=tuple(l.source for l in logs),
                  notes=tuple(notes), summaries=tuple(l.summary for l in logs), runs=tuple(run_records),
-                 sample_times={k: np.concatenate(v) for k, v in sample_times.items() if k in data.columns})
+                 sample_times=merge_sample_times(run_sample_times, data.columns))
+
+
+def merge_sample_times(runs: Sequence[tuple[pd.DataFrame, Mapping[str, np.ndarray]]],
+                       columns) -> dict[str, np.ndarray]:
+    """The trial's real sample times of each slow channel, run after run.
+
+    A channel can be slower than the grid in one run and measured at every grid sample in another
+    (u derived from a 5 Hz GNSS in an autopilot log, u logged at the grid rate in a CSV of the same
+    day): in such a run every grid row where the channel holds a value is a real sample, else
+    ``Trial.measured_rows`` would find no measurement there at all.
+
+    Parameters
+    ----------
+    runs : sequence of (pandas.DataFrame, Mapping[str, numpy.ndarray])
+        Per run, in trial-clock order: its resampled frame (column ``t`` on the trial clock) and
+        its slow channels' sample times [s, trial clock].
+    columns : iterable of str
+        Columns of the trial's data; slow channels not among them are dropped.
+
+    Returns
+    -------
+    dict[str, numpy.ndarray]
+        Channel -> increasing sample times [s, trial clock].
+    """
+    slow = {key for _, times in runs for key in times if key in columns}
+    out: dict[str, list[np.ndarray]] = {key: [] for key in slow}
+    for frame, times in runs:
+        for key in slow:
+            if key in times:
+                out[key].append(np.asarray(times[key], float))
+            elif key in frame:
+                values = frame[key].to_numpy(dtype=float)
+                out[key].append(frame["t"].to_numpy(dtype=float)[np.isfinite(values)])
+    return {key: np.concatenate(parts) for key, parts in out.items()}
 
 
 def as_float64_block(frame: pd.DataFrame) -> pd.DataFrame:

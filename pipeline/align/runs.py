@@ -275,16 +275,18 @@ def group_runs(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | None 
         else:
             reasons.append([f"{Path(s).name}: {timed[s].text()}" for s in g]
                            + [f"absolute times overlap ({'; '.join(j for s in g for j in why_joined[s])})"])
-    # Separation from the other timed runs: say how far apart they are.
+    # Separation from the other timed runs: say how far apart the nearest one is.
     for k, g in enumerate(groups):
+        nearest = None
         for m, h in enumerate(groups):
             if m == k:
                 continue
-            gaps = [timed[a].overlap(timed[b]) for a in g for b in h]
-            gaps = [x for x in gaps if x is not None]
-            if gaps:
-                reasons[k].append(f"no overlap with {Path(h[0]).name} ({-max(gaps):.1f} s apart): never merged")
-                break
+            gaps = [x for x in (timed[a].overlap(timed[b]) for a in g for b in h) if x is not None]
+            if gaps and (nearest is None or max(gaps) > nearest[0]):
+                nearest = (max(gaps), h[0])
+        if nearest is not None:
+            reasons[k].append(f"no overlap with {Path(nearest[1]).name} ({-nearest[0]:.1f} s apart, the nearest "
+                              f"run): never merged")
 
     # 2. Logs without absolute time: join the run they correlate with, else a run of their own.
     for s in sources:
