@@ -61,8 +61,11 @@ def cmd_ingest(args: argparse.Namespace) -> int:
     from .align import group_runs, grouping_text
     from .errors import AlignError
     from .flow import read_logs
+    from .manifest import folder_notes
 
     logs = read_logs(args.logs, _vessel(args.vessel))
+    for note in folder_notes(args.logs):
+        print(note)
     for log in logs:
         print(log.summary.text())
         for name, ch in sorted(log.channels.items()):

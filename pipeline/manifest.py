@@ -118,27 +118,10 @@ def expand_logs(paths) -> list[Path]:
     out: list[Path] = []
     for raw in paths:
         p = Path(raw)
-        if not p.is_dir() or (p / "metadata.yaml").is_file():
+        if not _is_folder_of_logs(p):
             out.append(p)
             continue
-        found, left = [], []
-        for child in sorted(p.iterdir()):
-            if child.is_dir():
-                if (child / "metadata.yaml").is_file():
-                    found.append(child)
-                else:
-                    left.append(f"{child.name}/ (a subfolder: not searched)")
-                continue
-            ext = child.suffix.lower()
-            if ext in (".txt", ".log"):
-                if _holds_log(child):
-                    found.append(child)
-                else:
-                    left.append(f"{child.name} (text without NMEA sentences or another log format)")
-            elif ext in LOG_EXTENSIONS:
-                found.append(child)
-            else:
-                left.append(f"{child.name} (not a log extension)")
+        found, left = _scan_folder(p)
         if not found:
             what = "an empty folder" if not left else (
                 f"{len(left)} entr{'y' if len(left) == 1 else 'ies'}, none a log: " + "; ".join(left[:6])
@@ -147,6 +130,61 @@ def expand_logs(paths) -> list[Path]:
                               f"or another log format) in the folder, found {what}")
         out += found
     return out
+
+
+def folder_notes(paths) -> list[str]:
+    """What :func:`expand_logs` left out of each folder, one note per folder (nothing is dropped unsaid).
+
+    Parameters
+    ----------
+    paths : Iterable[str or Path]
+        Files and folders, as given to :func:`expand_logs`.
+
+    Returns
+    -------
+    list[str]
+        For every folder that holds entries that are not logs: the folder, how many logs were
+        taken, and each entry left out with the reason (at most 12 named, then a count).
+    """
+    notes = []
+    for raw in paths:
+        p = Path(raw)
+        if not _is_folder_of_logs(p):
+            continue
+        found, left = _scan_folder(p)
+        if found and left:
+            named = "; ".join(left[:12]) + (f"; and {len(left) - 12} more" if len(left) > 12 else "")
+            notes.append(f"folder {p}: {len(found)} log(s) read, {len(left)} entr{'y' if len(left) == 1 else 'ies'} "
+                         f"left out (not logs): {named}")
+    return notes
+
+
+def _is_folder_of_logs(p: Path) -> bool:
+    """True for a folder whose entries are the logs (a ROS 2 bag folder is one log)."""
+    return p.is_dir() and not (p / "metadata.yaml").is_file()
+
+
+def _scan_folder(p: Path) -> tuple[list[Path], list[str]]:
+    """The logs of one folder (sorted by name) and every other entry with why it was not taken."""
+    found, left = [], []
+    for child in sorted(p.iterdir()):
+        if child.is_dir():
+            if (child / "metadata.yaml").is_file():
+                found.append(child)
+            else:
+                left.append(f"{child.name}/ (a subfolder: not searched)")
+            continue
+        ext = child.suffix.lower()
+        if ext in (".txt", ".log"):
+            if _holds_log(child):
+                found.append(child)
+            else:
+                left.append(f"{child.name} (text without NMEA sentences or another log format)")
+        elif ext in LOG_EXTENSIONS:
+            found.append(child)
+        else:
+            left.append(f"{child.name} (not a log extension)")
+    return found, left
 
 
 def _holds_log(p: Path) -> bool:

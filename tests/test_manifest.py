@@ -206,3 +206,30 @@ def test_bad_runs_and_inputs_are_named(folder, body, message):
         body = 'logs = ["logs/a.csv"]\n[inputs]\ndelta = "servo"\n'
     with pytest.raises(ConfigError, match=message):
         load_manifest(_manifest(folder, 'vessel = "v.toml"\n' + body))
+
+
+def test_what_a_folder_leaves_out_is_said_by_align_and_ingest(tmp_path, capsys):
+    # Nothing is dropped unsaid: a folder's entries that are not logs are named in the trial's notes
+    # (the report's alignment notes) and by `vesselid ingest`, with the reason for each.
+    import shutil
+    from pathlib import Path
+
+    from pipeline.cli import main
+    from pipeline.flow import load_trial
+
+    root = Path(__file__).resolve().parents[1]
+    shutil.copy(root / "trials" / "sample" / "sample.csv", tmp_path / "run1.csv")
+    (tmp_path / "results.xlsx").write_bytes(b"PK\x03\x04")
+    (tmp_path / "imu_raw.txt").write_text("5000 0\n5100 10\n")
+    notes = [n for n in load_trial([tmp_path]).notes if n.startswith("folder ")]
+    assert len(notes) == 1, notes
+    assert "1 log(s) read, 2 entries left out (not logs)" in notes[0]
+    assert "results.xlsx (not a log extension)" in notes[0]
+    assert "imu_raw.txt (text without NMEA sentences or another log format)" in notes[0]
+    assert main(["ingest", str(tmp_path)]) == 0
+    assert "results.xlsx (not a log extension)" in capsys.readouterr().out
+    # A folder of logs only, or a file given by name, adds no note.
+    (tmp_path / "results.xlsx").unlink()
+    (tmp_path / "imu_raw.txt").unlink()
+    assert not [n for n in load_trial([tmp_path]).notes if n.startswith("folder ")]
+    assert not [n for n in load_trial([tmp_path / "run1.csv"]).notes if n.startswith("folder ")]
