@@ -15,6 +15,8 @@ from typing import Mapping
 import numpy as np
 import pandas as pd
 
+from . import __version__
+
 # --------------------------------------------------------------------------- channels
 #: Canonical state channels and their SI units (DESIGN.md, "Canonical CSV log").
 STATE_UNITS: Mapping[str, str] = {
@@ -1089,6 +1091,287 @@ def fit_result_from_arrays(model: str, names, values, stderr, covariance, units:
                               method=model)
               for n, v, e in zip(names, values, stderr)}
     return FitResult(model=model, params=params, covariance=cov, **kwargs)
+
+
+# --------------------------------------------------------------------------- autopilot
+# ``Fits -> AutopilotResult`` (the autopilot stage): the identified Nomoto K and T (and, from a wave
+# record, a wave model) -> PD gains, a discrete Kalman filter, an ArduPilot export and the closed-loop
+# check. What the stage does with them (design, TOML and JSON files, the simulation) is in
+# ``pipeline.autopilot``. Two field types are named, not imported, so this module stays free of the
+# stages (and fast to import): ``WaveParams`` is :class:`pipeline.model.waves.WaveParams` and
+# ``ClosedLoopCheck`` is :class:`pipeline.autopilot.closed_loop.ClosedLoopCheck`.
+@dataclass(frozen=True)
+class SourceFile:
+    """An input file the autopilot configuration was built from.
+
+    Attributes
+    ----------
+    role : str
+        ``coefficients``, ``waves``, ``vessel``, ``still``, ...
+    path : str
+        Path as given.
+    sha256 : str
+        Hex digest of the file's bytes.
+    """
+
+    role: str
+    path: str
+    sha256: str
+
+
+@dataclass(frozen=True)
+class NomotoCoefficients:
+    """The Nomoto K and T the autopilot is designed on (from :class:`Fits` or ``coefficients.json``).
+
+    Attributes
+    ----------
+    K, K_stderr : float
+        Gain and standard error [1/s] (stderr NaN if null).
+    T, T_stderr : float
+        Time constant and standard error [s].
+    vessel : str
+        Vessel name in the file.
+    source : SourceFile or None
+        The file and its hash (None: read from a record in memory).
+    """
+
+    K: float
+    K_stderr: float
+    T: float
+    T_stderr: float
+    vessel: str = ""
+    source: SourceFile | None = None
+
+    def to_fit_result(self) -> FitResult:
+        """K and T as a :class:`FitResult` (standard errors only: the file holds no covariance)."""
+        source = self.source
+        return fit_result_from_arrays(
+            "nomoto_coefficients", ("K", "T"), [self.K, self.T], [self.K_stderr, self.T_stderr], None,
+            {"K": "1/s", "T": "s"}, success=math.isfinite(self.K) and math.isfinite(self.T),
+            message="read from coefficients.json: only the standard errors are known, not the covariance",
+            provenance={"fitter": "pipeline.autopilot.config.read_coefficients_json", "vessel": self.vessel,
+                        **({"data": f"{source.path} (sha256 {source.sha256})"} if source is not None else {})})
+
+
+@dataclass(frozen=True, kw_only=True)
+class WaveFit(FitResult):
+    """The wave-model fit: a :class:`FitResult` of the second-order wave model, with the Welch PSD it
+    was fitted to (:func:`pipeline.autopilot.waves_fit.fit_wave_spectrum`).
+
+    ``params`` are ``omega0`` (peak frequency [rad/s]), ``lam`` (relative damping lambda [-]) and
+    ``kw`` (gain K_w [rad s^-1/2]) with their standard errors, ``covariance`` their 3x3 covariance, all
+    in the module convention of :mod:`pipeline.model.waves` (two-sided PSD per rad/s).
+    ``statistics`` holds ``sigma`` and ``sigma_se`` (``sigma = sqrt(peak PSD) = K_w / (2 lambda
+    omega_0)`` and its error [rad s^1/2]), ``rel_residual_std`` (RMS of ``(P_welch - P_model) /
+    P_model`` over the bins where the model is within a factor ten of its peak [-]) and
+    ``expected_rel_std`` (the same scatter expected from the Welch estimate alone for a Gaussian
+    record [-]; a much larger ``rel_residual_std`` means the model does not have the record's shape).
+    ``success`` is False when the optimiser failed or the result is outside the band.
+
+    Attributes
+    ----------
+    omega : numpy.ndarray
+        Welch frequencies [rad/s].
+    psd : numpy.ndarray
+        Welch PSD estimate, two-sided omega convention [rad^2 s].
+    band : tuple[float, float]
+        Frequency band fitted [rad/s].
+    peak_omega : float
+        Frequency of the largest Welch bin in the band [rad/s] (the seed's omega_0).
+    peak_psd : float
+        Largest Welch bin in the band [rad^2 s] (the seed's sigma^2, module convention).
+    fs : float
+        Sample rate of the record [Hz].
+    nperseg : int
+        Welch segment length [samples] (Hann window, 50 % overlap, linear detrend).
+    n_samples : int
+        Samples in the record.
+    """
+
+    omega: np.ndarray
+    psd: np.ndarray
+    band: tuple[float, float]
+    peak_omega: float
+    peak_psd: float
+    fs: float
+    nperseg: int
+    n_samples: int
+
+
+@dataclass(frozen=True)
+class PDGains:
+    """Gains of the PD heading controller ``K_pd (1 + T_d s) / (1 + T_f s)``.
+
+    Attributes
+    ----------
+    kpd : float
+        Proportional gain [rad rudder per rad heading error].
+    td : float
+        Derivative time [s] (= T of the design model).
+    tf : float
+        Derivative filter time constant [s].
+    crossover : float
+        Design crossover frequency [rad/s].
+    phase_margin : float
+        Design phase margin [rad].
+    """
+
+    kpd: float
+    td: float
+    tf: float
+    crossover: float
+    phase_margin: float
+
+
+@dataclass(frozen=True)
+class KalmanModel:
+    """Everything the discrete heading filter needs, plus the continuous model it came from.
+
+    Attributes
+    ----------
+    ts : float
+        Sample time [s].
+    ad, bd, ed, c : numpy.ndarray
+        Discrete model (5x5, 5x1, 5x2, 1x5); states ``pipeline.autopilot.kalman.KALMAN_STATES``
+        ``[xi_w, psi_w, psi, r, b]`` [rad s, rad, rad, rad/s, rad].
+    qd : numpy.ndarray
+        Discrete process-noise covariance (Van Loan), 5x5 [state units^2].
+    r : float
+        Sampled compass-noise variance [rad^2].
+    p0 : numpy.ndarray
+        Initial a-priori covariance, 5x5 [state units^2].
+    x0 : numpy.ndarray
+        Initial a-priori state, 5 [state units].
+    a, b, e : numpy.ndarray
+        Continuous model (NaN when read back from a file, which does not hold it).
+    q : numpy.ndarray
+        Continuous noise intensity ``diag(q_w [-], q_b [rad^2/s])``.
+    """
+
+    ts: float
+    ad: np.ndarray
+    bd: np.ndarray
+    ed: np.ndarray
+    c: np.ndarray
+    qd: np.ndarray
+    r: float
+    p0: np.ndarray
+    x0: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    e: np.ndarray
+    q: np.ndarray
+
+
+@dataclass(frozen=True)
+class ArduPilotExport:
+    """ArduPilot Rover steering parameters equivalent to the PD design.
+
+    Attributes
+    ----------
+    params : Mapping[str, float]
+        Parameter name -> value, in ArduPilot's units.
+    notes : tuple[str, ...]
+        The mapping's assumptions and any value outside ArduPilot's documented range.
+    """
+
+    params: Mapping[str, float] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class AutopilotConfig:
+    """Everything a heading controller needs, with where it came from (``autopilot.toml``).
+
+    Attributes
+    ----------
+    ts : float
+        Sample time of the filter and the controller [s].
+    K, T : float
+        Nomoto gain [1/s] and time constant [s] the design used.
+    K_stderr, T_stderr : float
+        Their standard errors [1/s], [s] (NaN if unknown).
+    waves : WaveParams
+        Wave model of the filter (:class:`pipeline.model.waves.WaveParams`: omega0 [rad/s],
+        lambda [-], kw [rad s^-1/2]).
+    waves_stderr : Mapping[str, float]
+        Standard errors of ``omega0``, ``lambda``, ``kw`` [their units] (empty if not fitted).
+    wave_source : str
+        Where the wave model came from.
+    pd : PDGains
+        PD gains.
+    kalman : KalmanModel
+        Discrete filter.
+    rudder_max_angle, rudder_max_rate : float
+        Saturation [rad] and rate limit [rad/s].
+    rudder_source : str
+        Vessel config or the stated default.
+    sources : tuple[SourceFile, ...]
+        Input files and their hashes.
+    notes : tuple[str, ...]
+        Defaults used and caveats, one sentence each.
+    version : str
+        vesselid version.
+    """
+
+    ts: float
+    K: float
+    T: float
+    K_stderr: float
+    T_stderr: float
+    waves: WaveParams  # noqa: F821 (named only, see above)
+    waves_stderr: Mapping[str, float]
+    wave_source: str
+    pd: PDGains
+    kalman: KalmanModel
+    rudder_max_angle: float
+    rudder_max_rate: float
+    rudder_source: str
+    sources: tuple[SourceFile, ...] = ()
+    notes: tuple[str, ...] = ()
+    version: str = __version__
+
+    def to_fit_result(self) -> FitResult:
+        """The coefficients the design used, as a :class:`FitResult`: ``K``, ``T`` and the wave
+        model's ``omega0``, ``lam``, ``kw``, with the standard errors they came with (no covariance:
+        they come from different fits)."""
+        names = ("K", "T", "omega0", "lam", "kw")
+        ws = self.waves_stderr
+        return fit_result_from_arrays(
+            "autopilot_design_coefficients", names, [self.K, self.T, self.waves.omega0, self.waves.lam, self.waves.kw],
+            [self.K_stderr, self.T_stderr, ws.get("omega0", math.nan), ws.get("lambda", math.nan), ws.get("kw", math.nan)],
+            None, {n: parameter_unit(n) for n in names}, message="standard errors only: K, T and the wave model "
+                                                                   "come from different fits",
+            provenance={"fitter": "pipeline.autopilot.config.build_autopilot_config", "waves": self.wave_source})
+
+
+@dataclass(frozen=True)
+class AutopilotResult:
+    """The autopilot stage's output.
+
+    Attributes
+    ----------
+    config : AutopilotConfig
+        What a controller needs.
+    observability : dict
+        Rank of each of the seed's four model variants (:func:`pipeline.autopilot.kalman.observability`).
+    margins : list of dict
+        Crossover [rad/s] and phase margin [rad] on the identified model and at the corners of its
+        95 % box.
+    ardupilot : ArduPilotExport
+        ArduPilot Rover steering parameters.
+    check : ClosedLoopCheck or None
+        Closed-loop simulation (:class:`pipeline.autopilot.closed_loop.ClosedLoopCheck`), if run.
+    wave_fit : WaveFit or None
+        The wave-spectrum fit, if the wave model was fitted in this run.
+    """
+
+    config: AutopilotConfig
+    observability: dict
+    margins: list
+    ardupilot: ArduPilotExport
+    check: ClosedLoopCheck | None = None  # noqa: F821 (named only, see above)
+    wave_fit: WaveFit | None = None
 
 
 # --------------------------------------------------------------------------- report

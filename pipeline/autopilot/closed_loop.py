@@ -26,8 +26,8 @@ import numpy as np
 from ..errors import AutopilotError
 from ..model.nomoto import NomotoParams, nomoto_rhs
 from ..model.waves import WaveParams, simulate_waves
-from .config import AutopilotConfig
 from ..geo import wrap_pi
+from ..records import AutopilotConfig
 from .kalman import kalman_predict, kalman_update
 from .pd import discretise_pd
 
@@ -226,7 +226,7 @@ def kalman_gains(model, n: int) -> np.ndarray:
 
     Parameters
     ----------
-    model : pipeline.autopilot.kalman.KalmanModel
+    model : pipeline.records.KalmanModel
         The filter.
     n : int
         Number of samples.
