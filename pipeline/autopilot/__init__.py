@@ -24,8 +24,7 @@ from ..lazy import lazy_exports
 
 #: Public name -> module defining it; loaded on first use, so ``vesselid autopilot --help`` stays fast.
 _EXPORTS = {
-    "CASES": ".closed_loop", "ClosedLoopCheck": ".closed_loop", "ClosedLoopRun": ".closed_loop",
-    "LoopMetrics": ".closed_loop", "Scenario": ".closed_loop", "closed_loop_check": ".closed_loop",
+    "CASES": ".closed_loop", "closed_loop_check": ".closed_loop",
     "default_scenarios": ".closed_loop", "simulate_heading_loop": ".closed_loop",
     "ardupilot_params": ".config", "build_autopilot_config": ".config",
     "read_autopilot_toml": ".config", "read_coefficients_json": ".config", "read_waves_json": ".config",

@@ -14,8 +14,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ..records import WaveFit
-from .closed_loop import CASE_LABELS, CASES, ClosedLoopCheck
+from ..records import ClosedLoopCheck, WaveFit
+from .closed_loop import CASE_LABELS, CASES
 from .waves_fit import course_sigma, model_psd
 
 _COLOURS = {"pd": "tab:red", "pd_kalman": "tab:blue", "pd_kalman_ff": "tab:green"}
