@@ -15,11 +15,11 @@ import numpy as np
 
 from ..errors import AutopilotError
 from ..model.waves import WaveParams
-from ..records import AutopilotResult, NomotoCoefficients, SourceFile, WaveFit
+from ..records import AutopilotResult, NomotoCoefficients, PDGains, SourceFile, WaveFit
 from .closed_loop import closed_loop_check, default_scenarios
 from .config import ardupilot_params, build_autopilot_config
 from .kalman import DEFAULT_P0, DEFAULT_Q, observability
-from .pd import DEFAULT_PHASE_MARGIN, PDGains, margin_table, pd_gains
+from .pd import DEFAULT_PHASE_MARGIN, margin_table, pd_gains
 from .waves_fit import wave_params
 
 
