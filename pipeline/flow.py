@@ -30,13 +30,12 @@ from .atomic import atomic_folder, atomic_path, check_output_folder
 from .errors import AutopilotError, DiagnoseError, SegmentError
 from .ingest import read_log, read_recordings
 from .manifest import expand_logs, folder_notes
-from .records import Fits, Provenance, RawLog, Segment, Segments, Trial
+from .records import AutopilotResult, Fits, Provenance, RawLog, Segment, Segments, Trial
 from .segment import segment_trial
 from .terminal import show_progress
 from .vessel import Vessel
 
 if TYPE_CHECKING:  # the later stages are imported where they run: they import this module themselves
-    from .autopilot import AutopilotResult
     from .report import ReportPaths
 
 

@@ -15,6 +15,8 @@ from typing import Mapping
 import numpy as np
 import pandas as pd
 
+from . import __version__
+
 # --------------------------------------------------------------------------- channels
 #: Canonical state channels and their SI units (DESIGN.md, "Canonical CSV log").
 STATE_UNITS: Mapping[str, str] = {
@@ -1089,6 +1091,500 @@ def fit_result_from_arrays(model: str, names, values, stderr, covariance, units:
                               method=model)
               for n, v, e in zip(names, values, stderr)}
     return FitResult(model=model, params=params, covariance=cov, **kwargs)
+
+
+# --------------------------------------------------------------------------- autopilot
+# ``Fits -> AutopilotResult`` (the autopilot stage): the identified Nomoto K and T (and, from a wave
+# record, a wave model) -> PD gains, a discrete Kalman filter, an ArduPilot export and the closed-loop
+# check. What the stage does with them (design, TOML and JSON files, the simulation) is in
+# ``pipeline.autopilot``. One field type is named, not imported, so this module stays free of the
+# stages (and fast to import): ``WaveParams`` is :class:`pipeline.model.waves.WaveParams`.
+@dataclass(frozen=True)
+class SourceFile:
+    """An input file the autopilot configuration was built from.
+
+    Attributes
+    ----------
+    role : str
+        ``coefficients``, ``waves``, ``vessel``, ``still``, ...
+    path : str
+        Path as given.
+    sha256 : str
+        Hex digest of the file's bytes.
+    """
+
+    role: str
+    path: str
+    sha256: str
+
+
+@dataclass(frozen=True)
+class NomotoCoefficients:
+    """The Nomoto K and T the autopilot is designed on (from :class:`Fits` or ``coefficients.json``).
+
+    Attributes
+    ----------
+    K, K_stderr : float
+        Gain and standard error [1/s] (stderr NaN if null).
+    T, T_stderr : float
+        Time constant and standard error [s].
+    vessel : str
+        Vessel name in the file.
+    source : SourceFile or None
+        The file and its hash (None: read from a record in memory).
+    """
+
+    K: float
+    K_stderr: float
+    T: float
+    T_stderr: float
+    vessel: str = ""
+    source: SourceFile | None = None
+
+    def to_fit_result(self) -> FitResult:
+        """K and T as a :class:`FitResult` (standard errors only: the file holds no covariance)."""
+        source = self.source
+        return fit_result_from_arrays(
+            "nomoto_coefficients", ("K", "T"), [self.K, self.T], [self.K_stderr, self.T_stderr], None,
+            {"K": "1/s", "T": "s"}, success=math.isfinite(self.K) and math.isfinite(self.T),
+            message="read from coefficients.json: only the standard errors are known, not the covariance",
+            provenance={"fitter": "pipeline.autopilot.config.read_coefficients_json", "vessel": self.vessel,
+                        **({"data": f"{source.path} (sha256 {source.sha256})"} if source is not None else {})})
+
+
+@dataclass(frozen=True, kw_only=True)
+class WaveFit(FitResult):
+    """The wave-model fit: a :class:`FitResult` of the second-order wave model, with the Welch PSD it
+    was fitted to (:func:`pipeline.autopilot.waves_fit.fit_wave_spectrum`).
+
+    ``params`` are ``omega0`` (peak frequency [rad/s]), ``lam`` (relative damping lambda [-]) and
+    ``kw`` (gain K_w [rad s^-1/2]) with their standard errors, ``covariance`` their 3x3 covariance, all
+    in the module convention of :mod:`pipeline.model.waves` (two-sided PSD per rad/s).
+    ``statistics`` holds ``sigma`` and ``sigma_se`` (``sigma = sqrt(peak PSD) = K_w / (2 lambda
+    omega_0)`` and its error [rad s^1/2]), ``rel_residual_std`` (RMS of ``(P_welch - P_model) /
+    P_model`` over the bins where the model is within a factor ten of its peak [-]) and
+    ``expected_rel_std`` (the same scatter expected from the Welch estimate alone for a Gaussian
+    record [-]; a much larger ``rel_residual_std`` means the model does not have the record's shape).
+    ``success`` is False when the optimiser failed or the result is outside the band.
+
+    Attributes
+    ----------
+    omega : numpy.ndarray
+        Welch frequencies [rad/s].
+    psd : numpy.ndarray
+        Welch PSD estimate, two-sided omega convention [rad^2 s].
+    band : tuple[float, float]
+        Frequency band fitted [rad/s].
+    peak_omega : float
+        Frequency of the largest Welch bin in the band [rad/s] (the seed's omega_0).
+    peak_psd : float
+        Largest Welch bin in the band [rad^2 s] (the seed's sigma^2, module convention).
+    fs : float
+        Sample rate of the record [Hz].
+    nperseg : int
+        Welch segment length [samples] (Hann window, 50 % overlap, linear detrend).
+    n_samples : int
+        Samples in the record.
+    """
+
+    omega: np.ndarray
+    psd: np.ndarray
+    band: tuple[float, float]
+    peak_omega: float
+    peak_psd: float
+    fs: float
+    nperseg: int
+    n_samples: int
+
+
+@dataclass(frozen=True)
+class PDGains:
+    """Gains of the PD heading controller ``K_pd (1 + T_d s) / (1 + T_f s)``.
+
+    Attributes
+    ----------
+    kpd : float
+        Proportional gain [rad rudder per rad heading error].
+    td : float
+        Derivative time [s] (= T of the design model).
+    tf : float
+        Derivative filter time constant [s].
+    crossover : float
+        Design crossover frequency [rad/s].
+    phase_margin : float
+        Design phase margin [rad].
+    """
+
+    kpd: float
+    td: float
+    tf: float
+    crossover: float
+    phase_margin: float
+
+
+@dataclass(frozen=True)
+class KalmanModel:
+    """Everything the discrete heading filter needs, plus the continuous model it came from.
+
+    Attributes
+    ----------
+    ts : float
+        Sample time [s].
+    ad, bd, ed, c : numpy.ndarray
+        Discrete model (5x5, 5x1, 5x2, 1x5); states ``pipeline.autopilot.kalman.KALMAN_STATES``
+        ``[xi_w, psi_w, psi, r, b]`` [rad s, rad, rad, rad/s, rad].
+    qd : numpy.ndarray
+        Discrete process-noise covariance (Van Loan), 5x5 [state units^2].
+    r : float
+        Sampled compass-noise variance [rad^2].
+    p0 : numpy.ndarray
+        Initial a-priori covariance, 5x5 [state units^2].
+    x0 : numpy.ndarray
+        Initial a-priori state, 5 [state units].
+    a, b, e : numpy.ndarray
+        Continuous model (NaN when read back from a file, which does not hold it).
+    q : numpy.ndarray
+        Continuous noise intensity ``diag(q_w [-], q_b [rad^2/s])``.
+    """
+
+    ts: float
+    ad: np.ndarray
+    bd: np.ndarray
+    ed: np.ndarray
+    c: np.ndarray
+    qd: np.ndarray
+    r: float
+    p0: np.ndarray
+    x0: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    e: np.ndarray
+    q: np.ndarray
+
+
+@dataclass(frozen=True)
+class ArduPilotExport:
+    """ArduPilot Rover steering parameters equivalent to the PD design.
+
+    Attributes
+    ----------
+    params : Mapping[str, float]
+        Parameter name -> value, in ArduPilot's units.
+    notes : tuple[str, ...]
+        The mapping's assumptions and any value outside ArduPilot's documented range.
+    """
+
+    params: Mapping[str, float] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class AutopilotConfig:
+    """Everything a heading controller needs, with where it came from (``autopilot.toml``).
+
+    Attributes
+    ----------
+    ts : float
+        Sample time of the filter and the controller [s].
+    K, T : float
+        Nomoto gain [1/s] and time constant [s] the design used.
+    K_stderr, T_stderr : float
+        Their standard errors [1/s], [s] (NaN if unknown).
+    waves : WaveParams
+        Wave model of the filter (:class:`pipeline.model.waves.WaveParams`: omega0 [rad/s],
+        lambda [-], kw [rad s^-1/2]).
+    waves_stderr : Mapping[str, float]
+        Standard errors of ``omega0``, ``lambda``, ``kw`` [their units] (empty if not fitted).
+    wave_source : str
+        Where the wave model came from.
+    pd : PDGains
+        PD gains.
+    kalman : KalmanModel
+        Discrete filter.
+    rudder_max_angle, rudder_max_rate : float
+        Saturation [rad] and rate limit [rad/s].
+    rudder_source : str
+        Vessel config or the stated default.
+    sources : tuple[SourceFile, ...]
+        Input files and their hashes.
+    notes : tuple[str, ...]
+        Defaults used and caveats, one sentence each.
+    version : str
+        vesselid version.
+    """
+
+    ts: float
+    K: float
+    T: float
+    K_stderr: float
+    T_stderr: float
+    waves: WaveParams  # noqa: F821 (named only, see above)
+    waves_stderr: Mapping[str, float]
+    wave_source: str
+    pd: PDGains
+    kalman: KalmanModel
+    rudder_max_angle: float
+    rudder_max_rate: float
+    rudder_source: str
+    sources: tuple[SourceFile, ...] = ()
+    notes: tuple[str, ...] = ()
+    version: str = __version__
+
+    def to_fit_result(self) -> FitResult:
+        """The coefficients the design used, as a :class:`FitResult`: ``K``, ``T`` and the wave
+        model's ``omega0``, ``lam``, ``kw``, with the standard errors they came with (no covariance:
+        they come from different fits)."""
+        names = ("K", "T", "omega0", "lam", "kw")
+        ws = self.waves_stderr
+        return fit_result_from_arrays(
+            "autopilot_design_coefficients", names, [self.K, self.T, self.waves.omega0, self.waves.lam, self.waves.kw],
+            [self.K_stderr, self.T_stderr, ws.get("omega0", math.nan), ws.get("lambda", math.nan), ws.get("kw", math.nan)],
+            None, {n: parameter_unit(n) for n in names}, message="standard errors only: K, T and the wave model "
+                                                                   "come from different fits",
+            provenance={"fitter": "pipeline.autopilot.config.build_autopilot_config", "waves": self.wave_source})
+
+
+# The closed-loop check (pipeline.autopilot.closed_loop.closed_loop_check): scenarios, per-run metrics
+# and time series.
+#: Default heading step of a closed-loop scenario [rad] (the seed's psi_r = 30 deg).
+DEFAULT_STEP = math.radians(30.0)
+#: Peak-to-peak heading in the steady window above which a run is reported as a limit cycle [rad].
+#: A rate-limited rudder and the filter's lag can sustain one after a large step when the ship is
+#: faster than the identified model.
+LIMIT_CYCLE = math.radians(5.0)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One closed-loop experiment.
+
+    Attributes
+    ----------
+    name : str
+        Short name (``model``, ``sea``).
+    K, T : float
+        Nomoto gain [1/s] and time constant [s] of the simulated ship (may differ from the design).
+    duration : float
+        Simulated time [s].
+    psi_ref : float
+        Heading reference, stepped at t = 0 from psi = 0 [rad].
+    current_bias : float
+        Rudder bias standing for the current [rad].
+    waves : WaveParams or None
+        Wave model added to the compass; None for calm water.
+    noise_var : float
+        Compass noise variance per sample [rad^2]; 0 for none.
+    seed : int
+        Seed of the wave and noise generator.
+    description : str
+        One line for the report.
+    """
+
+    name: str
+    K: float
+    T: float
+    duration: float = 600.0
+    psi_ref: float = DEFAULT_STEP
+    current_bias: float = 0.0
+    waves: WaveParams | None = None  # noqa: F821 (named only, see above)
+    noise_var: float = 0.0
+    seed: int = 0
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class LoopMetrics:
+    """What one closed-loop run measured (SI units).
+
+    Attributes
+    ----------
+    steady_error : float
+        Mean of ``psi_ref - psi`` over the steady window [rad] (``psi`` the ship's heading without
+        the wave-induced oscillation, which averages out).
+    settling_time : float
+        Time after which ``|psi - psi_ref|`` stays within ``settle_band`` [s]; NaN if it never does.
+    settle_band : float
+        Settling band [rad]: 5 % of the step (at least 0.5 deg).
+    rms_rudder_rate : float
+        RMS rudder rate over the steady window [rad/s].
+    max_swing : float
+        Largest peak-to-peak rudder travel within any 5 s in the steady window [rad].
+    max_swing_cmd : float
+        The same for the controller's command before saturation and rate limit [rad] (the seed's
+        simulator had no rate limit, so its "40 deg in 5 s" compares with this).
+    rate_limited : float
+        Fraction of steady-window samples at the rudder-rate limit [-].
+    mean_rudder : float
+        Mean rudder over the steady window [rad].
+    heading_estimate_rms : float
+        RMS of ``psi_hat - psi`` over the steady window [rad] (the filter's wave removal).
+    compass_error_rms : float
+        RMS of ``y - psi`` over the steady window [rad] (what PD alone feeds back).
+    bias_estimate : float
+        Mean ``b_hat`` over the steady window [rad].
+    heading_swing : float
+        Peak-to-peak of ``psi`` over the steady window [rad]: a settled loop keeps it near the
+        waves' small effect on the ship; degrees to tens of degrees mean a limit cycle (see
+        ``LIMIT_CYCLE``).
+    steady_window : tuple of float
+        ``(t0, t1)`` [s].
+    """
+
+    steady_error: float
+    settling_time: float
+    settle_band: float
+    rms_rudder_rate: float
+    max_swing: float
+    max_swing_cmd: float
+    rate_limited: float
+    mean_rudder: float
+    heading_estimate_rms: float
+    compass_error_rms: float
+    bias_estimate: float
+    heading_swing: float
+    steady_window: tuple[float, float]
+
+    @property
+    def limit_cycle(self) -> bool:
+        """True when the heading still swings more than ``LIMIT_CYCLE`` in the steady window."""
+        return self.heading_swing > LIMIT_CYCLE
+
+    def to_dict(self) -> dict:
+        """Report-ready values in degrees, keys naming their unit; NaN becomes None."""
+        d = math.degrees
+
+        def num(x):
+            return float(x) if math.isfinite(x) else None
+
+        return {
+            "steady_error_deg": num(d(self.steady_error)),
+            "settling_time_s": num(self.settling_time),
+            "settle_band_deg": num(d(self.settle_band)),
+            "rms_rudder_rate_deg_s": num(d(self.rms_rudder_rate)),
+            "max_rudder_swing_5s_deg": num(d(self.max_swing)),
+            "max_command_swing_5s_deg": num(d(self.max_swing_cmd)),
+            "rate_limited_fraction": num(self.rate_limited),
+            "mean_rudder_deg": num(d(self.mean_rudder)),
+            "heading_estimate_rms_deg": num(d(self.heading_estimate_rms)),
+            "compass_error_rms_deg": num(d(self.compass_error_rms)),
+            "bias_estimate_deg": num(d(self.bias_estimate)),
+            "heading_swing_deg": num(d(self.heading_swing)),
+            "limit_cycle": bool(self.limit_cycle),
+            "steady_window_s": [float(self.steady_window[0]), float(self.steady_window[1])],
+        }
+
+
+@dataclass(frozen=True)
+class ClosedLoopRun:
+    """Time series and metrics of one case in one scenario.
+
+    Attributes
+    ----------
+    scenario : Scenario
+    case : str
+        One of ``pipeline.autopilot.closed_loop.CASES`` (``pd``, ``pd_kalman``, ``pd_kalman_ff``).
+    t : numpy.ndarray
+        Time [s].
+    psi, r : numpy.ndarray
+        Ship heading without waves [rad] and yaw rate [rad/s].
+    psi_w : numpy.ndarray
+        Wave-induced heading [rad].
+    y : numpy.ndarray
+        Compass [rad].
+    psi_hat, psi_w_hat, b_hat : numpy.ndarray
+        Filter estimates [rad].
+    delta, delta_cmd : numpy.ndarray
+        Rudder applied and commanded [rad].
+    metrics : LoopMetrics
+    """
+
+    scenario: Scenario
+    case: str
+    t: np.ndarray
+    psi: np.ndarray
+    r: np.ndarray
+    psi_w: np.ndarray
+    y: np.ndarray
+    psi_hat: np.ndarray
+    psi_w_hat: np.ndarray
+    b_hat: np.ndarray
+    delta: np.ndarray
+    delta_cmd: np.ndarray
+    metrics: LoopMetrics
+
+
+@dataclass(frozen=True)
+class ClosedLoopCheck:
+    """All cases in all scenarios.
+
+    Attributes
+    ----------
+    scenarios : tuple[Scenario, ...]
+    runs : tuple[ClosedLoopRun, ...]
+        One per (scenario, case), scenario-major in ``pipeline.autopilot.closed_loop.CASES`` order.
+    """
+
+    scenarios: tuple[Scenario, ...]
+    runs: tuple[ClosedLoopRun, ...]
+
+    def run(self, scenario: str, case: str) -> ClosedLoopRun:
+        """The run of one scenario and case; ``KeyError`` naming what exists.
+
+        Parameters
+        ----------
+        scenario : str
+            Scenario name (``Scenario.name``).
+        case : str
+            Controller case (``pd``, ``pd_kalman``, ``pd_kalman_ff``).
+        """
+        for r in self.runs:
+            if r.scenario.name == scenario and r.case == case:
+                return r
+        raise KeyError(f"no run ({scenario!r}, {case!r}); have "
+                       f"{[(r.scenario.name, r.case) for r in self.runs]}")
+
+    def to_dict(self) -> dict:
+        """Metrics per scenario and case, degrees, JSON-ready."""
+        out = {}
+        for s in self.scenarios:
+            out[s.name] = {
+                "description": s.description, "K": s.K, "T": s.T, "duration_s": s.duration,
+                "psi_ref_deg": math.degrees(s.psi_ref), "current_bias_deg": math.degrees(s.current_bias),
+                "waves": None if s.waves is None else {"omega0": s.waves.omega0, "lambda": s.waves.lam,
+                                                        "kw": s.waves.kw},
+                "noise_std_deg": math.degrees(math.sqrt(s.noise_var)), "seed": s.seed,
+                "cases": {r.case: r.metrics.to_dict() for r in self.runs if r.scenario.name == s.name},
+            }
+        return out
+
+
+@dataclass(frozen=True)
+class AutopilotResult:
+    """The autopilot stage's output.
+
+    Attributes
+    ----------
+    config : AutopilotConfig
+        What a controller needs.
+    observability : dict
+        Rank of each of the seed's four model variants (:func:`pipeline.autopilot.kalman.observability`).
+    margins : list of dict
+        Crossover [rad/s] and phase margin [rad] on the identified model and at the corners of its
+        95 % box.
+    ardupilot : ArduPilotExport
+        ArduPilot Rover steering parameters.
+    check : ClosedLoopCheck or None
+        Closed-loop simulation (:func:`pipeline.autopilot.closed_loop.closed_loop_check`), if run.
+    wave_fit : WaveFit or None
+        The wave-spectrum fit, if the wave model was fitted in this run.
+    """
+
+    config: AutopilotConfig
+    observability: dict
+    margins: list
+    ardupilot: ArduPilotExport
+    check: ClosedLoopCheck | None = None
+    wave_fit: WaveFit | None = None
 
 
 # --------------------------------------------------------------------------- report

@@ -7,10 +7,10 @@ import time
 import numpy as np
 import pytest
 
-from pipeline.autopilot.closed_loop import (CASES, Scenario, closed_loop_check, default_scenarios,
-                                            simulate_heading_loop)
+from pipeline.autopilot.closed_loop import CASES, closed_loop_check, default_scenarios, simulate_heading_loop
 from pipeline.autopilot.config import build_autopilot_config
 from pipeline.errors import AutopilotError
+from pipeline.records import Scenario
 
 K_SEED, T_SEED = 0.1561, 72.4385
 D = math.degrees

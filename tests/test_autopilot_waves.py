@@ -10,8 +10,9 @@ import pytest
 import scipy.io
 
 from pipeline.autopilot.cli import add_waves_parser, cmd_waves
-from pipeline.autopilot.waves_fit import (COURSE_SCALE, fit_wave_record, fit_wave_spectrum, read_heading_record,
-                                          welch_psd)
+from pipeline.autopilot.waves_fit import (COURSE_SCALE, course_kw, fit_wave_record, fit_wave_spectrum,
+                                          read_heading_record, wave_params, welch_psd)
+from pipeline.records import FitResult
 from pipeline.errors import AutopilotError
 from pipeline.model.waves import WaveParams, simulate_waves, wave_psd
 
@@ -30,17 +31,22 @@ def test_fit_recovers_simulated_parameters_within_standard_errors(seed):
     _, y = _record(seed)
     fit = fit_wave_spectrum(y, FS)
     assert fit.success, fit.message
-    for est, se, true, tol in ((fit.omega0, fit.omega0_se, TRUE.omega0, 0.03), (fit.lam, fit.lam_se, TRUE.lam, 0.3),
-                               (fit.kw, fit.kw_se, TRUE.kw, 0.2)):
+    # The fitter returns the one fit-result shape: parameters with value, stderr and unit, covariance.
+    assert isinstance(fit, FitResult) and fit.names == ("omega0", "lam", "kw")
+    assert [p.unit for p in fit.params.values()] == ["rad/s", "", "rad s^-1/2"]
+    assert np.allclose(np.sqrt(np.diag(fit.covariance)), [fit.stderr(n) for n in fit.names])
+    for name, true, tol in (("omega0", TRUE.omega0, 0.03), ("lam", TRUE.lam, 0.3), ("kw", TRUE.kw, 0.2)):
+        est, se = fit.value(name), fit.stderr(name)
         assert 0 < se < tol * true
         assert abs(est - true) < 3 * se, (est, true, se)
         assert abs(est - true) < tol * true
     sigma_true = TRUE.kw / (2 * TRUE.lam * TRUE.omega0)
-    assert abs(fit.sigma - sigma_true) < 3 * fit.sigma_se
+    st = fit.statistics
+    assert abs(st["sigma"] - sigma_true) < 3 * st["sigma_se"]
     # sigma^2 is the model's PSD peak, at omega0 exactly
-    assert wave_psd(np.array([fit.omega0]), fit.params)[0] == pytest.approx(fit.sigma**2, rel=1e-12)
+    assert wave_psd(np.array([fit.value("omega0")]), wave_params(fit))[0] == pytest.approx(st["sigma"]**2, rel=1e-12)
     # a correctly specified model scatters as the Welch estimate predicts
-    assert fit.rel_residual_std < 2 * fit.expected_rel_std
+    assert st["rel_residual_std"] < 2 * st["expected_rel_std"]
 
 
 def test_psd_convention_matches_the_simulator_variance():
@@ -52,7 +58,7 @@ def test_psd_convention_matches_the_simulator_variance():
     assert np.var(y) == pytest.approx(var_model, rel=0.1)
     assert var_psd == pytest.approx(np.var(y), rel=0.02)
     fit = fit_wave_spectrum(y, FS)
-    assert fit.course_kw == pytest.approx(fit.kw * COURSE_SCALE)
+    assert course_kw(fit) == pytest.approx(fit.value("kw") * COURSE_SCALE)
 
 
 def test_standard_errors_are_calibrated_over_seeds():
@@ -60,7 +66,7 @@ def test_standard_errors_are_calibrated_over_seeds():
     for seed in range(20, 32):
         _, y = _record(seed, duration=3000.0)
         f = fit_wave_spectrum(y, FS)
-        z.append([(f.omega0 - TRUE.omega0) / f.omega0_se, (f.lam - TRUE.lam) / f.lam_se, (f.kw - TRUE.kw) / f.kw_se])
+        z.append([(f.value(n) - getattr(TRUE, n)) / f.stderr(n) for n in ("omega0", "lam", "kw")])
     z = np.array(z)
     # 36 z-scores: their RMS should be near one (not two, as a fit that ignored the Welch bins'
     # correlation would give, nor a half)
@@ -73,7 +79,7 @@ def test_guess_band_and_explicit_band():
     _, y = _record(1)
     f = fit_wave_spectrum(y, FS, band=(0.4, 1.6))
     assert f.band == (0.4, 1.6)
-    assert abs(f.omega0 - TRUE.omega0) < 3 * f.omega0_se
+    assert abs(f.value("omega0") - TRUE.omega0) < 3 * f.stderr("omega0")
     with pytest.raises(AutopilotError, match="at least 8 Welch bins"):
         fit_wave_spectrum(y, FS, band=(0.78, 0.79))
     with pytest.raises(AutopilotError, match="low < high"):
@@ -90,14 +96,14 @@ def test_course_wave_record():
     assert fit.peak_omega == pytest.approx(0.7823, abs=1e-3)
     assert math.sqrt(fit.peak_psd) * COURSE_SCALE == pytest.approx(0.0385, abs=5e-4)
     assert fit.success
-    assert 0.76 < fit.omega0 < 0.80 and fit.omega0_se < 0.02
-    assert abs(fit.lam - 0.09) < 2 * fit.lam_se  # the seed's choice from a grid of four values
-    assert fit.course_kw == pytest.approx(0.0054, abs=3 * fit.kw_se * COURSE_SCALE)
+    assert 0.76 < fit.value("omega0") < 0.80 and fit.stderr("omega0") < 0.02
+    assert abs(fit.value("lam") - 0.09) < 2 * fit.stderr("lam")  # the seed's choice from a grid of four values
+    assert course_kw(fit) == pytest.approx(0.0054, abs=3 * fit.stderr("kw") * COURSE_SCALE)
     assert "irregular" in fit.message and "degrees" in fit.message
     csv = BOATLAB / "wave_psi_w.csv"
     if csv.is_file():
         fit_csv = fit_wave_record(read_heading_record(csv))
-        assert fit_csv.omega0 == pytest.approx(fit.omega0, rel=1e-6)
+        assert fit_csv.value("omega0") == pytest.approx(fit.value("omega0"), rel=1e-6)
 
 
 def _args(**kw):
@@ -210,3 +216,23 @@ def test_white_noise_is_not_a_wave_record(tmp_path):
     if not fit.success:
         with pytest.raises(AutopilotError, match="resonant wave spectrum"):
             cmd_waves(_args(log=str(log), json=str(tmp_path / "o.json")))
+
+
+def test_a_wave_fit_carries_into_the_design_and_its_report_section(tmp_path):
+    from pipeline.autopilot.design import build_autopilot
+    from pipeline.autopilot.outputs import write_autopilot_outputs_and_section
+    from pipeline.records import NomotoCoefficients
+
+    _, y = _record(3, duration=3000.0)
+    fit = fit_wave_spectrum(y, FS)
+    res = build_autopilot(NomotoCoefficients(K=0.3, K_stderr=0.01, T=8.0, T_stderr=0.4), waves=fit,
+                          wave_source="simulated record", check=False)
+    cfg = res.config
+    assert res.wave_fit is fit and cfg.waves == wave_params(fit)
+    assert cfg.waves_stderr == {"omega0": fit.stderr("omega0"), "lambda": fit.stderr("lam"), "kw": fit.stderr("kw")}
+    # The design's coefficients carry the fit's errors on to the report's one shape.
+    used = cfg.to_fit_result()
+    assert used.stderr("kw") == fit.stderr("kw") and used.value("omega0") == fit.value("omega0")
+    _, (_, section) = write_autopilot_outputs_and_section(res, tmp_path)
+    assert (tmp_path / "wave_fit.png").stat().st_size > 1000
+    assert f"{fit.value('omega0'):.4f}" in section and f"{course_kw(fit):.4g}" in section

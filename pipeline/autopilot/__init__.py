@@ -1,11 +1,15 @@
-"""autopilot stage: identified Nomoto model (+ wave record) -> AutopilotConfig.
+"""autopilot stage: identified Nomoto model (+ wave record) -> AutopilotResult.
+
+The records it passes on (:class:`~pipeline.records.AutopilotResult`, :class:`~pipeline.records.AutopilotConfig`,
+:class:`~pipeline.records.WaveFit`, ...) are in :mod:`pipeline.records`; this package holds what makes them.
 
 Modules
 -------
 ``waves_fit``    Welch PSD of the wave-induced heading and a least-squares fit of omega_0, lambda, K_w.
 ``pd``           PD gains from crossover frequency and phase margin; loop margins; discrete PD.
 ``kalman``       5-state model [xi_w, psi_w, psi, r, b], observability, Van Loan, the discrete filter.
-``config``       :class:`AutopilotConfig`, ``AUTOPILOT.toml`` writer/reader, input readers, ArduPilot export.
+``config``       Design of an :class:`~pipeline.records.AutopilotConfig`, ``AUTOPILOT.toml`` writer/reader, input readers,
+                 ArduPilot export.
 ``closed_loop``  Heading-loop simulation: PD alone, with wave filtering, with bias feed-forward.
 ``design``       :func:`build_autopilot` (what the CLI and ``run`` call).
 ``outputs``      :func:`write_autopilot_outputs`: the config, ArduPilot parameters, check, figures, fragment.
@@ -20,22 +24,20 @@ from ..lazy import lazy_exports
 
 #: Public name -> module defining it; loaded on first use, so ``vesselid autopilot --help`` stays fast.
 _EXPORTS = {
-    "CASES": ".closed_loop", "ClosedLoopCheck": ".closed_loop", "ClosedLoopRun": ".closed_loop",
-    "LoopMetrics": ".closed_loop", "Scenario": ".closed_loop", "closed_loop_check": ".closed_loop",
+    "CASES": ".closed_loop", "closed_loop_check": ".closed_loop",
     "default_scenarios": ".closed_loop", "simulate_heading_loop": ".closed_loop",
-    "ArduPilotExport": ".config", "AutopilotConfig": ".config", "NomotoCoefficients": ".config",
-    "SourceFile": ".config", "ardupilot_params": ".config", "build_autopilot_config": ".config",
+    "ardupilot_params": ".config", "build_autopilot_config": ".config",
     "read_autopilot_toml": ".config", "read_coefficients_json": ".config", "read_waves_json": ".config",
     "write_ardupilot_params": ".config", "write_autopilot_toml": ".config",
-    "KALMAN_STATES": ".kalman", "KalmanModel": ".kalman", "KalmanRun": ".kalman", "kalman_model": ".kalman",
+    "KALMAN_STATES": ".kalman", "KalmanRun": ".kalman", "kalman_model": ".kalman",
     "kalman_predict": ".kalman", "kalman_update": ".kalman", "observability": ".kalman",
     "run_kalman_filter": ".kalman", "sampled_noise_variance": ".kalman", "steady_state": ".kalman",
-    "DiscretePD": ".pd", "PDGains": ".pd", "default_crossover": ".pd", "discretise_pd": ".pd",
+    "DiscretePD": ".pd", "default_crossover": ".pd", "discretise_pd": ".pd",
     "loop_margins": ".pd", "margin_table": ".pd", "pd_gains": ".pd",
     "autopilot_html_section": ".report_section",
-    "AutopilotResult": ".design", "build_autopilot": ".design", "nomoto_from_fits": ".design",
+    "build_autopilot": ".design", "nomoto_from_fits": ".design",
     "write_autopilot_outputs": ".outputs", "write_autopilot_outputs_and_section": ".outputs",
-    "HeadingRecord": ".waves_fit", "WaveFit": ".waves_fit", "fit_wave_record": ".waves_fit",
+    "HeadingRecord": ".waves_fit", "fit_wave_record": ".waves_fit", "wave_fit_to_dict": ".waves_fit",
     "fit_wave_spectrum": ".waves_fit", "read_heading_record": ".waves_fit", "welch_psd": ".waves_fit",
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -72,12 +72,12 @@ def cmd_waves(args: argparse.Namespace) -> int:
         Unreadable record, failed fit, unwritable output.
     """
     from .config import source_file
-    from .waves_fit import fit_wave_record, read_heading_record
+    from .waves_fit import course_kw, course_sigma, fit_wave_record, read_heading_record, wave_fit_to_dict
 
     rec = read_heading_record(args.log, column=getattr(args, "column", None), unit=getattr(args, "unit", None))
     band = tuple(args.band) if getattr(args, "band", None) else None
     fit = fit_wave_record(rec, nperseg=getattr(args, "nperseg", None), band=band)
-    doc = fit.to_dict()
+    doc = wave_fit_to_dict(fit)
     doc["source"] = {"path": str(args.log), "sha256": source_file("waves_record", args.log).sha256,
                      "series": rec.source}
     try:
@@ -91,9 +91,11 @@ def cmd_waves(args: argparse.Namespace) -> int:
             atomic_write_bytes(Path(args.plot), wave_fit_figure(fit))
         except OSError as exc:
             raise AutopilotError(f"{args.plot}: expected a writable PNG path, found: {exc}") from None
-    print(f"omega0 = {fit.omega0:.4f} +- {fit.omega0_se:.2g} rad/s, lambda = {fit.lam:.4f} +- {fit.lam_se:.2g}, "
-          f"kw = {fit.kw:.4g} +- {fit.kw_se:.2g} rad s^-1/2, sigma = {fit.sigma:.4g} +- {fit.sigma_se:.2g} "
-          f"(course convention: sigma {fit.course_sigma:.4g}, kw {fit.course_kw:.4g})")
+    par, st = fit.params, fit.statistics
+    print(f"omega0 = {par['omega0'].value:.4f} +- {par['omega0'].stderr:.2g} rad/s, "
+          f"lambda = {par['lam'].value:.4f} +- {par['lam'].stderr:.2g}, "
+          f"kw = {par['kw'].value:.4g} +- {par['kw'].stderr:.2g} rad s^-1/2, sigma = {st['sigma']:.4g} +- {st['sigma_se']:.2g} "
+          f"(course convention: sigma {course_sigma(fit):.4g}, kw {course_kw(fit):.4g})")
     if fit.message:
         print(f"note: {fit.message}")
     if not fit.success:

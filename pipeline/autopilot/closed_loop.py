@@ -13,21 +13,22 @@ most ``max_rate``. The controller runs at the filter's sample time. Three cases:
 ``pd_kalman_ff``
     PD on ``psi_hat`` plus the estimated bias ``b_hat`` fed forward to the rudder.
 
-Everything inside is SI and radians; :meth:`LoopMetrics.to_dict` gives degrees for the report.
+Everything inside is SI and radians; :meth:`pipeline.records.LoopMetrics.to_dict` gives degrees for the report.
+The records (:class:`~pipeline.records.Scenario`, ``LoopMetrics``, ``ClosedLoopRun``, ``ClosedLoopCheck``)
+are in :mod:`pipeline.records`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import AutopilotError
 from ..model.nomoto import NomotoParams, nomoto_rhs
 from ..model.waves import WaveParams, simulate_waves
-from .config import AutopilotConfig
 from ..geo import wrap_pi
+from ..records import DEFAULT_STEP, AutopilotConfig, ClosedLoopCheck, ClosedLoopRun, LoopMetrics, Scenario
 from .kalman import kalman_predict, kalman_update
 from .pd import discretise_pd
 
@@ -42,171 +43,6 @@ CASE_LABELS = {
 SWING_WINDOW = 5.0
 #: Default current, as a rudder bias [rad]: the seed's rudder settled near 3 deg against it.
 DEFAULT_CURRENT_BIAS = math.radians(3.0)
-#: Default heading step [rad] (the seed's psi_r = 30 deg).
-DEFAULT_STEP = math.radians(30.0)
-#: Peak-to-peak heading in the steady window above which a run is reported as a limit cycle [rad].
-#: A rate-limited rudder and the filter's lag can sustain one after a large step when the ship is
-#: faster than the identified model.
-LIMIT_CYCLE = math.radians(5.0)
-
-
-@dataclass(frozen=True)
-class Scenario:
-    """One closed-loop experiment.
-
-    Attributes
-    ----------
-    name : str
-        Short name (``model``, ``sea``).
-    K, T : float
-        Nomoto gain [1/s] and time constant [s] of the simulated ship (may differ from the design).
-    duration : float
-        Simulated time [s].
-    psi_ref : float
-        Heading reference, stepped at t = 0 from psi = 0 [rad].
-    current_bias : float
-        Rudder bias standing for the current [rad].
-    waves : WaveParams or None
-        Wave model added to the compass; None for calm water.
-    noise_var : float
-        Compass noise variance per sample [rad^2]; 0 for none.
-    seed : int
-        Seed of the wave and noise generator.
-    description : str
-        One line for the report.
-    """
-
-    name: str
-    K: float
-    T: float
-    duration: float = 600.0
-    psi_ref: float = DEFAULT_STEP
-    current_bias: float = 0.0
-    waves: WaveParams | None = None
-    noise_var: float = 0.0
-    seed: int = 0
-    description: str = ""
-
-
-@dataclass(frozen=True)
-class LoopMetrics:
-    """What one closed-loop run measured (SI units).
-
-    Attributes
-    ----------
-    steady_error : float
-        Mean of ``psi_ref - psi`` over the steady window [rad] (``psi`` the ship's heading without
-        the wave-induced oscillation, which averages out).
-    settling_time : float
-        Time after which ``|psi - psi_ref|`` stays within ``settle_band`` [s]; NaN if it never does.
-    settle_band : float
-        Settling band [rad]: 5 % of the step (at least 0.5 deg).
-    rms_rudder_rate : float
-        RMS rudder rate over the steady window [rad/s].
-    max_swing : float
-        Largest peak-to-peak rudder travel within any 5 s in the steady window [rad].
-    max_swing_cmd : float
-        The same for the controller's command before saturation and rate limit [rad] (the seed's
-        simulator had no rate limit, so its "40 deg in 5 s" compares with this).
-    rate_limited : float
-        Fraction of steady-window samples at the rudder-rate limit [-].
-    mean_rudder : float
-        Mean rudder over the steady window [rad].
-    heading_estimate_rms : float
-        RMS of ``psi_hat - psi`` over the steady window [rad] (the filter's wave removal).
-    compass_error_rms : float
-        RMS of ``y - psi`` over the steady window [rad] (what PD alone feeds back).
-    bias_estimate : float
-        Mean ``b_hat`` over the steady window [rad].
-    heading_swing : float
-        Peak-to-peak of ``psi`` over the steady window [rad]: a settled loop keeps it near the
-        waves' small effect on the ship; degrees to tens of degrees mean a limit cycle (see
-        ``LIMIT_CYCLE``).
-    steady_window : tuple of float
-        ``(t0, t1)`` [s].
-    """
-
-    steady_error: float
-    settling_time: float
-    settle_band: float
-    rms_rudder_rate: float
-    max_swing: float
-    max_swing_cmd: float
-    rate_limited: float
-    mean_rudder: float
-    heading_estimate_rms: float
-    compass_error_rms: float
-    bias_estimate: float
-    heading_swing: float
-    steady_window: tuple[float, float]
-
-    @property
-    def limit_cycle(self) -> bool:
-        """True when the heading still swings more than ``LIMIT_CYCLE`` in the steady window."""
-        return self.heading_swing > LIMIT_CYCLE
-
-    def to_dict(self) -> dict:
-        """Report-ready values in degrees, keys naming their unit; NaN becomes None."""
-        d = math.degrees
-
-        def num(x):
-            return float(x) if math.isfinite(x) else None
-
-        return {
-            "steady_error_deg": num(d(self.steady_error)),
-            "settling_time_s": num(self.settling_time),
-            "settle_band_deg": num(d(self.settle_band)),
-            "rms_rudder_rate_deg_s": num(d(self.rms_rudder_rate)),
-            "max_rudder_swing_5s_deg": num(d(self.max_swing)),
-            "max_command_swing_5s_deg": num(d(self.max_swing_cmd)),
-            "rate_limited_fraction": num(self.rate_limited),
-            "mean_rudder_deg": num(d(self.mean_rudder)),
-            "heading_estimate_rms_deg": num(d(self.heading_estimate_rms)),
-            "compass_error_rms_deg": num(d(self.compass_error_rms)),
-            "bias_estimate_deg": num(d(self.bias_estimate)),
-            "heading_swing_deg": num(d(self.heading_swing)),
-            "limit_cycle": bool(self.limit_cycle),
-            "steady_window_s": [float(self.steady_window[0]), float(self.steady_window[1])],
-        }
-
-
-@dataclass(frozen=True)
-class ClosedLoopRun:
-    """Time series and metrics of one case in one scenario.
-
-    Attributes
-    ----------
-    scenario : Scenario
-    case : str
-        One of ``CASES``.
-    t : numpy.ndarray
-        Time [s].
-    psi, r : numpy.ndarray
-        Ship heading without waves [rad] and yaw rate [rad/s].
-    psi_w : numpy.ndarray
-        Wave-induced heading [rad].
-    y : numpy.ndarray
-        Compass [rad].
-    psi_hat, psi_w_hat, b_hat : numpy.ndarray
-        Filter estimates [rad].
-    delta, delta_cmd : numpy.ndarray
-        Rudder applied and commanded [rad].
-    metrics : LoopMetrics
-    """
-
-    scenario: Scenario
-    case: str
-    t: np.ndarray
-    psi: np.ndarray
-    r: np.ndarray
-    psi_w: np.ndarray
-    y: np.ndarray
-    psi_hat: np.ndarray
-    psi_w_hat: np.ndarray
-    b_hat: np.ndarray
-    delta: np.ndarray
-    delta_cmd: np.ndarray
-    metrics: LoopMetrics
 
 
 def _rk4(x: np.ndarray, u: np.ndarray, h: float, params: NomotoParams) -> np.ndarray:
@@ -226,7 +62,7 @@ def kalman_gains(model, n: int) -> np.ndarray:
 
     Parameters
     ----------
-    model : pipeline.autopilot.kalman.KalmanModel
+    model : pipeline.records.KalmanModel
         The filter.
     n : int
         Number of samples.
@@ -384,51 +220,6 @@ def loop_metrics(run: dict, scenario: Scenario, ts: float, max_rate: float) -> L
         heading_swing=float(np.ptp(run["psi"][w])),
         steady_window=(float(t0), float(t[-1])),
     )
-
-
-@dataclass(frozen=True)
-class ClosedLoopCheck:
-    """All cases in all scenarios.
-
-    Attributes
-    ----------
-    scenarios : tuple[Scenario, ...]
-    runs : tuple[ClosedLoopRun, ...]
-        One per (scenario, case), scenario-major in ``CASES`` order.
-    """
-
-    scenarios: tuple[Scenario, ...]
-    runs: tuple[ClosedLoopRun, ...]
-
-    def run(self, scenario: str, case: str) -> ClosedLoopRun:
-        """The run of one scenario and case; ``KeyError`` naming what exists.
-
-        Parameters
-        ----------
-        scenario : str
-            Scenario name (``Scenario.name``).
-        case : str
-            Controller case, one of ``CASES`` (``pd``, ``pd_kalman``, ``pd_kalman_ff``).
-        """
-        for r in self.runs:
-            if r.scenario.name == scenario and r.case == case:
-                return r
-        raise KeyError(f"no run ({scenario!r}, {case!r}); have "
-                       f"{[(r.scenario.name, r.case) for r in self.runs]}")
-
-    def to_dict(self) -> dict:
-        """Metrics per scenario and case, degrees, JSON-ready."""
-        out = {}
-        for s in self.scenarios:
-            out[s.name] = {
-                "description": s.description, "K": s.K, "T": s.T, "duration_s": s.duration,
-                "psi_ref_deg": math.degrees(s.psi_ref), "current_bias_deg": math.degrees(s.current_bias),
-                "waves": None if s.waves is None else {"omega0": s.waves.omega0, "lambda": s.waves.lam,
-                                                        "kw": s.waves.kw},
-                "noise_std_deg": math.degrees(math.sqrt(s.noise_var)), "seed": s.seed,
-                "cases": {r.case: r.metrics.to_dict() for r in self.runs if r.scenario.name == s.name},
-            }
-        return out
 
 
 def default_scenarios(config: AutopilotConfig, plant_K: float | None = None, plant_T: float | None = None,

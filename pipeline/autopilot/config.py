@@ -1,4 +1,5 @@
-"""The autopilot configuration: a frozen record, its TOML file, input readers and an ArduPilot export.
+"""The autopilot configuration (:class:`pipeline.records.AutopilotConfig`): its design, TOML file, input
+readers and an ArduPilot export.
 
 ``AUTOPILOT.toml`` holds every number a controller needs, SI units and radians::
 
@@ -21,21 +22,19 @@ import hashlib
 import json
 import math
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 import tomli_w
 
-from .. import __version__
 from ..atomic import atomic_write_bytes
 from ..errors import AutopilotError
 from ..model.waves import WaveParams
-from ..records import FitResult, fit_result_from_arrays, parameter_unit
+from ..records import ArduPilotExport, AutopilotConfig, KalmanModel, NomotoCoefficients, PDGains, SourceFile
 from .defaults import DEFAULT_TS  # the default lives where the CLI's --help can read it
-from .kalman import DEFAULT_P0, DEFAULT_Q, DEFAULT_R, KALMAN_STATES, KalmanModel, kalman_model
-from .pd import DEFAULT_PHASE_MARGIN, PDGains, pd_gains
+from .kalman import DEFAULT_P0, DEFAULT_Q, DEFAULT_R, KALMAN_STATES, kalman_model
+from .pd import DEFAULT_PHASE_MARGIN, pd_gains
 
 #: Default rudder limit [rad]: 35 deg hard over (SOLAS II-1 reg. 29; the seed's +-35 deg).
 DEFAULT_MAX_ANGLE = math.radians(35.0)
@@ -47,27 +46,8 @@ DEFAULT_MAX_RATE = math.radians(65.0 / 28.0)
 DEFAULT_WAVES = WaveParams(omega0=0.7848, lam=0.0896, kw=0.00938)
 
 
-@dataclass(frozen=True)
-class SourceFile:
-    """An input file the configuration was built from.
-
-    Attributes
-    ----------
-    role : str
-        ``coefficients``, ``waves``, ``vessel``, ``still``, ...
-    path : str
-        Path as given.
-    sha256 : str
-        Hex digest of the file's bytes.
-    """
-
-    role: str
-    path: str
-    sha256: str
-
-
 def source_file(role: str, path: str | Path) -> SourceFile:
-    """:class:`SourceFile` with the SHA-256 of ``path``.
+    """:class:`~pipeline.records.SourceFile` with the SHA-256 of ``path``.
 
     Parameters
     ----------
@@ -81,71 +61,6 @@ def source_file(role: str, path: str | Path) -> SourceFile:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return SourceFile(role=role, path=str(path), sha256=h.hexdigest())
-
-
-@dataclass(frozen=True)
-class AutopilotConfig:
-    """Everything a heading controller needs, with where it came from.
-
-    Attributes
-    ----------
-    ts : float
-        Sample time of the filter and the controller [s].
-    K, T : float
-        Nomoto gain [1/s] and time constant [s] the design used.
-    K_stderr, T_stderr : float
-        Their standard errors (NaN if unknown).
-    waves : WaveParams
-        Wave model of the filter.
-    waves_stderr : Mapping[str, float]
-        Standard errors of ``omega0``, ``lambda``, ``kw`` (empty if not fitted).
-    wave_source : str
-        Where the wave model came from.
-    pd : PDGains
-        PD gains.
-    kalman : KalmanModel
-        Discrete filter.
-    rudder_max_angle, rudder_max_rate : float
-        Saturation [rad] and rate limit [rad/s].
-    rudder_source : str
-        Vessel config or the stated default.
-    sources : tuple[SourceFile, ...]
-        Input files and their hashes.
-    notes : tuple[str, ...]
-        Defaults used and caveats, one sentence each.
-    version : str
-        vesselid version.
-    """
-
-    ts: float
-    K: float
-    T: float
-    K_stderr: float
-    T_stderr: float
-    waves: WaveParams
-    waves_stderr: Mapping[str, float]
-    wave_source: str
-    pd: PDGains
-    kalman: KalmanModel
-    rudder_max_angle: float
-    rudder_max_rate: float
-    rudder_source: str
-    sources: tuple[SourceFile, ...] = ()
-    notes: tuple[str, ...] = ()
-    version: str = __version__
-
-    def to_fit_result(self) -> FitResult:
-        """The coefficients the design used, as a :class:`~pipeline.records.FitResult`: ``K``, ``T`` and
-        the wave model's ``omega0``, ``lam``, ``kw``, with the standard errors they came with (no
-        covariance: they come from different fits)."""
-        names = ("K", "T", "omega0", "lam", "kw")
-        ws = self.waves_stderr
-        return fit_result_from_arrays(
-            "autopilot_design_coefficients", names, [self.K, self.T, self.waves.omega0, self.waves.lam, self.waves.kw],
-            [self.K_stderr, self.T_stderr, ws.get("omega0", math.nan), ws.get("lambda", math.nan), ws.get("kw", math.nan)],
-            None, {n: parameter_unit(n) for n in names}, message="standard errors only: K, T and the wave model "
-                                                                   "come from different fits",
-            provenance={"fitter": "pipeline.autopilot.config.build_autopilot_config", "waves": self.wave_source})
 
 
 def build_autopilot_config(K: float, T: float, *, K_stderr: float = math.nan, T_stderr: float = math.nan,
@@ -315,7 +230,7 @@ def write_autopilot_toml(cfg: AutopilotConfig, path: str | Path) -> Path:
 
 
 def read_autopilot_toml(path: str | Path) -> AutopilotConfig:
-    """Read an ``AUTOPILOT.toml`` back into an :class:`AutopilotConfig`.
+    """Read an ``AUTOPILOT.toml`` back into an :class:`~pipeline.records.AutopilotConfig`.
 
     The discrete matrices are taken as written (not recomputed), so a hand-tuned file is honoured.
 
@@ -376,41 +291,6 @@ def read_autopilot_toml(path: str | Path) -> AutopilotConfig:
 
 
 # --------------------------------------------------------------------------- inputs
-@dataclass(frozen=True)
-class NomotoCoefficients:
-    """Nomoto K and T read from ``coefficients.json``.
-
-    Attributes
-    ----------
-    K, K_stderr : float
-        Gain and standard error [1/s] (stderr NaN if null).
-    T, T_stderr : float
-        Time constant and standard error [s].
-    vessel : str
-        Vessel name in the file.
-    source : SourceFile or None
-        The file and its hash.
-    """
-
-    K: float
-    K_stderr: float
-    T: float
-    T_stderr: float
-    vessel: str = ""
-    source: SourceFile | None = None
-
-    def to_fit_result(self) -> FitResult:
-        """K and T as a :class:`~pipeline.records.FitResult` (standard errors only: the file holds no
-        covariance)."""
-        source = self.source
-        return fit_result_from_arrays(
-            "nomoto_coefficients", ("K", "T"), [self.K, self.T], [self.K_stderr, self.T_stderr], None,
-            {"K": "1/s", "T": "s"}, success=math.isfinite(self.K) and math.isfinite(self.T),
-            message="read from coefficients.json: only the standard errors are known, not the covariance",
-            provenance={"fitter": "pipeline.autopilot.config.read_coefficients_json", "vessel": self.vessel,
-                        **({"data": f"{source.path} (sha256 {source.sha256})"} if source is not None else {})})
-
-
 def _coef(doc: Mapping, name: str, path: str) -> tuple[float, float]:
     coefs = doc.get("coefficients")
     if not isinstance(coefs, Mapping):
@@ -509,22 +389,6 @@ def read_waves_json(path: str | Path) -> tuple[WaveParams, dict[str, float]]:
 
 
 # --------------------------------------------------------------------------- ArduPilot
-@dataclass(frozen=True)
-class ArduPilotExport:
-    """ArduPilot Rover steering parameters equivalent to the PD design.
-
-    Attributes
-    ----------
-    params : Mapping[str, float]
-        Parameter name -> value, in ArduPilot's units.
-    notes : tuple[str, ...]
-        The mapping's assumptions and any value outside ArduPilot's documented range.
-    """
-
-    params: Mapping[str, float] = field(default_factory=dict)
-    notes: tuple[str, ...] = ()
-
-
 #: Documented ranges (AR_AttitudeControl parameter metadata), to flag values a GCS would warn about.
 _AP_RANGES = {"ATC_STR_ANG_P": (1.0, 10.0), "ATC_STR_RAT_FF": (0.0, 3.0), "ATC_STR_RAT_P": (0.0, 2.0),
               "ATC_STR_RAT_I": (0.0, 2.0), "ATC_STR_RAT_MAX": (0.0, 1000.0), "ATC_STR_ACC_MAX": (0.0, 1000.0)}

@@ -15,40 +15,12 @@ import numpy as np
 
 from ..errors import AutopilotError
 from ..model.waves import WaveParams
-from .closed_loop import ClosedLoopCheck, closed_loop_check, default_scenarios
-from .config import (ArduPilotExport, AutopilotConfig, NomotoCoefficients, SourceFile,
-                     ardupilot_params, build_autopilot_config)
+from ..records import AutopilotResult, NomotoCoefficients, PDGains, SourceFile, WaveFit
+from .closed_loop import closed_loop_check, default_scenarios
+from .config import ardupilot_params, build_autopilot_config
 from .kalman import DEFAULT_P0, DEFAULT_Q, observability
-from .pd import DEFAULT_PHASE_MARGIN, PDGains, margin_table, pd_gains
-from .waves_fit import WaveFit
-
-
-@dataclass(frozen=True)
-class AutopilotResult:
-    """The autopilot stage's output.
-
-    Attributes
-    ----------
-    config : AutopilotConfig
-        What a controller needs.
-    observability : dict
-        Rank of each of the seed's four model variants (:func:`pipeline.autopilot.kalman.observability`).
-    margins : list of dict
-        Crossover and phase margin on the identified model and at the corners of its 95 % box.
-    ardupilot : ArduPilotExport
-        ArduPilot Rover steering parameters.
-    check : ClosedLoopCheck or None
-        Closed-loop simulation, if run.
-    wave_fit : WaveFit or None
-        The wave-spectrum fit, if the wave model was fitted in this run.
-    """
-
-    config: AutopilotConfig
-    observability: dict
-    margins: list
-    ardupilot: ArduPilotExport
-    check: ClosedLoopCheck | None = None
-    wave_fit: WaveFit | None = None
+from .pd import DEFAULT_PHASE_MARGIN, margin_table, pd_gains
+from .waves_fit import wave_params
 
 
 def nomoto_from_fits(fits) -> NomotoCoefficients:
@@ -100,7 +72,7 @@ def build_autopilot(coefficients: NomotoCoefficients, *, waves: WaveFit | WavePa
         Identified K [1/s] and T [s] with standard errors (:func:`read_coefficients_json` or
         :func:`nomoto_from_fits`).
     waves : WaveFit or WaveParams, optional
-        Wave model; a :class:`WaveFit` also gives standard errors and the report's spectrum figure.
+        Wave model; a :class:`~pipeline.records.WaveFit` also gives standard errors and the report's spectrum figure.
     waves_stderr : Mapping, optional
         Standard errors when ``waves`` is a :class:`WaveParams`.
     wave_source : str
@@ -135,8 +107,8 @@ def build_autopilot(coefficients: NomotoCoefficients, *, waves: WaveFit | WavePa
     """
     fit = waves if isinstance(waves, WaveFit) else None
     if fit is not None:
-        wp = fit.params
-        wse = {"omega0": fit.omega0_se, "lambda": fit.lam_se, "kw": fit.kw_se}
+        wp = wave_params(fit)
+        wse = {"omega0": fit.stderr("omega0"), "lambda": fit.stderr("lam"), "kw": fit.stderr("kw")}
     else:
         wp, wse = waves, dict(waves_stderr or {})
     srcs = tuple(sources)

@@ -14,8 +14,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .closed_loop import CASE_LABELS, CASES, ClosedLoopCheck
-from .waves_fit import WaveFit, model_psd
+from ..records import ClosedLoopCheck, WaveFit
+from .closed_loop import CASE_LABELS, CASES
+from .waves_fit import course_sigma, model_psd
 
 _COLOURS = {"pd": "tab:red", "pd_kalman": "tab:blue", "pd_kalman_ff": "tab:green"}
 
@@ -97,10 +98,10 @@ def wave_fit_figure(fit: WaveFit) -> bytes:
     ax_lin, ax_log = fig.subplots(1, 2)
     w = fit.omega[1:]
     p = fit.psd[1:]
-    hi = min(4.0 * fit.omega0, w[-1])
+    hi = min(4.0 * fit.value("omega0"), w[-1])
     sel = w <= hi
     wm = np.linspace(w[0], hi, 800)
-    par = fit.to_fit_result().params
+    par = fit.params
     label = (f"fit: omega0 {par['omega0'].value:.4f}+-{par['omega0'].stderr:.2g} rad/s, "
              f"lambda {par['lam'].value:.3f}+-{par['lam'].stderr:.2g}, K_w {par['kw'].value:.4g}+-{par['kw'].stderr:.2g}")
     for ax, log in ((ax_lin, False), (ax_log, True)):
@@ -113,8 +114,8 @@ def wave_fit_figure(fit: WaveFit) -> bytes:
             ax.set_yscale("log")
     ax_lin.set_ylabel("P(omega) [rad^2 s]")
     ax_lin.legend(fontsize=6, loc="upper right")
-    fig.suptitle(textwrap.fill(f"Wave-induced heading spectrum: sigma = sqrt(peak PSD) = {fit.sigma:.4g} rad s^0.5 "
-                               f"(course convention {fit.course_sigma:.4g}); K_w = 2 lambda omega0 sigma", 110),
+    fig.suptitle(textwrap.fill(f"Wave-induced heading spectrum: sigma = sqrt(peak PSD) = {fit.statistics['sigma']:.4g} rad s^0.5 "
+                               f"(course convention {course_sigma(fit):.4g}); K_w = 2 lambda omega0 sigma", 110),
                  fontsize=9)
     fig.tight_layout()
     return _png(fig)

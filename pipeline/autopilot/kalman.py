@@ -53,6 +53,7 @@ from ..geo import wrap_pi
 from ..model import discretise
 from ..model.nomoto import HEADING_MODEL_STATES, heading_model_matrices
 from ..model.waves import WaveParams
+from ..records import KalmanModel
 from .defaults import DEFAULT_Q  # the default lives where the CLI's --help can read it
 
 #: Filter states, in order.
@@ -138,45 +139,6 @@ def observability(K: float, T: float, waves: WaveParams) -> dict[str, dict]:
 
 
 # --------------------------------------------------------------------------- the filter
-@dataclass(frozen=True)
-class KalmanModel:
-    """Everything the discrete filter needs, plus the continuous model it came from.
-
-    Attributes
-    ----------
-    ts : float
-        Sample time [s].
-    ad, bd, ed, c : numpy.ndarray
-        Discrete model (5x5, 5x1, 5x2, 1x5); states ``KALMAN_STATES``.
-    qd : numpy.ndarray
-        Discrete process-noise covariance (Van Loan), 5x5 [state units^2].
-    r : float
-        Sampled compass-noise variance [rad^2].
-    p0 : numpy.ndarray
-        Initial a-priori covariance, 5x5.
-    x0 : numpy.ndarray
-        Initial a-priori state, 5.
-    a, b, e : numpy.ndarray
-        Continuous model.
-    q : numpy.ndarray
-        Continuous noise intensity ``diag(q_w [-], q_b [rad^2/s])``.
-    """
-
-    ts: float
-    ad: np.ndarray
-    bd: np.ndarray
-    ed: np.ndarray
-    c: np.ndarray
-    qd: np.ndarray
-    r: float
-    p0: np.ndarray
-    x0: np.ndarray
-    a: np.ndarray
-    b: np.ndarray
-    e: np.ndarray
-    q: np.ndarray
-
-
 def kalman_model(K: float, T: float, waves: WaveParams, ts: float, r: float = DEFAULT_R,
                  q: tuple[float, float] | np.ndarray = DEFAULT_Q,
                  p0: tuple[float, ...] | np.ndarray = DEFAULT_P0,

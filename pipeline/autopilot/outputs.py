@@ -11,8 +11,8 @@ from typing import Mapping
 
 from ..atomic import atomic_write_bytes
 from ..errors import AutopilotError
+from ..records import AutopilotResult
 from .config import write_ardupilot_params, write_autopilot_toml
-from .design import AutopilotResult
 from .figures import closed_loop_figure, wave_fit_figure
 from .report_section import autopilot_html_section
 

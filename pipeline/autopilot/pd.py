@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import AutopilotError
+from ..records import PDGains
 from .defaults import CROSSOVER_TIMES_T  # the default lives where the CLI's --help can read it
 
 
@@ -46,31 +47,6 @@ def default_crossover(T: float) -> float:
     return CROSSOVER_TIMES_T / _positive("Nomoto T", T, "s")
 #: Default design phase margin [rad] (the seed's 50 deg).
 DEFAULT_PHASE_MARGIN = math.radians(50.0)
-
-
-@dataclass(frozen=True)
-class PDGains:
-    """Gains of the PD heading controller ``K_pd (1 + T_d s) / (1 + T_f s)``.
-
-    Attributes
-    ----------
-    kpd : float
-        Proportional gain [rad rudder per rad heading error].
-    td : float
-        Derivative time [s] (= T of the design model).
-    tf : float
-        Derivative filter time constant [s].
-    crossover : float
-        Design crossover frequency [rad/s].
-    phase_margin : float
-        Design phase margin [rad].
-    """
-
-    kpd: float
-    td: float
-    tf: float
-    crossover: float
-    phase_margin: float
 
 
 def _positive(name: str, value: float, unit: str) -> float:

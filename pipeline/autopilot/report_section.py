@@ -11,9 +11,9 @@ import html
 import math
 from typing import Mapping
 
+from ..records import AutopilotResult
 from ..text_format import number, plus_minus
 from .closed_loop import CASE_LABELS, CASES
-from .design import AutopilotResult
 
 
 #: Below this magnitude a metric (degrees, seconds, fractions) is printed as 0: a value such as
@@ -60,6 +60,7 @@ def autopilot_html_section(result: AutopilotResult, figures: bool = True,
         ``(title, html_fragment)``.
     """
     from .figures import closed_loop_figure, wave_fit_figure
+    from .waves_fit import course_kw, course_sigma
 
     cfg = result.config
     imgs = dict(images or {})
@@ -141,8 +142,7 @@ def autopilot_html_section(result: AutopilotResult, figures: bool = True,
                              + _img(png, f"closed loop, scenario {s.name}") + "</details>")
     if result.wave_fit is not None:
         f = result.wave_fit
-        fr = f.to_fit_result()
-        w, st = fr.params, fr.statistics
+        w, st = f.params, f.statistics
         parts.append(
             f"<p>Wave model fitted by least squares to the Welch PSD of the wave-induced heading "
             f"(Hann, {f.nperseg} samples, {f.fs:.3g} Hz, band {f.band[0]:.3g}&ndash;{f.band[1]:.3g} rad/s): "
@@ -151,7 +151,7 @@ def autopilot_html_section(result: AutopilotResult, figures: bool = True,
             f"K<sub>w</sub> = {_pm(w['kw'].value, w['kw'].stderr, '.4g')}, &sigma; = {_pm(st['sigma'], st['sigma_se'], '.4g')} with "
             f"&sigma;<sup>2</sup> the peak of the PSD and K<sub>w</sub> = 2&lambda;omega<sub>0</sub>&sigma;. "
             f"PSD convention: two-sided per rad/s for unit-intensity w<sub>w</sub>; the course's convention "
-            f"gives &sigma; = {f.course_sigma:.4g}, K<sub>w</sub> = {f.course_kw:.4g} (divided by &radic;&pi;)."
+            f"gives &sigma; = {course_sigma(f):.4g}, K<sub>w</sub> = {course_kw(f):.4g} (divided by &radic;&pi;)."
             + (f" Note: {html.escape(f.message)}." if f.message else "") + "</p>")
         if figures:
             parts.append(_img(imgs.get("wave_fit") or wave_fit_figure(f), "wave spectrum fit"))

@@ -23,7 +23,7 @@ record it came from.
 
 The TTK4115 course (and the seed) plot ``G(f) / (2 pi)`` instead, a one-sided density per rad/s
 that is ``pi`` times smaller, and fit ``|H|^2`` to it. Their sigma and K_w are therefore ``sqrt(pi)``
-times smaller than ours for the same record (``COURSE_SCALE``); :class:`WaveFit` reports both. Fitting
+times smaller than ours for the same record (``COURSE_SCALE``); :func:`wave_fit_to_dict` reports both. Fitting
 ``|H|^2`` to ``G / (2 pi)`` but simulating with unit-intensity noise would under-state the waves'
 variance by a factor pi.
 
@@ -39,13 +39,13 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import AutopilotError
-from ..records import FitResult, fit_result_from_arrays, parameter_unit
+from ..records import FitResult, WaveFit, fit_result_from_arrays, parameter_unit
 from ..model.waves import WaveParams, wave_psd
 
 #: Factor from our sigma and K_w to the course's (``G/(2 pi)`` one-sided per rad/s convention).
@@ -81,127 +81,73 @@ class HeadingRecord:
     notes: tuple[str, ...] = ()
 
 
-@dataclass(frozen=True)
-class WaveFit:
-    """Least-squares fit of the second-order wave model to a Welch PSD (lmfit-style result).
+def wave_params(fit: WaveFit) -> WaveParams:
+    """The fitted wave model as :class:`pipeline.model.waves.WaveParams` (module convention).
 
-    Attributes
+    Parameters
     ----------
-    omega0, lam, kw, sigma : float
-        Peak frequency [rad/s], relative damping lambda [-], gain K_w [rad s^-1/2] and
-        ``sigma = sqrt(peak PSD) = K_w / (2 lambda omega_0)`` [rad s^1/2], module convention.
-    omega0_se, lam_se, kw_se, sigma_se : float
-        Standard errors, same units (NaN when they cannot be computed; ``message`` says why).
-    covariance : numpy.ndarray, shape (3, 3)
-        Covariance of ``(omega0, lam, kw)``.
-    omega : numpy.ndarray
-        Welch frequencies [rad/s].
-    psd : numpy.ndarray
-        Welch PSD estimate, two-sided omega convention [rad^2 s].
-    band : tuple[float, float]
-        Frequency band fitted [rad/s].
-    peak_omega : float
-        Frequency of the largest Welch bin in the band [rad/s] (the seed's omega_0).
-    peak_psd : float
-        Largest Welch bin in the band [rad^2 s] (the seed's sigma^2, module convention).
-    fs : float
-        Sample rate of the record [Hz].
-    nperseg : int
-        Welch segment length [samples] (Hann window, 50 % overlap, linear detrend).
-    n_samples : int
-        Samples in the record.
-    rel_residual_std : float
-        RMS of ``(P_welch - P_model) / P_model`` over the bins where the model is within a factor
-        ten of its peak (where the fit draws its information) [-].
-    expected_rel_std : float
-        The same scatter expected from the Welch estimate alone for a Gaussian record [-]; a much
-        larger ``rel_residual_std`` means the second-order model does not have the record's shape.
-    success : bool
-        False when the optimiser failed or the result is outside the band.
-    message : str
-        Doubts about the fit (misfit, edge of band) and the convention.
+    fit : WaveFit
+        A wave-spectrum fit; its ``omega0`` [rad/s], ``lam`` [-] and ``kw`` [rad s^-1/2].
+    """
+    return WaveParams(omega0=fit.value("omega0"), lam=fit.value("lam"), kw=fit.value("kw"))
+
+
+def course_sigma(fit: WaveFit) -> float:
+    """sigma of ``fit`` in the course's ``G/(2 pi)`` convention [rad s^1/2] (compare with the seed).
+
+    Parameters
+    ----------
+    fit : WaveFit
+        A wave-spectrum fit (``statistics["sigma"]``, module convention).
+    """
+    return fit.statistics["sigma"] * COURSE_SCALE
+
+
+def course_kw(fit: WaveFit) -> float:
+    """K_w of ``fit`` in the course's convention [rad s^-1/2] (compare with the seed's 0.0054).
+
+    Parameters
+    ----------
+    fit : WaveFit
+        A wave-spectrum fit (module convention).
+    """
+    return fit.value("kw") * COURSE_SCALE
+
+
+def wave_fit_to_dict(fit: WaveFit) -> dict:
+    """JSON-ready summary of a wave fit (what ``vesselid waves`` writes): every parameter as
+    ``{"value", "stderr", "unit"}`` plus the conventions and fit details.
+
+    Parameters
+    ----------
+    fit : WaveFit
+        A wave-spectrum fit.
     """
 
-    omega0: float
-    lam: float
-    kw: float
-    sigma: float
-    omega0_se: float
-    lam_se: float
-    kw_se: float
-    sigma_se: float
-    covariance: np.ndarray
-    omega: np.ndarray
-    psd: np.ndarray
-    band: tuple[float, float]
-    peak_omega: float
-    peak_psd: float
-    fs: float
-    nperseg: int
-    n_samples: int
-    rel_residual_std: float
-    expected_rel_std: float
-    success: bool
-    message: str = ""
+    def entry(name, unit):
+        return {"value": _json_num(fit.value(name)), "stderr": _json_num(fit.stderr(name)), "unit": unit}
 
-    @property
-    def params(self) -> WaveParams:
-        """The fitted model as :class:`pipeline.model.waves.WaveParams`."""
-        return WaveParams(omega0=self.omega0, lam=self.lam, kw=self.kw)
-
-    @property
-    def course_sigma(self) -> float:
-        """sigma in the course's ``G/(2 pi)`` convention [rad s^1/2] (compare with the seed)."""
-        return self.sigma * COURSE_SCALE
-
-    @property
-    def course_kw(self) -> float:
-        """K_w in the course's convention [rad s^-1/2] (compare with the seed's 0.0054)."""
-        return self.kw * COURSE_SCALE
-
-    def to_dict(self) -> dict:
-        """JSON-ready summary: every parameter as ``{"value", "stderr", "unit"}`` plus fit details."""
-
-        def entry(v, se, unit):
-            return {"value": _json_num(v), "stderr": _json_num(se), "unit": unit}
-
-        return {
-            "omega0": entry(self.omega0, self.omega0_se, "rad/s"),
-            "lambda": entry(self.lam, self.lam_se, "1"),
-            "kw": entry(self.kw, self.kw_se, "rad s^-1/2"),
-            "sigma": entry(self.sigma, self.sigma_se, "rad s^1/2"),
-            "convention": ("P(omega) = |H(j omega)|^2 for unit-intensity w_w: two-sided PSD, "
-                           "var = (1/2pi) int P d omega, P = G_welch(f)/2 [rad^2 s]; "
-                           "sigma^2 = max P = P(omega0); kw = 2 lambda omega0 sigma"),
-            "course_convention": {
-                "sigma": _json_num(self.course_sigma), "kw": _json_num(self.course_kw),
-                "note": "TTK4115/seed convention G_welch(f)/(2 pi): sigma and kw divided by sqrt(pi)",
-            },
-            "welch_peak": {"omega": _json_num(self.peak_omega), "psd": _json_num(self.peak_psd),
-                           "sigma_course": _json_num(math.sqrt(self.peak_psd) * COURSE_SCALE)},
-            "band": [float(self.band[0]), float(self.band[1])],
-            "fs": float(self.fs), "nperseg": int(self.nperseg), "n_samples": int(self.n_samples),
-            "rel_residual_std": _json_num(self.rel_residual_std),
-            "expected_rel_std": _json_num(self.expected_rel_std),
-            "success": bool(self.success), "message": self.message,
-        }
-
-    def to_fit_result(self) -> FitResult:
-        """This fit as a :class:`~pipeline.records.FitResult`: ``omega0``, ``lam``, ``kw`` with their
-        covariance; ``sigma`` and its error, and the misfit measures, in ``statistics``."""
-        names = ("omega0", "lam", "kw")
-        return fit_result_from_arrays(
-            "wave_spectrum", names, [self.omega0, self.lam, self.kw],
-            [self.omega0_se, self.lam_se, self.kw_se], self.covariance,
-            {n: parameter_unit(n) for n in names}, success=bool(self.success), message=self.message,
-            ndata=int(np.size(self.omega)),
-            provenance={"fitter": "pipeline.autopilot.waves_fit.fit_wave_spectrum",
-                        "data": f"Welch PSD of {self.n_samples} samples at {self.fs:g} Hz "
-                                f"(nperseg {self.nperseg}), band {self.band[0]:g}-{self.band[1]:g} rad/s",
-                        "covariance": "least squares on the log PSD"},
-            statistics={"sigma": float(self.sigma), "sigma_se": float(self.sigma_se),
-                        "rel_residual_std": float(self.rel_residual_std),
-                        "expected_rel_std": float(self.expected_rel_std)})
+    st = fit.statistics
+    return {
+        "omega0": entry("omega0", "rad/s"),
+        "lambda": entry("lam", "1"),
+        "kw": entry("kw", "rad s^-1/2"),
+        "sigma": {"value": _json_num(st["sigma"]), "stderr": _json_num(st["sigma_se"]), "unit": "rad s^1/2"},
+        "convention": ("P(omega) = |H(j omega)|^2 for unit-intensity w_w: two-sided PSD, "
+                       "var = (1/2pi) int P d omega, P = G_welch(f)/2 [rad^2 s]; "
+                       "sigma^2 = max P = P(omega0); kw = 2 lambda omega0 sigma"),
+        "course_convention": {
+            "sigma": _json_num(course_sigma(fit)), "kw": _json_num(course_kw(fit)),
+            "note": "TTK4115/seed convention G_welch(f)/(2 pi): sigma and kw divided by sqrt(pi)",
+        },
+        "welch_peak": {"omega": _json_num(fit.peak_omega), "psd": _json_num(fit.peak_psd),
+                       "sigma_course": _json_num(math.sqrt(fit.peak_psd) * COURSE_SCALE)},
+        "band": [float(fit.band[0]), float(fit.band[1])],
+        "fs": float(fit.fs), "nperseg": int(fit.nperseg), "n_samples": int(fit.n_samples),
+        "rel_residual_std": _json_num(st["rel_residual_std"]),
+        "expected_rel_std": _json_num(st["expected_rel_std"]),
+        "success": bool(fit.success), "message": fit.message,
+    }
 
 
 def _json_num(x: float) -> float | None:
@@ -435,7 +381,9 @@ def fit_wave_spectrum(psi_w: np.ndarray, fs: float, nperseg: int | None = None,
     Returns
     -------
     WaveFit
-        Parameters, standard errors, the PSD and fit diagnostics.
+        A :class:`~pipeline.records.FitResult` of ``omega0``, ``lam``, ``kw`` (values, standard errors,
+        units, covariance, success, message, provenance; ``sigma``, ``sigma_se`` and the misfit
+        measures in ``statistics``) with the Welch PSD it was fitted to.
 
     Raises
     ------
@@ -550,13 +498,20 @@ def fit_wave_spectrum(psi_w: np.ndarray, fs: float, nperseg: int | None = None,
         messages.append(f"away from the peak the record departs from the second-order shape (relative "
                         f"residual RMS {band_rel:.3g} over the whole band vs {expected:.3g} expected): the "
                         f"model describes the energetic band only")
-    return WaveFit(omega0=w0, lam=lam, kw=kw, sigma=sigma,
-                   omega0_se=float(se[0]), lam_se=float(se[1]), kw_se=float(se[2]), sigma_se=sigma_se,
-                   covariance=cov, omega=omega, psd=psd, band=(lo, hi),
-                   peak_omega=float(w_b[i_peak]), peak_psd=float(p_b[i_peak]),
-                   fs=float(fs), nperseg=nps, n_samples=len(y),
-                   rel_residual_std=rel_std, expected_rel_std=expected,
-                   success=success, message="; ".join(messages))
+    names = ("omega0", "lam", "kw")
+    fr = fit_result_from_arrays(
+        "wave_spectrum", names, theta, se, cov, {n: parameter_unit(n) for n in names}, success=success,
+        message="; ".join(messages), ndata=int(np.size(omega)),
+        provenance={"fitter": "pipeline.autopilot.waves_fit.fit_wave_spectrum",
+                    "data": f"Welch PSD of {len(y)} samples at {float(fs):g} Hz (nperseg {nps}), "
+                            f"band {lo:g}-{hi:g} rad/s",
+                    "covariance": "sandwich estimate for least squares on the Welch PSD (bin variance "
+                                  "proportional to P^2, the window's bin-to-bin correlation)"},
+        statistics={"sigma": float(sigma), "sigma_se": float(sigma_se), "rel_residual_std": float(rel_std),
+                    "expected_rel_std": float(expected)})
+    return WaveFit(**{f.name: getattr(fr, f.name) for f in fields(FitResult)},
+                   omega=omega, psd=psd, band=(lo, hi), peak_omega=float(w_b[i_peak]), peak_psd=float(p_b[i_peak]),
+                   fs=float(fs), nperseg=nps, n_samples=len(y))
 
 
 def fit_wave_record(record: HeadingRecord, nperseg: int | None = None,
@@ -752,6 +707,6 @@ def model_psd(omega: np.ndarray, fit: WaveFit) -> np.ndarray:
     omega : numpy.ndarray
         Frequencies [rad/s].
     fit : WaveFit
-        The fit; its ``params`` go to :func:`pipeline.model.waves.wave_psd`.
+        The fit; :func:`wave_params` of it goes to :func:`pipeline.model.waves.wave_psd`.
     """
-    return wave_psd(omega, fit.params)
+    return wave_psd(omega, wave_params(fit))

@@ -26,15 +26,13 @@ from functools import singledispatch
 
 import numpy as np
 
-from ..autopilot.config import AutopilotConfig, NomotoCoefficients
-from ..autopilot.waves_fit import WaveFit
 from ..diagnose.candidates import Fitted
 from ..fit.greybox import UNITS as GREYBOX_UNITS
 from ..fit.greybox import GreyBoxFit
 from ..fit.least_squares import LeastSquaresResult
 from ..fit.nomoto_records import NomotoFit
-from ..records import (DampingFit, Estimate, Extinction, FitParameter, FitResult, Fits, SegmentFit, fit_result_from_arrays,
-                       parameter_unit)
+from ..records import (AutopilotConfig, DampingFit, Estimate, Extinction, FitParameter, FitResult, Fits,
+                       NomotoCoefficients, SegmentFit, fit_result_from_arrays, parameter_unit)
 
 __all__ = ["as_fit_result"]
 
@@ -49,7 +47,8 @@ def as_fit_result(result) -> FitResult:
         A :class:`~pipeline.records.SegmentFit`, :class:`~pipeline.records.DampingFit`,
         :class:`~pipeline.records.Fits`, :class:`~pipeline.records.Estimate`,
         :class:`~pipeline.records.Extinction`, ``LeastSquaresResult``, ``NomotoFit``,
-        ``GreyBoxFit``, ``WaveFit``, diagnosis ``Fitted``, ``NomotoCoefficients`` or ``AutopilotConfig``.
+        ``GreyBoxFit``, diagnosis ``Fitted``, ``NomotoCoefficients``, ``AutopilotConfig``, or a
+        ``FitResult`` already (such as the wave-spectrum fit's ``WaveFit``), returned as it is.
 
     Returns
     -------
@@ -131,8 +130,8 @@ def _(result: GreyBoxFit) -> FitResult:
 
 
 @as_fit_result.register
-def _(result: WaveFit) -> FitResult:
-    return result.to_fit_result()
+def _(result: FitResult) -> FitResult:
+    return result  # already the shape (the wave-spectrum fit's WaveFit is one)
 
 
 @as_fit_result.register
