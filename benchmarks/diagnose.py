@@ -19,6 +19,7 @@ Usage::
     .venv/bin/python benchmarks/diagnose.py --realdata benchmarks/diagnose_realdata   # measured sets
     .venv/bin/python benchmarks/diagnose.py --random 64 --seed 15 --save s15.jsonl   # randomised (issue 12)
     .venv/bin/python benchmarks/diagnose.py --random 16 --kinds pair --magnitude 1 2   # a controlled pair set
+    .venv/bin/python benchmarks/diagnose.py --random 24 --kinds actuator,actuator,twin_clean   # actuator space
     .venv/bin/python benchmarks/diagnose.py --report s15.jsonl   # the report (and misses by cause) of a saved run
 
 ``--realdata`` converts the measured sets in ``../shared/realdata`` (never copied into the
@@ -594,10 +595,28 @@ def random_cases(n: int, seed: int = 12, kinds_only: tuple[str, ...] = ()) -> li
     return [RandomCase(i, str(k), int(seed * 1000 + i), MAG_RANGE) for i, k in enumerate(kinds)]
 
 
+#: The twin-thruster boat's allocation: each thruster's full-scale thrust [N] and its yaw arm [m]
+#: (``tau_x = t_port + t_stbd``, ``tau_n = TWIN_ARM (t_port - t_stbd)``, thrusts up to 12 N).
+TWIN_FULL, TWIN_ARM = 12.0, 0.3
+
+
+def twin_vessel(name: str = "twin", **extra) -> object:
+    """The twin-thruster boat's vessel config with its allocation (``[[actuators]]``: each thruster's
+    PWM channel drives ``tau_x`` and ``tau_n``), as a user with per-thruster PWM logs writes it."""
+    acts = []
+    for ch, side, arm in ((1, "thruster_port", TWIN_ARM), (3, "thruster_stbd", -TWIN_ARM)):
+        acts += [{"source": "servo", "channel": ch, "target": "tau_x", "full_scale": TWIN_FULL, "name": side},
+                 {"source": "servo", "channel": ch, "target": "tau_n", "full_scale": arm * TWIN_FULL}]
+    return parse_vessel({"name": name, "actuators": acts, **extra})
+
+
 def twin_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, noise: float,
-               act_lag: float = 0.0, gnss_lag: float = 0.0, quad_yaw: float = 0.0, extra=None) -> Path:
+               act_lag: float = 0.0, gnss_lag: float = 0.0, quad_yaw: float = 0.0, extra=None,
+               one_lag: float = 0.0, one_rate: float = 0.0, side: str = "port") -> Path:
     """A twin-thruster boat (surge and yaw from the same two thrusters), integrated here with
-    random time constants and gains: GNSS speed over ground, gyro, compass, thrust commands."""
+    random time constants and gains: GNSS speed over ground, gyro, compass, thrust commands.
+    ``act_lag`` [s] delays both thrusters, ``one_lag`` [s] the ``side`` (port or stbd) one only,
+    and ``one_rate`` [N/s] (0: none) limits that thruster's rate of change (after its delay)."""
     import pandas as pd
 
     n = int(minutes * 60 * fs)
@@ -607,13 +626,23 @@ def twin_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, 
     hold = int(rng.uniform(15, 35) * fs)
     t1 = np.repeat(rng.uniform(2, 12, n // hold + 1), hold)[:n]
     t2 = np.repeat(rng.uniform(2, 12, n // hold + 1), hold)[:n]
-    tau_x, tau_n = t1 + t2, 0.3 * (t1 - t2)
+    tau_x, tau_n = t1 + t2, TWIN_ARM * (t1 - t2)
 
     def lagged(x, lag):
         k = int(round(lag * fs))
         return np.concatenate([np.full(k, x[0]), x[:n - k]]) if k else x
 
     tx, tn = lagged(tau_x, act_lag), lagged(tau_n, act_lag)
+    if one_lag or one_rate:
+        from pipeline.diagnose.candidates import rate_limit
+
+        a1, a2 = (t1, t2) if side == "port" else (t2, t1)
+        a1 = lagged(a1, one_lag)
+        if one_rate:
+            a1 = rate_limit(a1, one_rate, fs)
+        p1, p2 = (a1, a2) if side == "port" else (a2, a1)
+        # The thruster's applied thrust replaces its commanded share of both forces.
+        tx, tn = lagged(p1 + p2, act_lag), lagged(TWIN_ARM * (p1 - p2), act_lag)
     u, r, psi = np.zeros(n), np.zeros(n), np.zeros(n)
     h = 1.0 / fs
     sub = max(int(np.ceil(20 * h / min(t_u, t_r))), 1)  # Euler sub-steps: h/sub <= T/20
@@ -780,7 +809,20 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         truth.update(vessel="twin", outside=["square_moment", "slow_moment", "heading_dependent_moment"][kind])
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, extra=extra)
         files, shape = _nuisances(path, rng, True)
-        return files, None, {**truth, **shape}
+        return files, twin_vessel(), {**truth, **shape}
+    if case.kind in ("actuator", "twin_clean"):
+        # The controlled actuator-space set: one thruster of the twin late or rate-limited, or none.
+        kw: dict = {}
+        if case.kind == "actuator":
+            mag = float(np.exp(rng.uniform(np.log(MAG_RANGE[0]), np.log(MAG_RANGE[1]))))
+            side = str(rng.choice(["port", "stbd"]))
+            what = str(rng.choice(["actuator_delay", "actuator_rate_limit"]))
+            kw = {"side": side, **({"one_lag": 0.3 * mag} if what == "actuator_delay" else {"one_rate": 2.0 / mag})}
+            truth["effects"].append({"effect": what, "dof": "", "magnitude": mag, "label": f"{what}[thruster_{side}]"})
+        truth["vessel"] = "twin"
+        path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, **kw)
+        files, shape = _nuisances(path, rng, True)
+        return files, twin_vessel(), {**truth, **shape}
     vessel_kind = str(rng.choice(["aauship", "nomoto", "twin"], p=[0.35, 0.35, 0.3]))
     n_eff = {"single": 1, "pair": 2, "clean": 0}[case.kind]
     if vessel_kind == "twin":
@@ -799,7 +841,8 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         truth["vessel"] = "twin"
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, **kw)
         files, shape = _nuisances(path, rng, True)
-        return files, None, {**truth, **shape}
+        # Diagnosed with its allocation (the thrusters' [[actuators]] maps), as its owner would.
+        return files, twin_vessel(), {**truth, **shape}
     v = vessels()["aauship"] if vessel_kind == "aauship" else _random_nomoto(rng)
     eff = Effects()
     for _ in range(n_eff):
@@ -858,7 +901,7 @@ def run_random_case(case: RandomCase) -> dict:
         except Exception as exc:  # a crash or a refusal is a result, not an abort
             return {**out, "error": f"{type(exc).__name__}: {exc}"}
         out["t_diagnose"] = time.perf_counter() - t0
-    out["selected"] = [{"effect": e.effect, "dof": e.dof, "shrink": e.shrink} for e in rep.effects]
+    out["selected"] = [{"effect": e.effect, "dof": e.dof, "shrink": e.shrink, "label": e.label} for e in rep.effects]
     out["unexplained"] = [{"channel": u.channel, "gap": u.gap} for u in rep.unexplained]
     out["gap_before"], out["gap_final"] = rep.gap_before, rep.gap_final
     out["dof_gaps"] = {d.dof: d.gap for d in rep.dofs}
@@ -883,7 +926,8 @@ def run_random_case(case: RandomCase) -> dict:
 
 
 def _hit(sel: dict, eff: dict) -> bool:
-    return sel["effect"] == eff["effect"] and (not eff.get("dof") or sel["dof"] == eff["dof"])
+    return (sel["effect"] == eff["effect"] and (not eff.get("dof") or sel["dof"] == eff["dof"])
+            and (not eff.get("label") or sel.get("label") == eff["label"]))
 
 
 #: A DOF is "at the floor" when each of its channels' baseline gap stays under this multiple of its
@@ -909,19 +953,21 @@ def miss_cause(r: dict) -> str | None:
         return None
     effs = r["effects"]
     todo = [e for e in effs if not any(_hit(s, e) for s in r["selected"])]
-    if r["kind"] == "single":
+    if r["kind"] in ("single", "actuator"):
         if r["selected"] and _hit(r["selected"][0], effs[0]):
             return None
         todo = effs
     if not todo:
         return None
     e = todo[0]
-    which = "single: " if r["kind"] == "single" else ("pair, both missed: " if len(todo) == 2 else "pair, second: ")
+    which = "single: " if r["kind"] in ("single", "actuator") else ("pair, both missed: " if len(todo) == 2 else "pair, second: ")
     dof = e.get("dof") or None
     if dof and dof not in r.get("dof_gaps", {}):
         return which + "true DOF not analysed"
-    if r["kind"] == "single" and r["selected"]:
+    if r["kind"] in ("single", "actuator") and r["selected"]:
         s0 = r["selected"][0]
+        if s0["effect"] == e["effect"] and e.get("label") and s0.get("label") != e["label"]:
+            return which + "right effect, wrong actuator"
         return which + ("right effect, wrong DOF" if s0["effect"] == e["effect"] else "another effect first")
     if len(todo) == 1 and r["kind"] == "pair":
         a = r.get("alone", [None, None])[effs.index(e)] if r.get("alone") else None
@@ -940,8 +986,8 @@ def random_report(results: list[dict]) -> None:
     ran = [r for r in results if "selected" in r]
     errors = [r for r in results if "error" in r]
     skipped = [r for r in results if r.get("skipped")]
-    single = [r for r in ran if r["kind"] == "single"]
-    clean = [r for r in ran if r["kind"] in ("clean", "pvs_clean")]
+    single = [r for r in ran if r["kind"] in ("single", "actuator")]
+    clean = [r for r in ran if r["kind"] in ("clean", "pvs_clean", "twin_clean")]
     pvs = [r for r in ran if r["kind"] == "pvs_clean"]
     pair = [r for r in ran if r["kind"] == "pair"]
     outside = [r for r in ran if r["kind"] == "outside"]
@@ -1039,7 +1085,8 @@ def random_report(results: list[dict]) -> None:
             print(f"  {c:<52} {len(names):>2}  {' '.join(names)}")
     print("\nmisses:")
     for r in ran:
-        ok = ((r["kind"] == "single" and r in right) or (r["kind"] in ("clean", "pvs_clean") and not r["selected"])
+        ok = ((r["kind"] in ("single", "actuator") and r in right)
+              or (r["kind"] in ("clean", "pvs_clean", "twin_clean") and not r["selected"])
               or (r["kind"] == "pair" and r in both) or (r["kind"] == "outside" and r in unexp))
         if not ok:
             gaps = " ".join(f"{k} {v:.2f}" for k, v in r.get("dof_gaps", {}).items())
@@ -1047,7 +1094,7 @@ def random_report(results: list[dict]) -> None:
                   f"{r.get('files')} vel {r.get('velocities')} noise {r['noise']:<8}"
                   f"{' stated' if r.get('noise_stated') else ''} gaps [{gaps}] true "
                   f"{[(e['effect'], e.get('dof'), round(e['magnitude'], 2)) for e in r['effects']] or r.get('outside', '-')}"
-                  f" -> {[(s['effect'], s['dof']) for s in r['selected']]} unexplained "
+                  f" -> {[(s.get('label', s['effect']), s['dof']) for s in r['selected']]} unexplained "
                   f"{[u['channel'] for u in r['unexplained']]}")
     for r in errors:
         print(f"  {r['case']:<16} {r.get('vessel', ''):<12} rate {r.get('log_rate_hz', 0):5.1f} Hz: {r['error'][:160]}")

@@ -121,6 +121,8 @@ class DofState:
         Per result label, the reference its correction is taken from when it is not ``base_full``
         (a composed input transform is scored against the first transform alone, on the original
         measurements).
+    first_results : list
+        ``results`` of the first round (on the original measurements); default: ``results`` as given.
     """
 
     problem: DofProblem
@@ -133,6 +135,14 @@ class DofState:
     base_full: Mapping[str, np.ndarray] | None = None
     channel_floor: dict = field(default_factory=dict)
     result_base: dict = field(default_factory=dict)
+    first_results: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        # The first round's scores stay the witnesses of the sensor-or-actuator naming: once an
+        # effect is selected, ``results`` hold the candidates on top of it, whose delay is the
+        # delay left over (none, when this DOF's own delay was selected).
+        if not self.first_results:
+            self.first_results = list(self.results)
 
 
 def corrected(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str, np.ndarray]) -> GridData:
@@ -432,7 +442,10 @@ def sensor_or_actuator(res: CandidateResult, states: Mapping[str, DofState]) -> 
             continue
         if not same_input(pa, pb):
             continue
-        other = next((r for r, _ in s.results if r.effect == "actuator_delay"), None)
+        # The same actuator's delay (actuator space) when the other DOF has it, else every input's.
+        first = s.first_results or s.results
+        other = next((r for r, _ in first if r.label == res.label), None) or \
+            next((r for r, _ in first if r.effect == "actuator_delay" and r.input_channel is None), None)
         if other is None:
             continue
         tb = _param(other, "tau_d")
