@@ -396,7 +396,9 @@ class _InputTransform(Candidate):
     actuator: Actuator | None = None
 
     def apply_to(self, raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
-        """``raw`` (inputs and actuator signals on the trial grid) with this transform at ``value`` applied.
+        """``raw`` (inputs and actuator signals on the trial grid) with this transform at ``value`` applied:
+        to one actuator's signal (and through the allocation to the inputs it drives) in actuator
+        space, else to the inputs.
 
         Parameters
         ----------
@@ -405,6 +407,16 @@ class _InputTransform(Candidate):
         value : float
             The transform's parameter.
         """
+        if self.actuator is not None:
+            key = actuator_key(self.actuator.name)
+            return with_actuator(raw, self.actuator, self._signal(raw[key], value))
+        return self._on_inputs(raw, value)
+
+    def _signal(self, u: np.ndarray, value: float) -> np.ndarray:
+        """One signal (trial rate) transformed at ``value``."""
+        raise NotImplementedError
+
+    def _on_inputs(self, raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
         raise NotImplementedError
 
     def _transformed(self, value: float) -> dict[str, np.ndarray]:
@@ -528,21 +540,12 @@ class ActuatorDelay(_InputTransform):
     def _resolution(self) -> float:
         return 0.1 / self.problem.fs
 
-    def apply_to(self, raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
-        """See :meth:`_InputTransform.apply_to`.
+    def _signal(self, u: np.ndarray, value: float) -> np.ndarray:
+        return delay_input(u, value, self.problem.fs)
 
-        Parameters
-        ----------
-        raw : Mapping[str, numpy.ndarray]
-            Trial-rate inputs and actuator signals.
-        value : float
-            Delay [s].
-        """
-        fs = self.problem.fs
-        if self.actuator is not None:
-            key = actuator_key(self.actuator.name)
-            return with_actuator(raw, self.actuator, delay_input(raw[key], value, fs))
-        return {c: delay_input(u, value, fs) for c, u in raw.items()}
+    def _on_inputs(self, raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
+        # Every input late (and every actuator's signal, so that a transform composed behind this one sees it).
+        return {c: self._signal(u, value) for c, u in raw.items()}
 
     def _param(self, v: float) -> dict[str, float]:
         return {"tau_d": float(v)}
@@ -575,21 +578,12 @@ class ActuatorRateLimit(_InputTransform):
         """See :meth:`Candidate.applicable`."""
         return self.swing > 0
 
-    def apply_to(self, raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
-        """See :meth:`_InputTransform.apply_to`.
+    def _signal(self, u: np.ndarray, value: float) -> np.ndarray:
+        # ``value``: largest rate [SI/s of the input, or 1/s of an actuator's normalised signal].
+        return rate_limit(u, value, self.problem.fs)
 
-        Parameters
-        ----------
-        raw : Mapping[str, numpy.ndarray]
-            Trial-rate inputs and actuator signals.
-        value : float
-            Largest rate [SI/s of the input, or 1/s of an actuator's normalised signal].
-        """
-        fs = self.problem.fs
-        if self.actuator is not None:
-            key = actuator_key(self.actuator.name)
-            return with_actuator(raw, self.actuator, rate_limit(raw[key], value, fs))
-        return {**raw, self.channel: rate_limit(raw[self.channel], value, fs)}
+    def _on_inputs(self, raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
+        return {**raw, self.channel: self._signal(raw[self.channel], value)}
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
         """Refit on windows ``train``; see :meth:`Candidate.fit`.
