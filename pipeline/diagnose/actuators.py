@@ -70,11 +70,24 @@ class ActuatorSpace:
         return bool(self.actuators)
 
 
-def _held(u: np.ndarray) -> np.ndarray:
-    """An input held between its logged samples, zero before the first one (as the DOF problems hold it)."""
-    from .problem import _fill_input
+def held_input(u: np.ndarray) -> np.ndarray:
+    """Inputs held between logged samples (zero-order hold), zero before the first one; as every
+    DOF problem holds its inputs (:mod:`pipeline.diagnose.problem`).
 
-    return _fill_input(u)
+    Parameters
+    ----------
+    u : numpy.ndarray
+        A logged input on the trial grid, NaN between its samples [SI].
+    """
+    u = np.asarray(u, float).copy()
+    ok = np.isfinite(u)
+    if not ok.any():
+        return np.zeros_like(u)
+    idx = np.where(ok, np.arange(len(u)), 0)
+    np.maximum.accumulate(idx, out=idx)
+    filled = u[idx]
+    filled[: int(np.argmax(ok))] = 0.0
+    return filled
 
 
 def solve_allocation(acts: tuple[Actuator, ...], targets: tuple[str, ...], tau: np.ndarray,
@@ -155,7 +168,7 @@ def actuator_space(trial: Trial, vessel: Vessel | None) -> ActuatorSpace:
         return ActuatorSpace(note=f"actuator space not used: the [[actuators]] allocation of {names} drives "
                                   f"{', '.join(targets)}, and the trial does not log {', '.join(missing)}; delay, "
                                   f"rate limit and asymmetry act on the generalised forces")
-    tau = np.column_stack([_held(trial.data[c].to_numpy(float)) for c in targets])
+    tau = np.column_stack([held_input(trial.data[c].to_numpy(float)) for c in targets])
     ahead = np.array([[a.gains.get(c, (0.0, 0.0))[0] for a in acts] for c in targets])
     if np.linalg.matrix_rank(ahead) < len(acts):
         return ActuatorSpace(note=f"actuator space not used: {len(acts)} actuators ({names}) on {len(targets)} "

@@ -23,7 +23,7 @@ from ..errors import DiagnoseError
 from ..records import Segment, Segments, Trial
 from ..segment import noise_std
 from ..vessel import Actuator, Vessel
-from .actuators import ActuatorSpace, actuator_key, actuator_space
+from .actuators import ActuatorSpace, actuator_key, actuator_space, held_input
 
 #: DOF name -> response (velocity) channels in order of preference. A boat without a heading
 #: sensor still has speed over ground, which is surge speed when it goes straight.
@@ -430,19 +430,6 @@ def initial_values(x: np.ndarray, windows: tuple[Window, ...], half: int) -> np.
     return out
 
 
-def _fill_input(u: np.ndarray) -> np.ndarray:
-    """Inputs held between logged samples (zero-order hold), zero before the first one."""
-    u = np.asarray(u, float).copy()
-    ok = np.isfinite(u)
-    if not ok.any():
-        return np.zeros_like(u)
-    idx = np.where(ok, np.arange(len(u)), 0)
-    np.maximum.accumulate(idx, out=idx)
-    filled = u[idx]
-    filled[: int(np.argmax(ok))] = 0.0
-    return filled
-
-
 def _unwrap_nan(x: np.ndarray) -> np.ndarray:
     out = np.asarray(x, float).copy()
     ok = np.isfinite(out)
@@ -760,7 +747,7 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         return None
     raw = {ch: y}
     for c in inputs:
-        raw[c] = _fill_input(trial.data[c].to_numpy(float))
+        raw[c] = held_input(trial.data[c].to_numpy(float))
     if t_const is None or not np.isfinite(t_const) or t_const <= 0:
         # For the time-constant guess only: inputs scaled to comparable size and summed.
         u_sum = sum(raw[c] / max(np.max(np.abs(raw[c])), 1e-12) for c in inputs) if inputs else None
