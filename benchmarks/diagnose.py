@@ -572,6 +572,9 @@ class RandomCase:
     kind: str
     seed: int
     mag_range: tuple[float, float] = (0.3, 2.0)
+    #: Twin-thruster trials diagnosed with their allocation (``[[actuators]]``); False: without, as
+    #: before actuator space (``--no-allocation``).
+    allocation: bool = True
 
     @property
     def name(self) -> str:
@@ -583,7 +586,7 @@ class RandomCase:
 MAG_RANGE = (0.3, 2.0)
 
 
-def random_cases(n: int, seed: int = 12, kinds_only: tuple[str, ...] = ()) -> list[RandomCase]:
+def random_cases(n: int, seed: int = 12, kinds_only: tuple[str, ...] = (), allocation: bool = True) -> list[RandomCase]:
     """``n`` randomised trials: 45% one effect, 15% clean (own simulators), 15% PVS frigate
     (clean), 12% two effects, 13% out of library; ``kinds_only``: every trial of these kinds (in
     turn), each trial's own draws as in the mixed set."""
@@ -592,7 +595,7 @@ def random_cases(n: int, seed: int = 12, kinds_only: tuple[str, ...] = ()) -> li
                        p=[0.45, 0.15, 0.15, 0.12, 0.13])
     if kinds_only:
         kinds = [kinds_only[i % len(kinds_only)] for i in range(n)]
-    return [RandomCase(i, str(k), int(seed * 1000 + i), MAG_RANGE) for i, k in enumerate(kinds)]
+    return [RandomCase(i, str(k), int(seed * 1000 + i), MAG_RANGE, allocation) for i, k in enumerate(kinds)]
 
 
 #: The twin-thruster boat's allocation: each thruster's full-scale thrust [N] and its yaw arm [m]
@@ -809,7 +812,7 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         truth.update(vessel="twin", outside=["square_moment", "slow_moment", "heading_dependent_moment"][kind])
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, extra=extra)
         files, shape = _nuisances(path, rng, True)
-        return files, twin_vessel(), {**truth, **shape}
+        return files, twin_vessel() if case.allocation else None, {**truth, **shape}
     if case.kind in ("actuator", "twin_clean"):
         # The controlled actuator-space set: one thruster of the twin late or rate-limited, or none.
         kw: dict = {}
@@ -822,7 +825,7 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         truth["vessel"] = "twin"
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, **kw)
         files, shape = _nuisances(path, rng, True)
-        return files, twin_vessel(), {**truth, **shape}
+        return files, twin_vessel() if case.allocation else None, {**truth, **shape}
     vessel_kind = str(rng.choice(["aauship", "nomoto", "twin"], p=[0.35, 0.35, 0.3]))
     n_eff = {"single": 1, "pair": 2, "clean": 0}[case.kind]
     if vessel_kind == "twin":
@@ -842,7 +845,7 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, **kw)
         files, shape = _nuisances(path, rng, True)
         # Diagnosed with its allocation (the thrusters' [[actuators]] maps), as its owner would.
-        return files, twin_vessel(), {**truth, **shape}
+        return files, twin_vessel() if case.allocation else None, {**truth, **shape}
     v = vessels()["aauship"] if vessel_kind == "aauship" else _random_nomoto(rng)
     eff = Effects()
     for _ in range(n_eff):
@@ -1114,6 +1117,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kinds", help="with --random: only these kinds, comma-separated (single, pair, clean, ...)")
     ap.add_argument("--magnitude", nargs=2, type=float, metavar=("LO", "HI"),
                     help="with --random: effect magnitudes log-uniform in [LO, HI] x the large magnitude")
+    ap.add_argument("--no-allocation", action="store_true",
+                    help="with --random: diagnose twin-thruster trials without their [[actuators]] allocation")
     ap.add_argument("--resume", action="store_true", help="with --random and --save: keep the trials already saved")
     ap.add_argument("--report", metavar="JSONL", help="print the randomised report from a --random --save file")
     args = ap.parse_args(argv)
@@ -1129,7 +1134,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.magnitude:
             MAG_RANGE = (float(args.magnitude[0]), float(args.magnitude[1]))
         kinds_only = tuple(k for k in (args.kinds or "").split(",") if k)
-        todo_r = random_cases(args.random, args.seed, kinds_only)
+        todo_r = random_cases(args.random, args.seed, kinds_only, not args.no_allocation)
         t0 = time.perf_counter()
         results = []
         # One JSON line per finished trial, so that an interrupted run still reports what it measured;
