@@ -19,6 +19,7 @@ Usage::
     .venv/bin/python benchmarks/diagnose.py --realdata benchmarks/diagnose_realdata   # measured sets
     .venv/bin/python benchmarks/diagnose.py --random 64 --seed 15 --save s15.jsonl   # randomised (issue 12)
     .venv/bin/python benchmarks/diagnose.py --random 16 --kinds pair --magnitude 1 2   # a controlled pair set
+    .venv/bin/python benchmarks/diagnose.py --random 24 --kinds actuator,actuator,twin_clean   # actuator space
     .venv/bin/python benchmarks/diagnose.py --report s15.jsonl   # the report (and misses by cause) of a saved run
 
 ``--realdata`` converts the measured sets in ``../shared/realdata`` (never copied into the
@@ -571,6 +572,9 @@ class RandomCase:
     kind: str
     seed: int
     mag_range: tuple[float, float] = (0.3, 2.0)
+    #: Twin-thruster trials diagnosed with their allocation (``[[actuators]]``); False: without, as
+    #: before actuator space (``--no-allocation``).
+    allocation: bool = True
 
     @property
     def name(self) -> str:
@@ -582,7 +586,7 @@ class RandomCase:
 MAG_RANGE = (0.3, 2.0)
 
 
-def random_cases(n: int, seed: int = 12, kinds_only: tuple[str, ...] = ()) -> list[RandomCase]:
+def random_cases(n: int, seed: int = 12, kinds_only: tuple[str, ...] = (), allocation: bool = True) -> list[RandomCase]:
     """``n`` randomised trials: 45% one effect, 15% clean (own simulators), 15% PVS frigate
     (clean), 12% two effects, 13% out of library; ``kinds_only``: every trial of these kinds (in
     turn), each trial's own draws as in the mixed set."""
@@ -591,13 +595,31 @@ def random_cases(n: int, seed: int = 12, kinds_only: tuple[str, ...] = ()) -> li
                        p=[0.45, 0.15, 0.15, 0.12, 0.13])
     if kinds_only:
         kinds = [kinds_only[i % len(kinds_only)] for i in range(n)]
-    return [RandomCase(i, str(k), int(seed * 1000 + i), MAG_RANGE) for i, k in enumerate(kinds)]
+    return [RandomCase(i, str(k), int(seed * 1000 + i), MAG_RANGE, allocation) for i, k in enumerate(kinds)]
+
+
+#: The twin-thruster boat's allocation: each thruster's full-scale thrust [N] and its yaw arm [m]
+#: (``tau_x = t_port + t_stbd``, ``tau_n = TWIN_ARM (t_port - t_stbd)``, thrusts up to 12 N).
+TWIN_FULL, TWIN_ARM = 12.0, 0.3
+
+
+def twin_vessel(name: str = "twin", **extra) -> object:
+    """The twin-thruster boat's vessel config with its allocation (``[[actuators]]``: each thruster's
+    PWM channel drives ``tau_x`` and ``tau_n``), as a user with per-thruster PWM logs writes it."""
+    acts = []
+    for ch, side, arm in ((1, "thruster_port", TWIN_ARM), (3, "thruster_stbd", -TWIN_ARM)):
+        acts += [{"source": "servo", "channel": ch, "target": "tau_x", "full_scale": TWIN_FULL, "name": side},
+                 {"source": "servo", "channel": ch, "target": "tau_n", "full_scale": arm * TWIN_FULL}]
+    return parse_vessel({"name": name, "actuators": acts, **extra})
 
 
 def twin_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, noise: float,
-               act_lag: float = 0.0, gnss_lag: float = 0.0, quad_yaw: float = 0.0, extra=None) -> Path:
+               act_lag: float = 0.0, gnss_lag: float = 0.0, quad_yaw: float = 0.0, extra=None,
+               one_lag: float = 0.0, one_rate: float = 0.0, side: str = "port") -> Path:
     """A twin-thruster boat (surge and yaw from the same two thrusters), integrated here with
-    random time constants and gains: GNSS speed over ground, gyro, compass, thrust commands."""
+    random time constants and gains: GNSS speed over ground, gyro, compass, thrust commands.
+    ``act_lag`` [s] delays both thrusters, ``one_lag`` [s] the ``side`` (port or stbd) one only,
+    and ``one_rate`` [N/s] (0: none) limits that thruster's rate of change (after its delay)."""
     import pandas as pd
 
     n = int(minutes * 60 * fs)
@@ -607,13 +629,23 @@ def twin_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, 
     hold = int(rng.uniform(15, 35) * fs)
     t1 = np.repeat(rng.uniform(2, 12, n // hold + 1), hold)[:n]
     t2 = np.repeat(rng.uniform(2, 12, n // hold + 1), hold)[:n]
-    tau_x, tau_n = t1 + t2, 0.3 * (t1 - t2)
+    tau_x, tau_n = t1 + t2, TWIN_ARM * (t1 - t2)
 
     def lagged(x, lag):
         k = int(round(lag * fs))
         return np.concatenate([np.full(k, x[0]), x[:n - k]]) if k else x
 
     tx, tn = lagged(tau_x, act_lag), lagged(tau_n, act_lag)
+    if one_lag or one_rate:
+        from pipeline.diagnose.candidates import rate_limit
+
+        a1, a2 = (t1, t2) if side == "port" else (t2, t1)
+        a1 = lagged(a1, one_lag)
+        if one_rate:
+            a1 = rate_limit(a1, one_rate, fs)
+        p1, p2 = (a1, a2) if side == "port" else (a2, a1)
+        # The thruster's applied thrust replaces its commanded share of both forces.
+        tx, tn = lagged(p1 + p2, act_lag), lagged(TWIN_ARM * (p1 - p2), act_lag)
     u, r, psi = np.zeros(n), np.zeros(n), np.zeros(n)
     h = 1.0 / fs
     sub = max(int(np.ceil(20 * h / min(t_u, t_r))), 1)  # Euler sub-steps: h/sub <= T/20
@@ -780,7 +812,20 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         truth.update(vessel="twin", outside=["square_moment", "slow_moment", "heading_dependent_moment"][kind])
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, extra=extra)
         files, shape = _nuisances(path, rng, True)
-        return files, None, {**truth, **shape}
+        return files, twin_vessel() if case.allocation else None, {**truth, **shape}
+    if case.kind in ("actuator", "twin_clean"):
+        # The controlled actuator-space set: one thruster of the twin late or rate-limited, or none.
+        kw: dict = {}
+        if case.kind == "actuator":
+            mag = float(np.exp(rng.uniform(np.log(MAG_RANGE[0]), np.log(MAG_RANGE[1]))))
+            side = str(rng.choice(["port", "stbd"]))
+            what = str(rng.choice(["actuator_delay", "actuator_rate_limit"]))
+            kw = {"side": side, **({"one_lag": 0.3 * mag} if what == "actuator_delay" else {"one_rate": 2.0 / mag})}
+            truth["effects"].append({"effect": what, "dof": "", "magnitude": mag, "label": f"{what}[thruster_{side}]"})
+        truth["vessel"] = "twin"
+        path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, **kw)
+        files, shape = _nuisances(path, rng, True)
+        return files, twin_vessel() if case.allocation else None, {**truth, **shape}
     vessel_kind = str(rng.choice(["aauship", "nomoto", "twin"], p=[0.35, 0.35, 0.3]))
     n_eff = {"single": 1, "pair": 2, "clean": 0}[case.kind]
     if vessel_kind == "twin":
@@ -799,7 +844,8 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         truth["vessel"] = "twin"
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, **kw)
         files, shape = _nuisances(path, rng, True)
-        return files, None, {**truth, **shape}
+        # Diagnosed with its allocation (the thrusters' [[actuators]] maps), as its owner would.
+        return files, twin_vessel() if case.allocation else None, {**truth, **shape}
     v = vessels()["aauship"] if vessel_kind == "aauship" else _random_nomoto(rng)
     eff = Effects()
     for _ in range(n_eff):
@@ -858,7 +904,7 @@ def run_random_case(case: RandomCase) -> dict:
         except Exception as exc:  # a crash or a refusal is a result, not an abort
             return {**out, "error": f"{type(exc).__name__}: {exc}"}
         out["t_diagnose"] = time.perf_counter() - t0
-    out["selected"] = [{"effect": e.effect, "dof": e.dof, "shrink": e.shrink} for e in rep.effects]
+    out["selected"] = [{"effect": e.effect, "dof": e.dof, "shrink": e.shrink, "label": e.label} for e in rep.effects]
     out["unexplained"] = [{"channel": u.channel, "gap": u.gap} for u in rep.unexplained]
     out["gap_before"], out["gap_final"] = rep.gap_before, rep.gap_final
     out["dof_gaps"] = {d.dof: d.gap for d in rep.dofs}
@@ -883,7 +929,8 @@ def run_random_case(case: RandomCase) -> dict:
 
 
 def _hit(sel: dict, eff: dict) -> bool:
-    return sel["effect"] == eff["effect"] and (not eff.get("dof") or sel["dof"] == eff["dof"])
+    return (sel["effect"] == eff["effect"] and (not eff.get("dof") or sel["dof"] == eff["dof"])
+            and (not eff.get("label") or sel.get("label") == eff["label"]))
 
 
 #: A DOF is "at the floor" when each of its channels' baseline gap stays under this multiple of its
@@ -909,19 +956,21 @@ def miss_cause(r: dict) -> str | None:
         return None
     effs = r["effects"]
     todo = [e for e in effs if not any(_hit(s, e) for s in r["selected"])]
-    if r["kind"] == "single":
+    if r["kind"] in ("single", "actuator"):
         if r["selected"] and _hit(r["selected"][0], effs[0]):
             return None
         todo = effs
     if not todo:
         return None
     e = todo[0]
-    which = "single: " if r["kind"] == "single" else ("pair, both missed: " if len(todo) == 2 else "pair, second: ")
+    which = "single: " if r["kind"] in ("single", "actuator") else ("pair, both missed: " if len(todo) == 2 else "pair, second: ")
     dof = e.get("dof") or None
     if dof and dof not in r.get("dof_gaps", {}):
         return which + "true DOF not analysed"
-    if r["kind"] == "single" and r["selected"]:
+    if r["kind"] in ("single", "actuator") and r["selected"]:
         s0 = r["selected"][0]
+        if s0["effect"] == e["effect"] and e.get("label") and s0.get("label") != e["label"]:
+            return which + "right effect, wrong actuator"
         return which + ("right effect, wrong DOF" if s0["effect"] == e["effect"] else "another effect first")
     if len(todo) == 1 and r["kind"] == "pair":
         a = r.get("alone", [None, None])[effs.index(e)] if r.get("alone") else None
@@ -940,8 +989,8 @@ def random_report(results: list[dict]) -> None:
     ran = [r for r in results if "selected" in r]
     errors = [r for r in results if "error" in r]
     skipped = [r for r in results if r.get("skipped")]
-    single = [r for r in ran if r["kind"] == "single"]
-    clean = [r for r in ran if r["kind"] in ("clean", "pvs_clean")]
+    single = [r for r in ran if r["kind"] in ("single", "actuator")]
+    clean = [r for r in ran if r["kind"] in ("clean", "pvs_clean", "twin_clean")]
     pvs = [r for r in ran if r["kind"] == "pvs_clean"]
     pair = [r for r in ran if r["kind"] == "pair"]
     outside = [r for r in ran if r["kind"] == "outside"]
@@ -1039,7 +1088,8 @@ def random_report(results: list[dict]) -> None:
             print(f"  {c:<52} {len(names):>2}  {' '.join(names)}")
     print("\nmisses:")
     for r in ran:
-        ok = ((r["kind"] == "single" and r in right) or (r["kind"] in ("clean", "pvs_clean") and not r["selected"])
+        ok = ((r["kind"] in ("single", "actuator") and r in right)
+              or (r["kind"] in ("clean", "pvs_clean", "twin_clean") and not r["selected"])
               or (r["kind"] == "pair" and r in both) or (r["kind"] == "outside" and r in unexp))
         if not ok:
             gaps = " ".join(f"{k} {v:.2f}" for k, v in r.get("dof_gaps", {}).items())
@@ -1047,7 +1097,7 @@ def random_report(results: list[dict]) -> None:
                   f"{r.get('files')} vel {r.get('velocities')} noise {r['noise']:<8}"
                   f"{' stated' if r.get('noise_stated') else ''} gaps [{gaps}] true "
                   f"{[(e['effect'], e.get('dof'), round(e['magnitude'], 2)) for e in r['effects']] or r.get('outside', '-')}"
-                  f" -> {[(s['effect'], s['dof']) for s in r['selected']]} unexplained "
+                  f" -> {[(s.get('label', s['effect']), s['dof']) for s in r['selected']]} unexplained "
                   f"{[u['channel'] for u in r['unexplained']]}")
     for r in errors:
         print(f"  {r['case']:<16} {r.get('vessel', ''):<12} rate {r.get('log_rate_hz', 0):5.1f} Hz: {r['error'][:160]}")
@@ -1067,6 +1117,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kinds", help="with --random: only these kinds, comma-separated (single, pair, clean, ...)")
     ap.add_argument("--magnitude", nargs=2, type=float, metavar=("LO", "HI"),
                     help="with --random: effect magnitudes log-uniform in [LO, HI] x the large magnitude")
+    ap.add_argument("--no-allocation", action="store_true",
+                    help="with --random: diagnose twin-thruster trials without their [[actuators]] allocation")
     ap.add_argument("--resume", action="store_true", help="with --random and --save: keep the trials already saved")
     ap.add_argument("--report", metavar="JSONL", help="print the randomised report from a --random --save file")
     args = ap.parse_args(argv)
@@ -1082,7 +1134,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.magnitude:
             MAG_RANGE = (float(args.magnitude[0]), float(args.magnitude[1]))
         kinds_only = tuple(k for k in (args.kinds or "").split(",") if k)
-        todo_r = random_cases(args.random, args.seed, kinds_only)
+        todo_r = random_cases(args.random, args.seed, kinds_only, not args.no_allocation)
         t0 = time.perf_counter()
         results = []
         # One JSON line per finished trial, so that an interrupted run still reports what it measured;

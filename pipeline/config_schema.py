@@ -66,9 +66,12 @@ VESSEL_SCHEMA = ("table", {
     "nomoto": ("table", {"K": _NUM, "T": _POS}, ()),
     "rudder": ("table", {"max_angle": _POS, "max_rate": _POS, "yaw_moment": _NUM, "sway_force": _NUM}, ()),
     # source: PWM (servo, rc) or PX4's normalised actuator_motors / actuator_servos (motor, servo_control).
+    # Several maps of one source and channel are one actuator driving several inputs (a thruster's
+    # surge force and yaw moment): the allocation; ``name`` names it (pipeline.vessel.actuator_allocation).
     "actuators": ("tables", ("table", {"source": ("one of", ("servo", "rc", "motor", "servo_control")),
                                        "channel": "integer>=1", "target": ("one of", tuple(INPUT_UNITS)), "pwm_trim": _NUM,
-                                       "pwm_span": _POS, "full_scale": _NUM, "reverse_scale": _NUM},
+                                       "pwm_span": _POS, "full_scale": _NUM, "reverse_scale": _NUM,
+                                       "name": "text"},
                              ("source", "channel", "target"))),
     "thrusters": ("table", {d: THRUSTER for d in ("surge", "sway", "yaw")}, ()),
     "topics": ("map", "string"),

@@ -1679,9 +1679,11 @@ class CandidateResult:
     dof : str
         DOF name.
     label : str
-        ``effect`` or ``effect[input]`` for per-input candidates.
+        ``effect`` or ``effect[input]`` for per-input candidates (``effect[actuator]`` in actuator
+        space, :mod:`pipeline.diagnose.actuators`).
     input_channel : str or None
-        Input concerned (rate limit, thrust asymmetry) or regressor (coupling), else None.
+        Input concerned (rate limit, thrust asymmetry), actuator name (actuator space: a delay, rate
+        limit or asymmetry of one actuator) or regressor (coupling), else None.
     gap_before, gap_after : float
         The DOF's held-out gap with the baseline and with the candidate [-].
     shrink : float
@@ -1866,9 +1868,10 @@ class SelectedEffect:
     step : int
         1 for the verdict, 2 for the effect selected on top of it, ...
     effect, dof, label : str
-        Effect name, DOF, label (``effect[input]`` for per-input candidates).
+        Effect name, DOF, label (``effect[input]`` for per-input candidates, ``effect[actuator]``
+        for one actuator's).
     input_channel : str or None
-        Input, regressor or sensor group concerned.
+        Input, actuator, regressor or sensor group concerned.
     gap_before, gap_after : float
         The DOF's held-out gap with the effects selected before this one, and with this one added [-].
     shrink : float

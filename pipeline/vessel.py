@@ -14,7 +14,9 @@ Sections
                   simulator and a prior for the fits. ``quadratic`` 5 values [SI] of |x|x damping.
 ``[nomoto]``      K [1/s], T [s]: the rudder ship's yaw model for the simulator.
 ``[rudder]``      max_angle [rad], max_rate [rad/s], yaw_moment [N m/rad], sway_force [N/rad].
-``[[actuators]]`` map of MAVLink servo / RC channels to canonical inputs (see :class:`ActuatorMap`).
+``[[actuators]]`` map of MAVLink servo / RC channels to canonical inputs (see :class:`ActuatorMap`);
+                  maps of one channel are one actuator driving several inputs, optional ``name``
+                  (the allocation, :func:`actuator_allocation`).
 ``[sensor_noise]`` optional: standard deviation of a sensor's white noise per logged sample, by
                   canonical channel, in its SI unit (``psi = 0.002`` rad, ``r = 0.002`` rad/s, ``sog``
                   m/s), from a datasheet or a record at rest. Default: none, and the diagnosis
@@ -63,6 +65,9 @@ class ActuatorMap:
     full_scale, reverse_scale : float
         Input at ``pwm_trim + pwm_span`` and magnitude at ``pwm_trim - pwm_span`` [SI unit of target];
         ``reverse_scale`` defaults to ``full_scale``.
+    name : str or None
+        The actuator's name (``thruster_port``); maps of one source and channel are one actuator
+        (:func:`actuator_allocation`). None: ``<source><channel>`` (``servo3``).
     """
 
     source: str
@@ -72,6 +77,7 @@ class ActuatorMap:
     pwm_span: float = 400.0
     full_scale: float = 1.0
     reverse_scale: float | None = None
+    name: str | None = None
 
     def __post_init__(self) -> None:
         # A symmetric actuator unless told otherwise: reverse scale follows the forward one.
@@ -100,6 +106,89 @@ class ActuatorMap:
         v = np.asarray(value, float)
         x = np.where(v >= 0, v / self.full_scale, v / self.reverse_scale)
         return self.pwm_trim + self.pwm_span * x
+
+
+@dataclass(frozen=True)
+class Actuator:
+    """One physical actuator and the inputs it drives: a column of the allocation ``tau = B(a)``.
+
+    Its own signal ``a`` is the normalised command ``(pwm - pwm_trim) / pwm_span`` of its
+    ``[[actuators]]`` maps (dimensionless, 1 at full scale ahead). Each input it drives receives
+    ``gains[input][0] * a`` for ``a >= 0`` and ``gains[input][1] * a`` below (a propeller weaker
+    astern), and an input driven by several actuators is their sum, as the log readers add them.
+
+    Attributes
+    ----------
+    name : str
+        The actuator's name (``thruster_port``, or ``servo3`` when the config names none).
+    gains : Mapping[str, tuple[float, float]]
+        Input channel -> (ahead, astern) gain [SI unit of the input per unit of ``a``].
+    """
+
+    name: str
+    gains: Mapping[str, tuple[float, float]]
+
+    def contribution(self, channel: str, a: np.ndarray) -> np.ndarray:
+        """What the actuator's signal ``a`` adds to input ``channel`` [SI unit of the input].
+
+        Parameters
+        ----------
+        channel : str
+            An input channel it drives (else zeros).
+        a : numpy.ndarray
+            The actuator's normalised signal [-].
+        """
+        a = np.asarray(a, float)
+        if channel not in self.gains:
+            return np.zeros_like(a)
+        ahead, astern = self.gains[channel]
+        return np.where(a >= 0, ahead * a, astern * a)
+
+
+def actuator_allocation(actuators: tuple[ActuatorMap, ...], where: str = "[[actuators]]") -> tuple[Actuator, ...]:
+    """The allocation the ``[[actuators]]`` maps define: maps of one source and channel are one
+    actuator, each map one input it drives (a twin-thruster boat's port thruster: one map to
+    ``tau_x``, one to ``tau_n``).
+
+    Parameters
+    ----------
+    actuators : tuple[ActuatorMap, ...]
+        The vessel's maps.
+    where : str
+        Config file and table, for the message.
+
+    Returns
+    -------
+    tuple[Actuator, ...]
+        In the order of first appearance; ``rc`` maps (pilot inputs) are not actuators and left out.
+
+    Raises
+    ------
+    ConfigError
+        Maps of one actuator with different names, PWM trims or spans, one actuator mapped twice
+        to the same input, or one name on two actuators.
+    """
+    groups: dict[tuple[str, int], list[ActuatorMap]] = {}
+    for a in actuators:
+        if a.source == "rc":
+            continue  # a pilot's stick is a command (logged as ``<input>@rc`` beside the servo's), not an actuator
+        groups.setdefault((a.source, a.channel), []).append(a)
+    out, owner = [], {}
+    for (src, ch), maps in groups.items():
+        names = {m.name for m in maps if m.name}
+        spans = {(m.pwm_trim, m.pwm_span) for m in maps}
+        targets = [m.target for m in maps]
+        if len(names) > 1 or len(spans) > 1 or len(set(targets)) < len(targets):
+            raise ConfigError(f"{where}: the maps of {src} channel {ch} are one actuator: expected one name, one "
+                              f"pwm_trim and pwm_span and each target once, found names {sorted(names)}, "
+                              f"(trim, span) {sorted(spans)}, targets {targets}")
+        name = names.pop() if names else f"{src}{ch}"
+        if name in owner:
+            raise ConfigError(f"{where}: expected one actuator per name, found {name!r} on {owner[name]} and "
+                              f"{src} channel {ch}")
+        owner[name] = f"{src} channel {ch}"
+        out.append(Actuator(name, {m.target: (float(m.full_scale), float(m.reverse_scale)) for m in maps}))
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -301,8 +390,9 @@ def parse_vessel(doc: Mapping[str, Any], path: str = "<dict>") -> Vessel:
         trim, span = (0.0, 1.0) if a["source"] in NORMALISED_SOURCES else (1500.0, 400.0)
         acts.append(ActuatorMap(source=a["source"], channel=int(a["channel"]), target=a["target"],
                                 pwm_trim=float(a.get("pwm_trim", trim)), pwm_span=float(a.get("pwm_span", span)),
-                                full_scale=fs, reverse_scale=float(a.get("reverse_scale", fs))))
+                                full_scale=fs, reverse_scale=float(a.get("reverse_scale", fs)), name=a.get("name")))
     kw["actuators"] = tuple(acts)
+    actuator_allocation(kw["actuators"], f"{path} [[actuators]]")  # one name, trim and span per actuator
     kw["sensor_noise"] = {k: float(v) for k, v in doc.get("sensor_noise", {}).items()}
     kw["extra"] = {k: doc[k] for k in ("thrusters", "topics", "sensors", "steady_state") if k in doc}
     return Vessel(**kw)

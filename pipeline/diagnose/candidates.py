@@ -14,6 +14,12 @@ Baseline (all DOFs):      ``T y_dot = -y + sum_j k_j u_j``
 ``thrust_asymmetry``:     one force input with separate gains ahead and astern (+1: k_rev)
 ``coupling``:             ``... + c x`` with ``x`` another DOF's measured velocity (+1: c)
 ``waves``:                see :mod:`pipeline.diagnose.waves` (a wave-band disturbance on the output)
+
+Actuator space (:mod:`pipeline.diagnose.actuators`): when the vessel config's allocation makes the
+DOF's force inputs from actuators, one of which drives several inputs (twin thrusters), the rate
+limit and the asymmetry act on each actuator's own signal instead of on the force inputs, and a
+delay of each actuator is offered beside the delay of every input; their labels name the actuator
+(``actuator_delay[thruster_port]``).
 """
 
 from __future__ import annotations
@@ -29,6 +35,8 @@ from ..model.first_order_blocks import effective_forcing
 from .gridfit import (GridData, LinearSpec, fit_linear, grid_data, initial_states, outputs_from_response,
                      predict_linear, refine_initial_states, refit_linear,
                      simulate_quadratic, solve_linear, weighted_residuals)
+from ..vessel import Actuator
+from .actuators import actuator_key, with_actuator
 from .problem import INPUT_HISTORY_T, DofProblem, block_average, input_moments
 from . import waves as wave_model
 
@@ -384,9 +392,35 @@ class _InputTransform(Candidate):
     parameter of the inputs, each value refitted by variable projection."""
 
     grid: np.ndarray
+    #: The actuator acted on (actuator space, :mod:`pipeline.diagnose.actuators`), or None.
+    actuator: Actuator | None = None
+
+    def apply_to(self, raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
+        """``raw`` (inputs and actuator signals on the trial grid) with this transform at ``value`` applied:
+        to one actuator's signal (and through the allocation to the inputs it drives) in actuator
+        space, else to the inputs.
+
+        Parameters
+        ----------
+        raw : Mapping[str, numpy.ndarray]
+            Trial-rate inputs and actuator signals (:func:`_sources`).
+        value : float
+            The transform's parameter.
+        """
+        if self.actuator is not None:
+            key = actuator_key(self.actuator.name)
+            return with_actuator(raw, self.actuator, self._signal(raw[key], value))
+        return self._on_inputs(raw, value)
+
+    def _signal(self, u: np.ndarray, value: float) -> np.ndarray:
+        """One signal (trial rate) transformed at ``value``."""
+        raise NotImplementedError
+
+    def _on_inputs(self, raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
+        raise NotImplementedError
 
     def _transformed(self, value: float) -> dict[str, np.ndarray]:
-        raise NotImplementedError
+        return self.apply_to(_sources(self.problem), value)
 
     def _data_for(self, value: float, cache: bool = False) -> GridData:
         key = float(value)
@@ -394,7 +428,7 @@ class _InputTransform(Candidate):
             return self._cache[key]
         p = self.problem
         raw = self._transformed(key)
-        d = self.data.with_forcing(**{c: _forcing(p, c, raw[c]) for c in raw})
+        d = self.data.with_forcing(**{c: _forcing(p, c, raw[c]) for c in p.inputs})
         if cache:
             # Only grid values are kept (every fold searches the same grid); refinement values
             # differ from fold to fold and would only fill memory on a long trial.
@@ -470,14 +504,27 @@ class _InputTransform(Candidate):
 
 
 class ActuatorDelay(_InputTransform):
-    """Every input of the DOF reaches the hull ``tau_d`` [s] late (actuator or logging latency)."""
+    """Every input of the DOF reaches the hull ``tau_d`` [s] late (actuator or logging latency); with
+    ``actuator``, that one actuator's signal does (actuator space), through its allocation.
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem.
+    data : GridData
+        Its analysis-grid data.
+    actuator : Actuator, optional
+        One of ``problem.actuators``.
+    """
 
     effect = "actuator_delay"
     param_names = ("tau_d",)
     n_extra = 1
 
-    def __init__(self, problem: DofProblem, data: GridData) -> None:
+    def __init__(self, problem: DofProblem, data: GridData, actuator: Actuator | None = None) -> None:
         super().__init__(problem, data)
+        self.actuator = actuator
+        self.channel = actuator.name if actuator is not None else None
         self._cache: dict[float, GridData] = {}
         tmax = DELAY_MAX_T * problem.t_guess
         self.grid = np.linspace(0.0, tmax, 21)
@@ -493,9 +540,12 @@ class ActuatorDelay(_InputTransform):
     def _resolution(self) -> float:
         return 0.1 / self.problem.fs
 
-    def _transformed(self, value: float) -> dict[str, np.ndarray]:
-        p = self.problem
-        return {c: delay_input(p.raw[c], value, p.fs) for c in p.inputs}
+    def _signal(self, u: np.ndarray, value: float) -> np.ndarray:
+        return delay_input(u, value, self.problem.fs)
+
+    def _on_inputs(self, raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
+        # Every input late (and every actuator's signal, so that a transform composed behind this one sees it).
+        return {c: self._signal(u, value) for c, u in raw.items()}
 
     def _param(self, v: float) -> dict[str, float]:
         return {"tau_d": float(v)}
@@ -508,11 +558,12 @@ class ActuatorRateLimit(_InputTransform):
     param_names = ("R",)
     n_extra = 1
 
-    def __init__(self, problem: DofProblem, data: GridData, channel: str) -> None:
+    def __init__(self, problem: DofProblem, data: GridData, channel: str, actuator: Actuator | None = None) -> None:
         super().__init__(problem, data)
         self._cache = {}
-        self.channel = channel
-        u = problem.raw[channel]
+        self.actuator = actuator
+        self.channel = actuator.name if actuator is not None else channel
+        u = problem.raw[actuator_key(actuator.name) if actuator is not None else channel]
         swing = float(np.max(np.abs(np.diff(u)))) if len(u) > 1 else 0.0
         # A ramped command (align interpolates a step over a sample) understates the swing.
         swing = max(swing, float(np.ptp(u)) / 2)
@@ -527,11 +578,12 @@ class ActuatorRateLimit(_InputTransform):
         """See :meth:`Candidate.applicable`."""
         return self.swing > 0
 
-    def _transformed(self, value: float) -> dict[str, np.ndarray]:
-        p = self.problem
-        out = {c: p.raw[c] for c in p.inputs}
-        out[self.channel] = rate_limit(p.raw[self.channel], value, p.fs)
-        return out
+    def _signal(self, u: np.ndarray, value: float) -> np.ndarray:
+        # ``value``: largest rate [SI/s of the input, or 1/s of an actuator's normalised signal].
+        return rate_limit(u, value, self.problem.fs)
+
+    def _on_inputs(self, raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
+        return {**raw, self.channel: self._signal(raw[self.channel], value)}
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
         """Refit on windows ``train``; see :meth:`Candidate.fit`.
@@ -557,23 +609,52 @@ class ActuatorRateLimit(_InputTransform):
 
 class ThrustAsymmetry(Candidate):
     """A force input pushes with gain ``k_fwd`` ahead and ``k_rev`` astern (propellers are weaker
-    astern); ``ratio = k_rev / k_fwd``."""
+    astern); ``ratio = k_rev / k_fwd``. With ``actuator`` (actuator space), that actuator's astern
+    share of the input it drives is scaled against the rest of the input (its ahead share and the
+    other actuators'): ``ratio`` is then its astern thrust relative to the allocation's.
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem.
+    data : GridData
+        Its analysis-grid data.
+    channel : str
+        The force input (ignored with ``actuator``).
+    actuator : Actuator, optional
+        One of ``problem.actuators``; it must drive one of the DOF's inputs only.
+    """
 
     effect = "thrust_asymmetry"
     param_names = ("k_fwd", "k_rev", "ratio")
     n_extra = 1
 
-    def __init__(self, problem: DofProblem, data: GridData, channel: str) -> None:
+    def __init__(self, problem: DofProblem, data: GridData, channel: str, actuator: Actuator | None = None) -> None:
         super().__init__(problem, data)
-        self.channel = channel
-        u = problem.raw[channel]
-        self.data = data.with_forcing(__pos=_forcing(problem, channel, np.maximum(u, 0.0)),
-                                      __neg=_forcing(problem, channel, np.minimum(u, 0.0)))
+        self.actuator = actuator
+        if actuator is not None:
+            # One input of this DOF only (one generalised force per DOF): the split is linear in it.
+            channel = next(iter(actuator.gains))
+            x = problem.raw[actuator_key(actuator.name)]
+            ahead, astern = actuator.gains[channel]
+            pos = problem.raw[channel] - actuator.contribution(channel, x) + ahead * np.maximum(x, 0.0)
+            neg = astern * np.minimum(x, 0.0)
+            self.channel = actuator.name
+        else:
+            u = problem.raw[channel]
+            pos, neg = np.maximum(u, 0.0), np.minimum(u, 0.0)
+            self.channel = channel
+        self.input = channel
+        self.data = data.with_forcing(__pos=_forcing(problem, channel, pos), __neg=_forcing(problem, channel, neg))
         forcing = tuple(f for f in self.spec.forcing if f != channel) + ("__pos", "__neg")
         self.aspec = LinearSpec(forcing)
+        if actuator is not None:
+            # The actuator itself must work both ahead and astern.
+            u = problem.raw[actuator_key(actuator.name)]
         amp = np.max(np.abs(u)) if len(u) else 0.0
         big = np.abs(u) > 0.1 * amp
-        self.both_signs = bool(amp > 0 and np.sum(big & (u > 0)) > 10 and np.sum(big & (u < 0)) > 10)
+        self.both_signs = bool(amp > 0 and np.sum(big & (u > 0)) > 10 and np.sum(big & (u < 0)) > 10
+                               and (actuator is None or len(actuator.gains) == 1))
 
     def applicable(self) -> bool:
         """See :meth:`Candidate.applicable`."""
@@ -593,7 +674,7 @@ class ThrustAsymmetry(Candidate):
         t, theta, sse = self._fit(d, self.aspec, start)
         params = {"T": t, **{f"k_{n}": float(v) for n, v in zip(self.aspec.names[:-2], theta[:-2])}}
         k_f, k_r = float(theta[-2]), float(theta[-1])
-        params.update({f"k_{self.channel}": k_f, "k_fwd": k_f, "k_rev": k_r,
+        params.update({f"k_{self.input}": k_f, "k_fwd": k_f, "k_rev": k_r,
                        "ratio": k_r / k_f if k_f else float("nan")})
         return Fitted(params, self.param_names, sse, (self.aspec, theta))
 
@@ -787,7 +868,9 @@ class SensorBias(Candidate):
 def candidates_for(problem: DofProblem, data: GridData) -> list[Candidate]:
     """Every applicable candidate of a DOF problem, baseline first.
 
-    Per-input candidates (rate limit, thrust asymmetry) appear once per input channel.
+    Per-input candidates (rate limit, thrust asymmetry) appear once per input channel; in actuator
+    space (``problem.actuators``) once per actuator instead, for the inputs the actuators drive,
+    beside a delay of each actuator.
 
     Parameters
     ----------
@@ -796,10 +879,18 @@ def candidates_for(problem: DofProblem, data: GridData) -> list[Candidate]:
     data : GridData
         Its analysis-grid data.
     """
+    acts = problem.actuators
+    # Actuator space: the inputs the actuators drive get per-actuator candidates instead of their own.
+    covered = {c for a in acts for c in a.gains}
     out: list[Candidate] = [Candidate(problem, data), NonlinearDamping(problem, data), Current(problem, data),
                             ActuatorDelay(problem, data)]
-    out += [ActuatorRateLimit(problem, data, c) for c in problem.inputs]
-    out += [ThrustAsymmetry(problem, data, c) for c in problem.inputs if c in FORCE_INPUTS]
+    if len(acts) + len(set(problem.inputs) - covered) > 1:
+        # One actuator's delay (with a single actuator and no other input it is the delay above).
+        out += [ActuatorDelay(problem, data, a) for a in acts]
+    out += [ActuatorRateLimit(problem, data, c) for c in problem.inputs if c not in covered]
+    out += [ActuatorRateLimit(problem, data, a.name, a) for a in acts]
+    out += [ThrustAsymmetry(problem, data, c) for c in problem.inputs if c in FORCE_INPUTS and c not in covered]
+    out += [ThrustAsymmetry(problem, data, a.name, a) for a in acts]
     out += [Waves(problem, data), Coupling(problem, data), SensorBias(problem, data)]
     return [c for c in out if c.applicable()]
 
@@ -830,13 +921,17 @@ def is_input_transform(c: Candidate) -> bool:
     return isinstance(c, _InputTransform) and not isinstance(c, ComposedTransform)
 
 
+def _sources(p: DofProblem) -> dict[str, np.ndarray]:
+    """A problem's trial-rate inputs and its actuators' signals (actuator space)."""
+    out = {c: p.raw[c] for c in p.inputs}
+    out.update({actuator_key(a.name): p.raw[actuator_key(a.name)] for a in p.actuators})
+    return out
+
+
 def _apply(c: "_InputTransform", raw: Mapping[str, np.ndarray], value: float) -> dict[str, np.ndarray]:
-    """``raw`` with the input transform of ``c`` (a delay of every input, or a rate limit of its
-    channel) at ``value`` applied."""
-    p = c.problem
-    if isinstance(c, ActuatorDelay):
-        return {**raw, **{ch: delay_input(raw[ch], value, p.fs) for ch in p.inputs}}
-    return {**raw, c.channel: rate_limit(raw[c.channel], value, p.fs)}
+    """``raw`` with the input transform of ``c`` (a delay of every input or of one actuator, a rate
+    limit of one input or actuator) at ``value`` applied."""
+    return c.apply_to(raw, value)
 
 
 #: Cost evaluations of the joint refinement of a composed transform's two values.
@@ -870,6 +965,7 @@ class ComposedTransform(_InputTransform):
         self.effect = second.effect
         self.param_names = second.param_names
         self.channel = getattr(second, "channel", None)
+        self.actuator = getattr(second, "actuator", None)
         self.after = candidate_label(first)
         self.v1, self.v2 = float(first_value), float(second.grid[0])
         self.searching = "second"
@@ -889,7 +985,7 @@ class ComposedTransform(_InputTransform):
         p = self.problem
         if self._first_out[0] != v1:
             # The grid search over the second value keeps the first's: transform it once.
-            self._first_out = (v1, _apply(self.first, {c: p.raw[c] for c in p.inputs}, v1))
+            self._first_out = (v1, _apply(self.first, _sources(p), v1))
         return _apply(self.second, self._first_out[1], v2)
 
     def _data_for(self, value: float, cache: bool = False) -> GridData:
@@ -897,7 +993,7 @@ class ComposedTransform(_InputTransform):
         if key in self._cache:
             return self._cache[key]
         raw = self._transformed(value)
-        d = self.data.with_forcing(**{c: _forcing(self.problem, c, raw[c]) for c in raw})
+        d = self.data.with_forcing(**{c: _forcing(self.problem, c, raw[c]) for c in self.problem.inputs})
         if cache:
             self._cache[key] = d
         return d
@@ -1018,6 +1114,8 @@ def composed_candidates(problem: DofProblem, first: Candidate, fitted: Fitted) -
     if not isinstance(first, ActuatorRateLimit):
         return []
     data = first.data
-    out = [ComposedTransform(problem, data, first, ActuatorDelay(problem, data), float(fitted.state[0]))]
+    # A rate-limited actuator's own delay (actuator space), else every input's.
+    out = [ComposedTransform(problem, data, first, ActuatorDelay(problem, data, first.actuator),
+                             float(fitted.state[0]))]
     out = [c for c in out if c.applicable()]
     return [first] + out if out else []

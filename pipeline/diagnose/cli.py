@@ -161,9 +161,11 @@ def _summary(report) -> str:
         lines.append(f"trial gap {report.gap_before:.3g} -> {report.gap_final:.3g} noise units with every selected "
                      f"effect (verdict alone: {report.gap_after:.3g})")
     shown = [c for c in report.candidates if c.significant] or list(report.candidates[:3])
-    lines.append(f"{'dof':<6} {'candidate':<28} {'gap before':>10} {'gap after':>10} {'shrink %':>9} {'p':>9}  significant")
+    # Wide enough for the longest label shown (an actuator's name, a composed transform).
+    w = max([28] + [len(c.label) for c in shown[:10]])
+    lines.append(f"{'dof':<6} {'candidate':<{w}} {'gap before':>10} {'gap after':>10} {'shrink %':>9} {'p':>9}  significant")
     for c in shown[:10]:
-        lines.append(f"{c.dof:<6} {c.label:<28} {c.gap_before:>10.3g} {c.gap_after:>10.3g} {c.shrink:>9.1f} "
+        lines.append(f"{c.dof:<6} {c.label:<{w}} {c.gap_before:>10.3g} {c.gap_after:>10.3g} {c.shrink:>9.1f} "
                      f"{c.p_value:>9.2g}  {'yes' if c.significant else 'no'}")
     top = [p for p in report.places if p.share > 0][:5]
     if top:

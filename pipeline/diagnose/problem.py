@@ -23,7 +23,8 @@ from ..errors import DiagnoseError
 from ..fit.data import first_present_channel
 from ..records import Segment, Segments, Trial
 from ..segment import noise_std
-from ..vessel import Vessel
+from ..vessel import Actuator, Vessel
+from .actuators import ActuatorSpace, actuator_key, actuator_space, held_input
 
 #: DOF name -> response (velocity) channels in order of preference. A boat without a heading
 #: sensor still has speed over ground, which is surge speed when it goes straight.
@@ -110,6 +111,10 @@ class DofProblem:
     derived_from : str or None
         For a body velocity that was not logged but derived from GNSS speed and course and the
         heading (:func:`derived_velocity`): the channels it came from; None for a measured one.
+    actuators : tuple[pipeline.vessel.Actuator, ...]
+        Actuators that drive the DOF's inputs (actuator space, :mod:`pipeline.diagnose.actuators`),
+        their gains restricted to these inputs; their signals are in ``raw`` under
+        :func:`pipeline.diagnose.actuators.actuator_key`. Empty when the candidates act on the inputs.
     """
 
     dof: str
@@ -127,6 +132,7 @@ class DofProblem:
     noise: Mapping[str, float] = field(default_factory=dict)
     derived_from: str | None = None
     stated_noise: Mapping[str, float] = field(default_factory=dict)
+    actuators: tuple = ()
 
     @property
     def outputs(self) -> tuple[str, ...]:
@@ -425,19 +431,6 @@ def initial_values(x: np.ndarray, windows: tuple[Window, ...], half: int) -> np.
     return out
 
 
-def _fill_input(u: np.ndarray) -> np.ndarray:
-    """Inputs held between logged samples (zero-order hold), zero before the first one."""
-    u = np.asarray(u, float).copy()
-    ok = np.isfinite(u)
-    if not ok.any():
-        return np.zeros_like(u)
-    idx = np.where(ok, np.arange(len(u)), 0)
-    np.maximum.accumulate(idx, out=idx)
-    filled = u[idx]
-    filled[: int(np.argmax(ok))] = 0.0
-    return filled
-
-
 def _unwrap_nan(x: np.ndarray) -> np.ndarray:
     out = np.asarray(x, float).copy()
     ok = np.isfinite(out)
@@ -650,9 +643,10 @@ def build_problems(trial: Trial, segments: Segments, vessel: Vessel | None = Non
         raise DiagnoseError(f"{trial.name}: expected at least one segment (coast-down, step, zig-zag, decay) "
                             f"to replay, found none")
     base = _cut_gaps(trial, _merge_windows(trial, segments.items))
+    space = actuator_space(trial, vessel)
     problems = []
     for dof in dofs:
-        p = _problem(trial, vessel, dof, base, (time_constants or {}).get(dof))
+        p = _problem(trial, vessel, dof, base, (time_constants or {}).get(dof), space)
         if p is not None:
             problems.append(p)
     return problems
@@ -699,7 +693,7 @@ def _moves(y: np.ndarray, w: Window, noise: float) -> bool:
 
 
 def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
-             t_const: float | None) -> DofProblem | None:
+             t_const: float | None, space: ActuatorSpace | None = None) -> DofProblem | None:
     fs = trial.fs
     t = trial.t
     ch = first_present_channel(trial, RESPONSE[dof])
@@ -733,7 +727,7 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         return None
     raw = {ch: y}
     for c in inputs:
-        raw[c] = _fill_input(trial.data[c].to_numpy(float))
+        raw[c] = held_input(trial.data[c].to_numpy(float))
     if t_const is None or not np.isfinite(t_const) or t_const <= 0:
         # For the time-constant guess only: inputs scaled to comparable size and summed.
         u_sum = sum(raw[c] / max(np.max(np.abs(raw[c])), 1e-12) for c in inputs) if inputs else None
@@ -787,8 +781,15 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
             continue
         raw[c] = x
         regs.append(c)
+    acts = []
+    for a in (space.actuators if space is not None else ()):
+        gains = {c: g for c, g in a.gains.items() if c in inputs}
+        if gains:
+            acts.append(Actuator(a.name, gains))
+            raw[actuator_key(a.name)] = space.signals[a.name]
     return DofProblem(dof=dof, channel=ch, angle=angle, heading=heading, inputs=inputs, regressors=tuple(regs),
                       fs=fs, m=m, dt=m / fs, windows=tuple(windows), t_guess=float(t_const), raw=raw, noise=noises,
                       derived_from=derived_velocity(trial, ch),
                       stated_noise={c: float(v) for c, v in getattr(vessel, "sensor_noise", {}).items()
-                                    if c in (ch, angle)})
+                                    if c in (ch, angle)},
+                      actuators=tuple(acts))

@@ -29,6 +29,7 @@ from dataclasses import replace
 import numpy as np
 
 from .gridfit import LinearSpec, fit_linear, grid_data, solve_linear
+from .actuators import actuator_key
 from .problem import DofProblem
 
 #: Advances searched [trial samples].
@@ -98,7 +99,7 @@ def input_timing(p: DofProblem) -> tuple[DofProblem, float]:
     if best == 0.0:
         return p, 0.0
     raw = dict(p.raw)
-    for c in p.inputs:
+    for c in tuple(p.inputs) + tuple(actuator_key(a.name) for a in p.actuators):
         raw[c] = advance_input(p.raw[c], best)
     return replace(p, raw=raw), best / p.fs
 

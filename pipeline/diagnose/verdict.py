@@ -22,6 +22,7 @@ from . import oscillatory as osc
 from . import selection as sel
 from .candidates import Candidate, candidate_label, candidates_for, composed_candidates, is_input_transform
 from .crossval import CandidateRun, cross_validate, cross_validate_all, jackknife_stderr
+from .actuators import actuator_space
 from .floor import heldout_floor
 from .gridfit import grid_data
 from .problem import DofProblem, build_problems
@@ -38,6 +39,12 @@ def _unit(name: str, p: DofProblem, run: CandidateRun) -> str:
     us = CHANNEL_UNITS.get(src, "")
     if name in ("T", "tau_d"):
         return "s"
+    act = getattr(run.candidate, "actuator", None)
+    if act is not None:
+        # Actuator space: the rate of a normalised actuator signal; gains on the input it drives.
+        us = CHANNEL_UNITS.get(getattr(run.candidate, "input", None) or next(iter(act.gains)), "")
+        if name == "R":
+            return "1/s"
     if name in ("k_fwd", "k_rev"):
         return f"({uy})/({us})"
     if name.startswith("k_"):
@@ -110,6 +117,9 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
                             f"decay) or a logged input to replay, found none in channels "
                             f"{[c for c in trial.data.columns if c != 't']}")
     t_consts = _refine_time_constants(trial, segs, vessel)
+    space_note = actuator_space(trial, vessel).note
+    if space_note:
+        notes.append(space_note)
     problems = build_problems(trial, segs, vessel, time_constants=t_consts)
     timed = [input_timing(p) for p in problems]
     problems = [p for p, _ in timed]
