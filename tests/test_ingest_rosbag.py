@@ -507,3 +507,43 @@ def test_variable_map_signs_follow_rep103():
     assert VARIABLE_MAP[("imu", "angular_velocity.z")] == ("r", -1.0)
     assert VARIABLE_MAP[("odometry", "pose.pose.position.y")] == ("x_n", 1.0)
     assert VARIABLE_MAP[("twist_body", "linear.y")] == ("v", -1.0)
+
+
+@pytest.mark.parametrize("version", ["ros1", "ros2-sqlite3"])
+def test_rudder_feedback_topic_is_measured_and_a_command_topic_is_held(tmp_path, version):
+    # A servo's angle sensor is a continuous signal (interpolated by align), the order sent to it is
+    # held until the next one: the topic name tells them apart, the summary says which was taken.
+    from pipeline.align import align
+
+    T = _types(version)
+    ns = [10**9 + k * 10**8 for k in range(40)]                      # 10 Hz
+    cmd = [0.0] * 10 + [0.2] * 30                                     # a step order
+    meas = [min(0.2, max(0.0, 0.05 * (k - 10))) for k in range(40)]  # the servo's ramp
+    imu = [(n, _imu(T, version, n, (1.0, 0.0, 0.0, 0.0))) for n in ns]
+    bag = _hand_bag(tmp_path / _bag_name(version), version, [
+        ("/imu/data", "sensor_msgs/msg/Imu", imu),
+        ("/rudder/cmd", "std_msgs/msg/Float64", [(n, T["std_msgs/msg/Float64"](data=v)) for n, v in zip(ns, cmd)]),
+        ("/rudder/feedback", "std_msgs/msg/Float64",
+         [(n, T["std_msgs/msg/Float64"](data=v)) for n, v in zip(ns, meas)])])
+    log = read_rosbag(bag)
+    kinds = {name: ch.input_kind for name, ch in log.channels.items() if name.startswith("delta")}
+    assert sorted(kinds.values()) == ["", "measured"], kinds
+    fb = next(name for name, kind in kinds.items() if kind == "measured")
+    assert log.channels[fb].source.startswith("/rudder/feedback")
+    assert any("/rudder/feedback" in w and "measured actuator state" in w for w in log.summary.warnings)
+    # On a grid finer than the log, the measured ramp is interpolated and the order held.
+    trial = align([log], fs=50.0)
+    d = trial.data
+    t, held, ramp = d["t"].to_numpy(), d[next(n for n, k in kinds.items() if k == "")].to_numpy(), d[fb].to_numpy()
+    mid = np.argmin(abs(t - (t[0] + 1.25)))                           # between two 10 Hz samples of the ramp
+    assert 0.0 < ramp[mid] < 0.2 and ramp[mid] not in meas
+    assert set(np.round(held[np.isfinite(held)], 12)) <= {0.0, 0.2}
+
+
+def test_topic_names_that_mark_a_measured_actuator_state():
+    from pipeline.ingest.rosbag import _input_kind
+
+    for topic in ("/rudder/feedback", "/rudder_state", "/boat/rudder/angle_measured", "/servo/actual", "/rudder/fb"):
+        assert _input_kind(topic) == "measured", topic
+    for topic in ("/rudder/angle", "/rudder/cmd", "/cmd_rudder", "/vesselid/tau_x", "/statesman/rudder"):
+        assert _input_kind(topic) == "", topic

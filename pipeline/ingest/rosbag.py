@@ -41,7 +41,10 @@ y = -y_flu, z = -z_flu`` (so ``p = wx, q = -wy, r = -wz``); attitude
 (u, v, w, p, q, r); any other frame (``gps``, ``odom``, ``map``, ``enu``...) is an ENU ground
 velocity, giving ``sog`` and ``cog``. Inputs in the actuator message are in the pipeline's own
 convention (Fossen body frame; ``delta`` positive gives a positive yaw rate), because that message
-is ours, not a ROS standard; ``/rudder/angle`` (Float64) likewise.
+is ours, not a ROS standard; ``/rudder/angle`` (Float64) likewise. An input topic is a command
+(held until the next message) unless its name says it is the actuator's measured state
+(``feedback``, ``state``, ``actual``, ``measured``, ``sensor``, ``encoder`` as a word of the name:
+``/rudder/feedback``); then it is interpolated, and the summary says so.
 
 Time
 ----
@@ -346,6 +349,33 @@ def _infer_role(topic: str, msgtype: str, fielddefs: Mapping[str, Any]) -> Role 
     if "header" in fields and any(n in INPUT_UNITS and _is_number(d) for n, d in fields.items()):
         return Role("actuators")
     return None
+
+
+#: Topic-name words that mark an input topic as the actuator's measured state (a rudder-angle sensor,
+#: servo feedback, shaft encoder) rather than the command sent to it.
+_MEASURED_WORDS = re.compile(r"(?:^|[/_\-])(?:feedback|fb|state|status|actual|measured|meas|sensor|encoder)(?:$|[/_\-])",
+                             re.IGNORECASE)
+
+
+def _input_kind(topic: str) -> str:
+    """``measured`` when the topic's name says it carries the actuator's measured state, else ``""``.
+
+    An input topic is a command (held until the next message, the default for every format) unless
+    its name says otherwise: ``/rudder/feedback``, ``/rudder_state``, ``/rudder/angle_measured`` are
+    measured actuator states (interpolated like the other measurements). A manifest's ``[inputs]``
+    overrides either way.
+
+    Parameters
+    ----------
+    topic : str
+        ROS topic name.
+
+    Returns
+    -------
+    str
+        ``"measured"`` or ``""`` (the reader's default: a command).
+    """
+    return "measured" if _MEASURED_WORDS.search(topic) else ""
 
 
 def _compatible(role: Role, msgtype: str, fielddefs: Mapping[str, Any]) -> bool:
@@ -956,7 +986,12 @@ def _build(p: Path, fmt: str, topics: Mapping[str, _TopicData], read: Counter, s
                     alt, k = f"{name}@{base_ns}{k}", k + 1
                 warnings.append(f"{td.topic}: {full} is already read from {other.topic}; kept as {alt}")
                 full = alt
-            produced[full] = (Channel(full, rel[ok], values, source=f"{td.topic} ({td.msgtype})"), td)
+            kind = _input_kind(td.topic) if name in INPUT_UNITS else ""
+            if kind == "measured":
+                warnings.append(f"{td.topic}: {full} taken as a measured actuator state (interpolated), from the "
+                                f"topic name; declare [inputs] {name} = \"command\" if it is a command")
+            produced[full] = (Channel(full, rel[ok], values, source=f"{td.topic} ({td.msgtype})", input_kind=kind),
+                              td)
     chans = {name: ch for name, (ch, _) in produced.items()}
     if not chans:
         raise IngestError(f"{p}: expected finite samples on {', '.join(topics)}, found none")
