@@ -61,10 +61,11 @@ def cmd_ingest(args: argparse.Namespace) -> int:
     from .align import group_runs, grouping_text
     from .errors import AlignError
     from .flow import read_logs
-    from .manifest import folder_notes
+    from .manifest import scan_logs
 
-    logs = read_logs(args.logs, _vessel(args.vessel))
-    for note in folder_notes(args.logs):
+    files, left_out = scan_logs(args.logs)
+    logs = read_logs(files, _vessel(args.vessel))
+    for note in left_out:
         print(note)
     for log in logs:
         print(log.summary.text())

@@ -29,7 +29,7 @@ from .align import align
 from .atomic import atomic_folder, atomic_path, check_output_folder
 from .errors import AutopilotError, DiagnoseError, SegmentError
 from .ingest import read_log, read_recordings
-from .manifest import expand_logs, folder_notes
+from .manifest import expand_logs, scan_logs
 from .records import AutopilotResult, Fits, Provenance, RawLog, Segment, Segments, Trial
 from .segment import segment_trial
 from .terminal import show_progress
@@ -149,13 +149,12 @@ def load_trial(paths: Sequence[str | Path], vessel: Vessel | None = None, name: 
         ``Trial.runs`` lists the runs with their files, clock offsets, spans and why they were
         grouped so.
     """
-    files = expand_logs(paths)
+    files, left_out = scan_logs(paths)
     logs = read_logs(files, vessel, columns, units)
     stated = None if runs is None else [[str(f) for f in expand_logs(r)] for r in runs]
     trial = align(logs, name=name or Path(paths[0]).stem, fs=fs, vessel=vessel, runs=stated, run_names=run_names,
                   input_kinds=input_kinds)
-    left_out = tuple(folder_notes(paths))
-    return replace(trial, notes=trial.notes + left_out) if left_out else trial
+    return replace(trial, notes=trial.notes + tuple(left_out)) if left_out else trial
 
 
 def runs_text(trial: Trial) -> str:

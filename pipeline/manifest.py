@@ -98,7 +98,7 @@ def expand_logs(paths) -> list[Path]:
     A ROS 2 bag folder (it holds ``metadata.yaml``) is one log, not a folder of logs; ``.txt``
     and ``.log`` files are taken only when their content is a log (NMEA sentences, UBX frames,
     MAVLink, DataFlash, ULog; :func:`pipeline.ingest.sniff.sniff`); subfolders that are bags are
-    taken, other subfolders are not searched.
+    taken, other subfolders are not searched. :func:`scan_logs` also says what each folder left out.
 
     Parameters
     ----------
@@ -115,7 +115,32 @@ def expand_logs(paths) -> list[Path]:
     ConfigError
         A folder with no log in it (naming what it holds and why each was not taken).
     """
+    return scan_logs(paths)[0]
+
+
+def scan_logs(paths) -> tuple[list[Path], list[str]]:
+    """:func:`expand_logs`, and what it left out of each folder (nothing is dropped unsaid).
+
+    Parameters
+    ----------
+    paths : Iterable[str or Path]
+        Files and folders.
+
+    Returns
+    -------
+    files : list[Path]
+        As :func:`expand_logs`.
+    notes : list[str]
+        For every folder that holds entries that are not logs: the folder, how many logs were
+        taken, and each entry left out with the reason (at most 12 named, then a count).
+
+    Raises
+    ------
+    ConfigError
+        A folder with no log in it (naming what it holds and why each was not taken).
+    """
     out: list[Path] = []
+    notes: list[str] = []
     for raw in paths:
         p = Path(raw)
         if not _is_folder_of_logs(p):
@@ -128,35 +153,12 @@ def expand_logs(paths) -> list[Path]:
                 + (f"; and {len(left) - 6} more" if len(left) > 6 else ""))
             raise ConfigError(f"{p}: expected log files ({', '.join(LOG_EXTENSIONS)}; .txt and .log holding NMEA "
                               f"or another log format) in the folder, found {what}")
-        out += found
-    return out
-
-
-def folder_notes(paths) -> list[str]:
-    """What :func:`expand_logs` left out of each folder, one note per folder (nothing is dropped unsaid).
-
-    Parameters
-    ----------
-    paths : Iterable[str or Path]
-        Files and folders, as given to :func:`expand_logs`.
-
-    Returns
-    -------
-    list[str]
-        For every folder that holds entries that are not logs: the folder, how many logs were
-        taken, and each entry left out with the reason (at most 12 named, then a count).
-    """
-    notes = []
-    for raw in paths:
-        p = Path(raw)
-        if not _is_folder_of_logs(p):
-            continue
-        found, left = _scan_folder(p)
-        if found and left:
+        if left:
             named = "; ".join(left[:12]) + (f"; and {len(left) - 12} more" if len(left) > 12 else "")
             notes.append(f"folder {p}: {len(found)} log(s) read, {len(left)} entr{'y' if len(left) == 1 else 'ies'} "
                          f"left out (not logs): {named}")
-    return notes
+        out += found
+    return out, notes
 
 
 def _is_folder_of_logs(p: Path) -> bool:

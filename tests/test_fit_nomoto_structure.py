@@ -385,7 +385,7 @@ def _fit_sine_pair(order1, measured):
 def test_sinusoids_of_a_second_order_ship_fitted_jointly():
     # One sinusoid cannot identify the second order (a gain and a phase for four constants), so each
     # frequency's own fit was first order, K and T spread between them and both were refused.
-    from pipeline.fit.nomoto_structure import is_joint_follower
+    from pipeline.fit.nomoto_pool import is_joint_follower
 
     fits = _fit_sine_pair(order1=False, measured=True)
     k, t = fits.estimates["K_nomoto"], fits.estimates["T_nomoto"]

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import AutopilotError
 from ..model.nomoto import NomotoParams, nomoto_rhs
-from ..model.waves import WaveParams, simulate_waves
+from ..model.waves import simulate_waves
 from ..geo import wrap_pi
 from ..records import DEFAULT_STEP, AutopilotConfig, ClosedLoopCheck, ClosedLoopRun, LoopMetrics, Scenario
 from .kalman import kalman_predict, kalman_update

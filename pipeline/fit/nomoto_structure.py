@@ -69,7 +69,7 @@ from .nomoto_oe import GainFloor, SecondOrderNoGain
 from .nomoto_problem import SERVO_PARAMS, Problem, prepare
 from .nomoto_records import NomotoFit
 from .nomoto_oe import fit_nomoto
-from .nomoto_pool import JOINT_FOLLOWER, is_joint_follower  # noqa: F401 - is_joint_follower re-exported
+from .nomoto_pool import JOINT_FOLLOWER
 from .nomoto_segment import (ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order, equivalent_t_stderr, fit_nomoto_window,
                              fit_window, fit_window_order, first_order_start_values, prepare_window, rec_channel,
                              segment_fit_of, slow_noise_note, stack_rows, structure_ambiguity)
@@ -213,7 +213,7 @@ def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit],
     (:func:`pipeline.fit.nomoto_segment.choose_order`). When the second order wins, the whole records
     are fitted jointly with it; the first segment carries the fit's K, T and the rest, the others the
     same fit (their own record's simulation) with a ``JOINT_FOLLOWER`` note, counted once
-    (:func:`is_joint_follower`).
+    (:func:`pipeline.fit.nomoto_pool.is_joint_follower`).
 
     With a logged command the servo lag is fitted too: then ``2 n`` numbers (``n`` frequencies)
     meet ``4 + 1`` unknowns, and with ``2 n < 5`` the lag trades off against the pole-zero pair

@@ -19,8 +19,9 @@ from .data import gain_formulation, input_levels, segment_label
 from .first_order import fit_coast_down, fit_step, step_steadiness
 from .nomoto import fit_rudder_step
 from .nomoto_quality import judge_nomoto
-from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment, samples_window
-from .nomoto_structure import fit_nomoto_trial, is_joint_follower, structure_note
+from .nomoto_pool import is_joint_follower, samples_window
+from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment
+from .nomoto_structure import fit_nomoto_trial, structure_note
 from .second_order import fit_free_decay
 from .segment_fit import failed_segment_fit
 

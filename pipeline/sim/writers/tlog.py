@@ -34,7 +34,7 @@ import numpy as np
 from ...atomic import atomic_path
 from ...errors import SimError
 from ...geo import wrap_pi
-from ...records import INPUT_UNITS, Channel, RawLog
+from ...records import INPUT_UNITS, RawLog
 from ...vessel import ActuatorMap, Vessel
 from ._sampling import check_channel, hold_channel as _hold, interp_channel as _interp, to_int_field
 
