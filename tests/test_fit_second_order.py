@@ -135,7 +135,7 @@ def test_half_period_segment_raises_naming_expected_and_found():
 
 
 def test_too_few_samples_raises():
-    with pytest.raises(FitError, match="expected at least 30 samples.*found 11 samples"):
+    with pytest.raises(FitError, match="expected at least 15 samples.*found 11 samples"):
         fit_free_decay(free_decay_trial(seed=7), roll_segment(1.0, 1.1))
 
 
@@ -160,3 +160,39 @@ def test_heavily_damped_one_second_pitch_decay_uses_the_release_as_first_extremu
     m_q = fits.estimates["M_q"]
     assert m_q.success, m_q.message
     assert abs(m_q.value + D_PITCH) < 3 * m_q.stderr and abs(m_q.value + D_PITCH) < 0.3
+
+
+def test_roll_decay_logged_at_5_hz_is_fitted_from_linear_prediction():
+    # A 1.64 Hz roll logged at 5 Hz: three samples per period, no clean extrema; 24 samples.
+    trial = free_decay_trial(seed=11, fs=5.0, t_release=0.0, length=4.8)
+    with pytest.raises(FitError):
+        from pipeline.fit.second_order import _guess_from_extrema
+        _guess_from_extrema(trial.data["t"].to_numpy(), trial.data["phi"].to_numpy())
+    fits = fit_trial(trial, Segments("roll", (roll_segment(0.0, 4.8),)), parse_vessel(AAUSHIP))
+    k_p = fits.estimates["K_p"]
+    assert k_p.success, k_p.message
+    assert abs(k_p.value + D_ROLL) < 3 * k_p.stderr and abs(k_p.value + D_ROLL) < 0.01
+
+
+def test_roll_decay_aliased_by_a_slow_log_is_refused_with_the_rates():
+    # Logged at 2 Hz, a 1.64 Hz roll shows as a clean 0.36 Hz damped cosine: the samples alone
+    # cannot tell; the config's sqrt(C/I_eff) can.
+    trial = free_decay_trial(seed=12, fs=2.0, t_release=0.0, length=30.0, d=D_ROLL / 8, noise_deg=0.05)
+    fits = fit_trial(trial, Segments("roll", (roll_segment(0.0, 30.0),)), parse_vessel(AAUSHIP))
+    for name in ("K_p", "wn_roll", "zeta_roll"):
+        est = fits.estimates[name]
+        assert not est.success, (name, est.value)
+    assert "alias" in fits.estimates["K_p"].message and "2 Hz" in fits.estimates["K_p"].message
+
+
+def test_linear_prediction_refuses_noise_and_unresolved_swings():
+    from pipeline.fit.second_order import guess_by_linear_prediction
+    rng = np.random.default_rng(13)
+    t = np.arange(0.0, 8.0, 0.2)
+    with pytest.raises(FitError):
+        guess_by_linear_prediction(t, rng.normal(0.0, 0.01, t.size))
+    g = guess_by_linear_prediction(t, 0.2 * np.exp(-0.3 * t) * np.cos(2 * math.pi * 1.0 * t + 0.4) + 0.01)
+    assert g["wn"] == pytest.approx(math.hypot(2 * math.pi, 0.3), rel=1e-6)
+    assert g["zeta"] == pytest.approx(0.3 / math.hypot(2 * math.pi, 0.3), rel=1e-6)
+    with pytest.raises(FitError, match="samples per period"):
+        guess_by_linear_prediction(t, 0.2 * np.exp(-0.3 * t) * np.cos(2 * math.pi * 2.2 * t))

@@ -8,6 +8,13 @@ sec. 6.4) is ``I_eff phi_ddot + D phi_dot + C phi = 0``, whose under-damped solu
 with ``wn^2 = C / I_eff`` and ``2 zeta wn = D / I_eff``. The offset absorbs a static heel (a trim
 weight, a sensor mounting error). The same form holds for the rate ``p`` (the derivative of a damped
 cosine is a damped cosine with the same ``zeta`` and ``wn``), which is fitted when ``phi`` is absent.
+
+The start values come from extrema and the logarithmic decrement when the record resolves the
+swings (several samples per half period). A log at a few samples per period (a 1.6 Hz roll logged at
+5 Hz) shows no clean extrema; there the start comes from linear prediction (Prony's method: the
+samples of a damped cosine obey ``y[k] = a1 y[k-1] + a2 y[k-2] + c``, whose characteristic roots are
+``exp(s dt)``). It is written here because it is a few lines of ``numpy.linalg.lstsq`` and
+``numpy.roots``; no maintained library offers a damped-sinusoid Prony start for irregular records.
 """
 
 from __future__ import annotations
@@ -25,8 +32,11 @@ from .least_squares import fit_least_squares
 from .segment_fit import build_segment_fit
 
 PARAMS = ("A", "zeta", "wn", "phase", "offset")
-#: Fewest samples a damped-oscillation fit accepts.
-MIN_SAMPLES = 30
+#: Fewest samples a damped-oscillation fit accepts: three per parameter of the five.
+MIN_SAMPLES = 15
+#: Fewest samples per damped period the fit accepts (Nyquist is 2; below 2.5 the swings are barely
+#: resolved and an aliased frequency cannot be told from the true one by the samples alone).
+MIN_SAMPLES_PER_PERIOD = 2.5
 #: Fewest alternating extrema above the noise (3 = one full period) a decay must show.
 MIN_EXTREMA = 3
 #: Fewest extrema, counting the release, when the decay sinks into the noise within a period.
@@ -121,6 +131,17 @@ def guess_damped_oscillation(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
     """
     t = np.asarray(t, float)
     y = np.asarray(y, float)
+    try:
+        return _guess_from_extrema(t, y)
+    except FitError as exc:
+        try:
+            return guess_by_linear_prediction(t, y)
+        except FitError as lp:
+            raise FitError(f"{exc}; linear prediction: {lp}") from None
+
+
+def _guess_from_extrema(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
+    """The extrema and log-decrement start of :func:`guess_damped_oscillation`."""
     sigma = noise_sigma(y)
     z = y - np.median(y)
     h = max(3.0 * sigma if math.isfinite(sigma) else 0.0, 1e-3 * float(np.abs(z).max(initial=0.0)))
@@ -154,6 +175,11 @@ def guess_damped_oscillation(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
     else:
         slope = 0.0
     decay_rate = max(-slope, 1e-3 * wd)  # a non-decaying record still starts the fit at small zeta
+    return _start_values(t, y, decay_rate, wd)
+
+
+def _start_values(t: np.ndarray, y: np.ndarray, decay_rate: float, wd: float) -> dict[str, float]:
+    """Amplitude, phase and offset by linear least squares once the decay rate and ``wd`` are known."""
     wn = math.hypot(wd, decay_rate)
     zeta = decay_rate / wn
     e = np.exp(-decay_rate * t)
@@ -162,6 +188,67 @@ def guess_damped_oscillation(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
     return {"A": float(math.hypot(a, b)), "zeta": float(zeta), "wn": float(wn),
             "phase": float(math.atan2(-b, a)), "offset": float(off),
             "log_decrement": float(2 * math.pi * decay_rate / wd)}
+
+
+def guess_by_linear_prediction(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
+    """Start for :func:`damped_oscillation` by linear prediction (Prony's method), for coarse logs.
+
+    Sampled every ``dt``, ``A exp(-sigma t) cos(wd t + phase) + offset`` obeys exactly
+    ``y[k] = a1 y[k-1] + a2 y[k-2] + c`` with characteristic roots ``z = exp((-sigma +- i wd) dt)``.
+    The least-squares ``a1, a2, c`` give the roots; ``wd = |arg z| / dt`` and ``sigma = -ln|z| / dt``.
+    Measurement noise pulls the roots towards the origin (more damping); this is only the start of
+    the nonlinear fit, which removes that bias. A record that is not uniformly sampled is first
+    interpolated onto its median step.
+
+    Parameters
+    ----------
+    t, y : numpy.ndarray
+        Time since release [s] and data.
+
+    Returns
+    -------
+    dict
+        As :func:`guess_damped_oscillation`.
+
+    Raises
+    ------
+    FitError
+        Fewer than ``MIN_SAMPLES`` samples, real roots (no oscillation), a root outside the unit
+        circle (a growing oscillation), fewer than ``MIN_SAMPLES_PER_PERIOD`` samples per damped
+        period, less than one period of record, or an oscillation that does not stand out of the
+        prediction residual by ``MIN_PEAK_SNR``.
+    """
+    t = np.asarray(t, float)
+    y = np.asarray(y, float)
+    if t.size < MIN_SAMPLES:
+        raise FitError(f"expected at least {MIN_SAMPLES} samples, found {t.size}")
+    dt = float(np.median(np.diff(t)))
+    grid = np.arange(t[0], t[-1] + 0.5 * dt, dt)
+    yg = np.interp(grid, t, y)
+    lagged = np.column_stack([yg[1:-1], yg[:-2], np.ones(yg.size - 2)])
+    (a1, a2, _), *_ = np.linalg.lstsq(lagged, yg[2:], rcond=None)
+    roots = np.roots([1.0, -a1, -a2])
+    if abs(roots[0].imag) < 1e-12:
+        raise FitError(f"the samples follow no oscillation (real characteristic roots {roots.real.round(3)})")
+    root = roots[0]
+    if abs(root) >= 1.0:
+        raise FitError(f"the samples follow a growing oscillation (|root| = {abs(root):.3f})")
+    wd = abs(math.atan2(root.imag, root.real)) / dt
+    decay_rate = -math.log(abs(root)) / dt
+    per_period = 2 * math.pi / wd / dt
+    if per_period < MIN_SAMPLES_PER_PERIOD:
+        raise FitError(f"expected at least {MIN_SAMPLES_PER_PERIOD:g} samples per period, found "
+                       f"{per_period:.2g} ({wd / (2 * math.pi):.3g} Hz at {1 / dt:.3g} Hz): the swings are "
+                       f"not resolved and an aliased frequency cannot be told from the true one")
+    if t[-1] - t[0] < 2 * math.pi / wd:
+        raise FitError(f"expected a full period ({2 * math.pi / wd:.3g} s) of record, found {t[-1] - t[0]:.3g} s")
+    start = _start_values(t, y, decay_rate, wd)
+    residual = y - damped_oscillation(t, *(start[n] for n in PARAMS))
+    spread = float(np.std(residual))
+    if not start["A"] > MIN_PEAK_SNR * spread:
+        raise FitError(f"the oscillation (amplitude {start['A']:.3g}) does not stand out of the residual "
+                       f"({spread:.3g}) by {MIN_PEAK_SNR:g} times")
+    return start
 
 
 def fit_free_decay(trial: Trial, segment: Segment) -> SegmentFit:
@@ -213,6 +300,12 @@ def fit_free_decay(trial: Trial, segment: Segment) -> SegmentFit:
         flip = np.array([-1.0, 1, 1, 1, 1])
         values = res.values * flip + np.array([0, 0, 0, math.pi, 0])
         res = replace(res, values=values, covariance=res.covariance * np.outer(flip, flip))
+    wd = res.value("wn") * math.sqrt(max(1.0 - res.value("zeta") ** 2, 0.0))
+    per_period = 2 * math.pi / wd / float(np.median(np.diff(t))) if wd > 0 else math.inf
+    if per_period < MIN_SAMPLES_PER_PERIOD:
+        raise FitError(f"{where}: the fitted oscillation ({wd / (2 * math.pi):.3g} Hz) has "
+                       f"{per_period:.2g} samples per period, expected at least {MIN_SAMPLES_PER_PERIOD:g}: "
+                       f"the log rate does not resolve it and an aliased frequency cannot be told from the true one")
     values = res.values.copy()
     values[PARAMS.index("phase")] = (values[PARAMS.index("phase")] + math.pi) % (2 * math.pi) - math.pi
     res = replace(res, values=values)

@@ -22,7 +22,7 @@ from .nomoto_quality import judge_nomoto
 from .nomoto_pool import is_joint_follower, samples_window
 from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment
 from .nomoto_structure import fit_nomoto_trial, structure_note
-from .second_order import fit_free_decay
+from .second_order import MIN_SAMPLES_PER_PERIOD, fit_free_decay
 from .segment_fit import failed_segment_fit
 
 #: Segment kind -> (fitter, model name).
@@ -235,6 +235,8 @@ class _Collector:
         restoring = self.vessel.restoring.get(dof)
         if missing:
             return
+        if sf.success and restoring is not None and restoring > 0 and sf.t.size > 1:
+            self._check_resolution(sf, math.sqrt(restoring / inertia))
         if restoring is None or restoring <= 0:
             note = f"restoring.{dof} not in vessel config: wn not checked against sqrt(C/I_eff)"
             if note not in self.pools[name].notes:
@@ -244,6 +246,28 @@ class _Collector:
                  f"fitted wn over config sqrt(C/I_eff) with C = {restoring:.4g} N m/rad, "
                  f"I_eff = {inertia:.4g} kg m^2, on {{kinds}}", kind,
                  self._derived(sf, lambda: natural_frequency_ratio(sf, restoring, inertia)))
+
+    def _check_resolution(self, sf: SegmentFit, wn_config: float) -> None:
+        """Refuse a decay whose log rate cannot resolve the frequency the config predicts.
+
+        Sampled at ``fs``, an oscillation at ``f`` above ``fs / 2`` shows in the samples at the alias
+        ``|f - k fs|``, a clean damped cosine at the wrong frequency that the fit alone cannot tell
+        from the true one. When the config's ``sqrt(C / I_eff)`` has fewer than
+        ``MIN_SAMPLES_PER_PERIOD`` samples per period, the fitted wn, zeta and the damping are
+        not used (they are replaced by a refusal that names the rates).
+        """
+        dt = float(np.median(np.diff(sf.t)))
+        per_period = 2 * math.pi / wn_config / dt
+        if per_period >= MIN_SAMPLES_PER_PERIOD:
+            return
+        dof = sf.segment.dof
+        reason = (f"{segment_label(sf.segment)}: the config's natural frequency sqrt(C/I_eff) = "
+                  f"{wn_config / (2 * math.pi):.3g} Hz has {per_period:.2g} samples per period at the log's "
+                  f"{1 / dt:.3g} Hz, expected at least {MIN_SAMPLES_PER_PERIOD:g}: the fitted "
+                  f"{sf.params['wn'] / (2 * math.pi):.3g} Hz may be an alias; log {dof} faster to identify it")
+        for name in (f"wn_{dof}", f"zeta_{dof}", DERIVATIVES[dof]):
+            items = self.pools[name].items
+            items[-1] = replace(items[-1], value=math.nan, stderr=math.nan, ok=False, reason=reason)
 
     def estimates(self) -> dict[str, Estimate]:
         # The wn check is flagged on the damping estimate it qualifies, so it is read first.
