@@ -15,6 +15,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..errors import DiagnoseError
+from ..parallel import ordered_map
 from ..records import CHANNEL_UNITS, Fits, Segments, Trial
 from ..vessel import Vessel
 from . import significance as sig
@@ -121,7 +122,7 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     if space_note:
         notes.append(space_note)
     problems = build_problems(trial, segs, vessel, time_constants=t_consts)
-    timed = [input_timing(p) for p in problems]
+    timed = ordered_map(_input_timing_unit, problems, jobs=jobs)  # per DOF, side by side when jobs allows
     problems = [p for p, _ in timed]
     for p, adv in timed:
         if adv > 0:
@@ -168,8 +169,9 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             heldout_floor=dict(floor_of)))
         per_dof[p.dof]["resid"] = resid
 
-    for q in osc_problems:
-        res, base_run, cand_run, summary, state = _oscillatory_dof(q)
+    # Roll and pitch are independent: side by side in worker processes when ``jobs`` allows.
+    osc_done = ordered_map(_oscillatory_unit, osc_problems, jobs=jobs)
+    for q, (res, base_run, cand_run, summary, state) in zip(osc_problems, osc_done):
         results.append(res)
         summaries.append(summary)
         states[q.dof] = state
@@ -344,6 +346,16 @@ def _stated_noise_notes(p: DofProblem) -> list[str]:
             out.append(f"{p.dof}: noise floor of {ch} measured in the data ({data:.3g} {unit} per analysis step), "
                        f"below the vessel config's [sensor_noise] {s:.3g} {unit} per sample")
     return out
+
+
+def _input_timing_unit(_, p):
+    """:func:`pipeline.diagnose.timing.input_timing` as a unit of :func:`pipeline.parallel.ordered_map`."""
+    return input_timing(p)
+
+
+def _oscillatory_unit(_, q):
+    """:func:`_oscillatory_dof` as a unit of :func:`pipeline.parallel.ordered_map`."""
+    return _oscillatory_dof(q)
 
 
 def _oscillatory_dof(q):
