@@ -122,20 +122,25 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     if space_note:
         notes.append(space_note)
     problems = build_problems(trial, segs, vessel, time_constants=t_consts)
-    timed = ordered_map(_input_timing_unit, problems, jobs=jobs)  # per DOF, side by side when jobs allows
-    problems = [p for p, _ in timed]
-    for p, adv in timed:
+    osc_problems = [q for q in (osc.build_oscillatory(trial, segs, dof) for dof in ("roll", "pitch")) if q is not None]
+    # Independent units, side by side in worker processes when ``jobs`` allows: the roll and pitch
+    # cross-validations (their results are used below, in the same order as before) and each DOF's input
+    # timing and grid data.
+    early = ordered_map(_early_unit, [("osc", q) for q in osc_problems] + [("timing", p) for p in problems],
+                        jobs=jobs)
+    osc_done, timed = early[:len(osc_problems)], early[len(osc_problems):]
+    problems = [p for p, _, _ in timed]
+    for p, adv, _ in timed:
         if adv > 0:
             notes.append(f"{p.dof}: inputs taken {adv:.3g} s earlier than logged (the log's timing of the commands: "
                          f"a command sampled by the log is recorded up to one sample after it switched); the "
                          f"baseline and every candidate use that timing")
         notes += _stated_noise_notes(p)
-    osc_problems = [q for q in (osc.build_oscillatory(trial, segs, dof) for dof in ("roll", "pitch")) if q is not None]
     if not problems and not osc_problems:
         raise DiagnoseError(f"{trial.name}: expected a DOF whose response (u, v or r, or sog) is measured and "
                             f"excited by the segments, found none (channels "
                             f"{[c for c in trial.data.columns if c != 't']}, {len(segs.items)} segments)")
-    datas = [grid_data(p) for p in problems]
+    datas = [d for _, _, d in timed]
     cands = [candidates_for(p, d) for p, d in zip(problems, datas)]
     from .crossval import assign_folds
 
@@ -169,8 +174,6 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
             heldout_floor=dict(floor_of)))
         per_dof[p.dof]["resid"] = resid
 
-    # Roll and pitch are independent: side by side in worker processes when ``jobs`` allows.
-    osc_done = ordered_map(_oscillatory_unit, osc_problems, jobs=jobs)
     for q, (res, base_run, cand_run, summary, state) in zip(osc_problems, osc_done):
         results.append(res)
         summaries.append(summary)
@@ -348,14 +351,15 @@ def _stated_noise_notes(p: DofProblem) -> list[str]:
     return out
 
 
-def _input_timing_unit(_, p):
-    """:func:`pipeline.diagnose.timing.input_timing` as a unit of :func:`pipeline.parallel.ordered_map`."""
-    return input_timing(p)
-
-
-def _oscillatory_unit(_, q):
-    """:func:`_oscillatory_dof` as a unit of :func:`pipeline.parallel.ordered_map`."""
-    return _oscillatory_dof(q)
+def _early_unit(_, job):
+    """A unit of :func:`pipeline.parallel.ordered_map` in :func:`diagnose`: ``("osc", q)`` ->
+    :func:`_oscillatory_dof` of ``q``; ``("timing", p)`` -> ``(problem, advance, grid data)``, the
+    problem with its input timing (:func:`pipeline.diagnose.timing.input_timing`) and its grid data."""
+    kind, problem = job
+    if kind == "osc":
+        return _oscillatory_dof(problem)
+    timed, advance = input_timing(problem)
+    return timed, advance, grid_data(timed)
 
 
 def _oscillatory_dof(q):

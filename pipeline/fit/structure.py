@@ -345,23 +345,9 @@ def apply_choices(fits: Fits, trial: Trial, segments: Sequence[Segment], vessel:
     """:func:`apply_structures` with the choices already made (:func:`select_structures`, or
     :func:`select_dof` per DOF as units of another ``ordered_map``: :func:`pipeline.fit.trial.fit_trial`).
 
-    Parameters
-    ----------
-    fits : Fits
-        Result of the single-DOF (and grey-box) fits.
-    trial : Trial
-        The trial.
-    segments : Sequence[Segment]
-        Its segments.
-    vessel : Vessel
-        Config.
-    choices : Mapping[str, StructureChoice]
-        DOF -> choice.
-
-    Returns
-    -------
-    Fits
-        A new record with ``structures`` filled.
+    ``fits``, ``trial``, ``segments`` and ``vessel`` as in :func:`apply_structures`; ``choices``: DOF ->
+    :class:`StructureChoice` (a DOF left out keeps its single-DOF fits). Returns a new :class:`Fits`
+    with ``structures`` filled.
     """
     decays = {dof: a for dof in ("roll", "pitch") if (a := analyse_decays(trial, segments, vessel, dof)) is not None}
     if decays:
