@@ -144,8 +144,8 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     cands = [candidates_for(p, d) for p, d in zip(problems, datas)]
     from .crossval import assign_folds
 
-    total = sum(int(assign_folds(p).max()) + 2 for p in problems)
-    tick = progress(total) if progress else None
+    # The folds are counted for a progress bar only (0.6 s CPU on a 2-hour trial).
+    tick = progress(sum(int(assign_folds(p).max()) + 2 for p in problems)) if progress else None
 
     results: list[CandidateResult] = []
     summaries: list[DofSummary] = []

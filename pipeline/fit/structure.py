@@ -203,6 +203,17 @@ def structure_inputs(trial: Trial, segments: Sequence[Segment], vessel: Vessel, 
     """What :func:`select_dof` reads: ``(trial, segments, vessel, model, steady points by DOF)``, the
     steady points from the vessel config's ``[steady_state]`` (:func:`pipeline.fit.steady_map.steady_points`).
 
+    Parameters
+    ----------
+    trial : Trial
+        The aligned trial.
+    segments : Sequence[Segment]
+        All of its segments (each DOF picks its own).
+    vessel : Vessel
+        Config: ``M_ii`` per DOF and the optional ``[steady_state]`` table.
+    model : str
+        One of ``MODELS``.
+
     Raises
     ------
     FitError
@@ -215,12 +226,26 @@ def structure_inputs(trial: Trial, segments: Sequence[Segment], vessel: Vessel, 
 
 
 def choices_of(chosen: Sequence[StructureChoice | None]) -> dict[str, StructureChoice]:
-    """DOF -> choice from :func:`select_dof`'s results in ``STRUCTURE_DOFS`` order (failed DOFs left out)."""
+    """DOF -> choice from :func:`select_dof`'s results in ``STRUCTURE_DOFS`` order (failed DOFs left out).
+
+    Parameters
+    ----------
+    chosen : Sequence[StructureChoice or None]
+        One result per DOF of ``STRUCTURE_DOFS``, in that order.
+    """
     return {dof: c for dof, c in zip(STRUCTURE_DOFS, chosen) if c is not None}
 
 
 def select_dof(inputs: tuple, dof: str) -> StructureChoice | None:
-    """:func:`select_structure` of one DOF with its notes (``inputs``: :func:`structure_inputs`); None when it has no records or its joint fit fails."""
+    """:func:`select_structure` of one DOF with its notes; None when it has no records or its joint fit fails.
+
+    Parameters
+    ----------
+    inputs : tuple
+        From :func:`structure_inputs`.
+    dof : str
+        One of ``STRUCTURE_DOFS``.
+    """
     trial, segments, vessel, model, steady = inputs
     dt = 1.0 / trial.fs
     recs = dof_records(trial, segments, dof)
@@ -345,9 +370,23 @@ def apply_choices(fits: Fits, trial: Trial, segments: Sequence[Segment], vessel:
     """:func:`apply_structures` with the choices already made (:func:`select_structures`, or
     :func:`select_dof` per DOF as units of another ``ordered_map``: :func:`pipeline.fit.trial.fit_trial`).
 
-    ``fits``, ``trial``, ``segments`` and ``vessel`` as in :func:`apply_structures`; ``choices``: DOF ->
-    :class:`StructureChoice` (a DOF left out keeps its single-DOF fits). Returns a new :class:`Fits`
-    with ``structures`` filled.
+    Parameters
+    ----------
+    fits : Fits
+        The fits the choices are applied to (single-DOF and grey-box).
+    trial : Trial
+        The trial (roll and pitch extinction analyses).
+    segments : Sequence[Segment]
+        The trial's segments.
+    vessel : Vessel
+        Config (restoring, for the effective inertia).
+    choices : Mapping[str, StructureChoice]
+        DOF -> choice; a DOF left out keeps its single-DOF fits.
+
+    Returns
+    -------
+    Fits
+        A new record with ``structures`` filled.
     """
     decays = {dof: a for dof in ("roll", "pitch") if (a := analyse_decays(trial, segments, vessel, dof)) is not None}
     if decays:
