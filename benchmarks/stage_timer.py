@@ -108,6 +108,8 @@ def install(out_json: str | Path) -> dict:
             entry["parallel_units_cpu_s"] = round(units, 2)
             entry["idle_2core_wall_s"] = round(cpu - units + sum(parallel.makespan(r["unit_cpu_s"], 2)
                                                                   for r in regions), 2)
+            # Each call's units in hand-out order [s CPU] (which unit sets a call's makespan).
+            entry["unit_cpu_s"] = [[round(c, 2) for c in r["unit_cpu_s"]] for r in regions]
         if own:
             entry["peak_gb"] = round(_hwm() / 1e9, 3)
         if "summed" in label and label in costs:

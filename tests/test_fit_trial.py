@@ -128,3 +128,36 @@ def test_empty_segments_give_empty_fits():
     joint = fit_trial(trial, Segments("aauship", ()), parse_vessel(AAUSHIP))
     assert np.isnan(joint.damping_matrix).all()
     assert all(not e.success and e.message for e in joint.estimates.values())
+
+
+def test_greybox_and_structures_as_units_match_the_serial_steps(monkeypatch):
+    # fit_trial runs the grey-box fit and each DOF's structure choice as units of one ordered_map (in
+    # worker processes when the cores allow): the result is the serial composition, bit for bit.
+    from pipeline.fit.extend import extend_fits
+    from pipeline.fit.structure import apply_structures
+
+    trial, segs = aauship_trial(seed=3)
+    vessel = parse_vessel(AAUSHIP)
+    single = fit_trial(trial, segs, vessel, extend=False)
+    serial = apply_structures(extend_fits(single, trial, segs, vessel), trial, segs.items, vessel)
+    assert serial.structures  # the structure step ran
+    for jobs in ("1", "2"):
+        monkeypatch.setenv("VESSELID_JOBS", jobs)
+        units = fit_trial(trial, segs, vessel)
+        assert list(units.estimates) == list(serial.estimates)
+        for name, e in serial.estimates.items():
+            u = units.estimates[name]
+            assert (repr(u.value), repr(u.stderr), u.message, u.success) == (
+                repr(e.value), repr(e.stderr), e.message, e.success), name
+        assert np.array_equal(units.damping_matrix, serial.damping_matrix, equal_nan=True)
+        assert np.array_equal(units.damping_stderr, serial.damping_stderr, equal_nan=True)
+        assert list(units.structures) == list(serial.structures)
+        assert [c.selected for c in units.structures.values()] == [c.selected for c in serial.structures.values()]
+
+
+def test_bad_model_is_refused_before_any_joint_fit():
+    from pipeline.errors import FitError
+
+    trial, segs = aauship_trial(seed=1)
+    with pytest.raises(FitError, match="--model: expected one of"):
+        fit_trial(trial, segs, parse_vessel(AAUSHIP), model="cubic")

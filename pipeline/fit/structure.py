@@ -42,6 +42,8 @@ TIME_BLOCKS = 4
 BLOCKS_PER_FOLD = 4
 #: Structures a user may force.
 MODELS = ("auto", "linear", "quadratic")
+#: DOFs whose damping structure is chosen (one unit of work each: :func:`select_dof`).
+STRUCTURE_DOFS = ("surge", "sway", "roll", "pitch", "yaw")
 
 
 def _folds(mask: np.ndarray) -> tuple[list[np.ndarray], str]:
@@ -193,14 +195,57 @@ def select_structures(trial: Trial, segments: Sequence[Segment], vessel: Vessel,
         DOF -> choice; a DOF whose joint fit fails is left out (the single-DOF fits still stand).
     """
     # The DOFs are independent: worker processes choose them side by side when the cores allow.
-    dofs = ("surge", "sway", "roll", "pitch", "yaw")
-    chosen = ordered_map(_select_dof, dofs, context=(trial, segments, vessel, model, steady or {}))
-    return {dof: c for dof, c in zip(dofs, chosen) if c is not None}
+    chosen = ordered_map(select_dof, STRUCTURE_DOFS, context=(trial, segments, vessel, model, steady or {}))
+    return choices_of(chosen)
 
 
-def _select_dof(inputs: tuple, dof: str) -> StructureChoice | None:
-    """:func:`select_structure` of one DOF with its notes (``inputs``: trial, segments, vessel, model,
-    steady points by DOF); None when it has no records or its joint fit fails."""
+def structure_inputs(trial: Trial, segments: Sequence[Segment], vessel: Vessel, model: str = "auto") -> tuple:
+    """What :func:`select_dof` reads: ``(trial, segments, vessel, model, steady points by DOF)``, the
+    steady points from the vessel config's ``[steady_state]`` (:func:`pipeline.fit.steady_map.steady_points`).
+
+    Parameters
+    ----------
+    trial : Trial
+        The aligned trial.
+    segments : Sequence[Segment]
+        All of its segments (each DOF picks its own).
+    vessel : Vessel
+        Config: ``M_ii`` per DOF and the optional ``[steady_state]`` table.
+    model : str
+        One of ``MODELS``.
+
+    Raises
+    ------
+    FitError
+        ``model`` is not one of ``MODELS``.
+    """
+    if model not in MODELS:
+        raise FitError(f"--model: expected one of {list(MODELS)}, found {model!r}")
+    steady = steady_points(vessel.extra["steady_state"]) if "steady_state" in dict(vessel.extra or {}) else None
+    return trial, segments, vessel, model, steady or {}
+
+
+def choices_of(chosen: Sequence[StructureChoice | None]) -> dict[str, StructureChoice]:
+    """DOF -> choice from :func:`select_dof`'s results in ``STRUCTURE_DOFS`` order (failed DOFs left out).
+
+    Parameters
+    ----------
+    chosen : Sequence[StructureChoice or None]
+        One result per DOF of ``STRUCTURE_DOFS``, in that order.
+    """
+    return {dof: c for dof, c in zip(STRUCTURE_DOFS, chosen) if c is not None}
+
+
+def select_dof(inputs: tuple, dof: str) -> StructureChoice | None:
+    """:func:`select_structure` of one DOF with its notes; None when it has no records or its joint fit fails.
+
+    Parameters
+    ----------
+    inputs : tuple
+        From :func:`structure_inputs`.
+    dof : str
+        One of ``STRUCTURE_DOFS``.
+    """
     trial, segments, vessel, model, steady = inputs
     dt = 1.0 / trial.fs
     recs = dof_records(trial, segments, dof)
@@ -316,10 +361,33 @@ def apply_structures(fits: Fits, trial: Trial, segments: Sequence[Segment], vess
     Fits
         A new record with ``structures`` filled.
     """
-    if model not in MODELS:
-        raise FitError(f"--model: expected one of {list(MODELS)}, found {model!r}")
-    steady = steady_points(vessel.extra["steady_state"]) if "steady_state" in dict(vessel.extra or {}) else None
-    choices = select_structures(trial, segments, vessel, model, steady)
+    inputs = structure_inputs(trial, segments, vessel, model)
+    return apply_choices(fits, trial, segments, vessel, select_structures(*inputs))
+
+
+def apply_choices(fits: Fits, trial: Trial, segments: Sequence[Segment], vessel: Vessel,
+                  choices: Mapping[str, StructureChoice]) -> Fits:
+    """:func:`apply_structures` with the choices already made (:func:`select_structures`, or
+    :func:`select_dof` per DOF as units of another ``ordered_map``: :func:`pipeline.fit.trial.fit_trial`).
+
+    Parameters
+    ----------
+    fits : Fits
+        The fits the choices are applied to (single-DOF and grey-box).
+    trial : Trial
+        The trial (roll and pitch extinction analyses).
+    segments : Sequence[Segment]
+        The trial's segments.
+    vessel : Vessel
+        Config (restoring, for the effective inertia).
+    choices : Mapping[str, StructureChoice]
+        DOF -> choice; a DOF left out keeps its single-DOF fits.
+
+    Returns
+    -------
+    Fits
+        A new record with ``structures`` filled.
+    """
     decays = {dof: a for dof in ("roll", "pitch") if (a := analyse_decays(trial, segments, vessel, dof)) is not None}
     if decays:
         fits = replace(fits, estimates={**fits.estimates, **inertia_estimates(decays)}, decay_analyses=decays)

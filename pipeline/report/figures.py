@@ -42,8 +42,11 @@ MAX_PLOT_POINTS = 4000
 #: Most markers drawn per series of a segment-fit figure; longer series show every k-th sample.
 MAX_MARKERS = 1500
 #: Most segment fits drawn as figures in one report (a 2-hour trial has hundreds of segments;
-#: every fit stays in the quality table). :func:`figure_selection` picks which.
-MAX_FIT_FIGURES = 40
+#: every fit stays in the quality table). :func:`figure_selection` picks which: the failed fits, then
+#: the worst and the best of each group of one segment kind, DOF and channel. 24 holds the bundled
+#: sample trial's 22 fits whole, and a 2-hour trial's 3 failed fits plus the worst and best of each of
+#: its 10 groups (benchmarks/scaling.py); each fit drawn costs ~0.2-0.3 s CPU with its residual figure.
+MAX_FIT_FIGURES = 24
 
 _SAFE = re.compile(r"[^A-Za-z0-9_-]+")
 
