@@ -904,7 +904,8 @@ def run_random_case(case: RandomCase) -> dict:
         except Exception as exc:  # a crash or a refusal is a result, not an abort
             return {**out, "error": f"{type(exc).__name__}: {exc}"}
         out["t_diagnose"] = time.perf_counter() - t0
-    out["selected"] = [{"effect": e.effect, "dof": e.dof, "shrink": e.shrink, "label": e.label} for e in rep.effects]
+    out["selected"] = [{"effect": e.effect, "dof": e.dof, "shrink": e.shrink, "label": e.label,
+                        "unsure": e.why.startswith("unsure")} for e in rep.effects]
     out["unexplained"] = [{"channel": u.channel, "gap": u.gap} for u in rep.unexplained]
     out["gap_before"], out["gap_final"] = rep.gap_before, rep.gap_final
     out["dof_gaps"] = {d.dof: d.gap for d in rep.dofs}
@@ -1056,6 +1057,14 @@ def random_report(results: list[dict]) -> None:
     if able:
         print(f"  second found when it is significant alone: {pct(got, able)} (power of the step on top)")
     print(f"out of library -> unexplained: {pct(unexp, outside)}   target >= 80%")
+    # Selected effects that name no true effect (single and pair trials), and how many of them the
+    # diagnosis itself reported as unsure (a delay and a rate limit of one input in one DOF).
+    extra = [(r["case"], s) for r in single + pair for s in r["selected"]
+             if not any(_hit(s, e) for e in r["effects"])]
+    print(f"selected outside the truth  : {len(extra)} in {len({c for c, _ in extra})} trials, "
+          f"{sum(bool(s.get('unsure')) for _, s in extra)} of them reported unsure"
+          + (f" ({', '.join(c + ' ' + s.get('label', s['effect']) + '/' + s['dof'] + (' unsure' if s.get('unsure') else '') for c, s in extra)})"
+             if extra else ""))
     times = [r["t_diagnose"] for r in ran if "t_diagnose" in r]
     print(f"diagnose time: median {np.median(times):.1f} s, max {np.max(times):.1f} s" if times else "")
     # Detection threshold per effect: excess gap of the true DOF, sqrt(gap^2 - 1), in noise units.
