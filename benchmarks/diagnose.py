@@ -615,11 +615,12 @@ def twin_vessel(name: str = "twin", **extra) -> object:
 
 def twin_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, noise: float,
                act_lag: float = 0.0, gnss_lag: float = 0.0, quad_yaw: float = 0.0, extra=None,
-               one_lag: float = 0.0, one_rate: float = 0.0, side: str = "port") -> Path:
+               one_lag: float = 0.0, one_rate: float = 0.0, side: str = "port", one_gain: float = 1.0) -> Path:
     """A twin-thruster boat (surge and yaw from the same two thrusters), integrated here with
     random time constants and gains: GNSS speed over ground, gyro, compass, thrust commands.
     ``act_lag`` [s] delays both thrusters, ``one_lag`` [s] the ``side`` (port or stbd) one only,
-    and ``one_rate`` [N/s] (0: none) limits that thruster's rate of change (after its delay)."""
+    and ``one_rate`` [N/s] (0: none) limits that thruster's rate of change (after its delay);
+    ``one_gain`` scales that thruster's thrust (a weaker thruster: below 1)."""
     import pandas as pd
 
     n = int(minutes * 60 * fs)
@@ -636,11 +637,11 @@ def twin_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, 
         return np.concatenate([np.full(k, x[0]), x[:n - k]]) if k else x
 
     tx, tn = lagged(tau_x, act_lag), lagged(tau_n, act_lag)
-    if one_lag or one_rate:
+    if one_lag or one_rate or one_gain != 1.0:
         from pipeline.diagnose.candidates import rate_limit
 
         a1, a2 = (t1, t2) if side == "port" else (t2, t1)
-        a1 = lagged(a1, one_lag)
+        a1 = one_gain * lagged(a1, one_lag)
         if one_rate:
             a1 = rate_limit(a1, one_rate, fs)
         p1, p2 = (a1, a2) if side == "port" else (a2, a1)
@@ -813,9 +814,16 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, extra=extra)
         files, shape = _nuisances(path, rng, True)
         return files, twin_vessel() if case.allocation else None, {**truth, **shape}
-    if case.kind in ("actuator", "twin_clean"):
-        # The controlled actuator-space set: one thruster of the twin late or rate-limited, or none.
+    if case.kind in ("actuator", "twin_clean", "imbalance"):
+        # The controlled actuator-space set: one thruster of the twin late or rate-limited, or none;
+        # or (imbalance) one thruster weaker, by 1 - 0.3 x magnitude (0.4-0.91 of its allocation).
         kw: dict = {}
+        if case.kind == "imbalance":
+            mag = float(np.exp(rng.uniform(np.log(MAG_RANGE[0]), np.log(MAG_RANGE[1]))))
+            kw = {"side": str(rng.choice(["port", "stbd"])), "one_gain": 1.0 - 0.3 * mag}
+            # Only the thrusters' relative thrust is in the data: one label for a weaker port or a stronger stbd.
+            truth["effects"].append({"effect": "thrust_imbalance", "dof": "", "magnitude": mag,
+                                     "label": "thrust_imbalance[thruster_port/thruster_stbd]"})
         if case.kind == "actuator":
             mag = float(np.exp(rng.uniform(np.log(MAG_RANGE[0]), np.log(MAG_RANGE[1]))))
             side = str(rng.choice(["port", "stbd"]))
@@ -957,18 +965,18 @@ def miss_cause(r: dict) -> str | None:
         return None
     effs = r["effects"]
     todo = [e for e in effs if not any(_hit(s, e) for s in r["selected"])]
-    if r["kind"] in ("single", "actuator"):
+    if r["kind"] in ("single", "actuator", "imbalance"):
         if r["selected"] and _hit(r["selected"][0], effs[0]):
             return None
         todo = effs
     if not todo:
         return None
     e = todo[0]
-    which = "single: " if r["kind"] in ("single", "actuator") else ("pair, both missed: " if len(todo) == 2 else "pair, second: ")
+    which = "single: " if r["kind"] in ("single", "actuator", "imbalance") else ("pair, both missed: " if len(todo) == 2 else "pair, second: ")
     dof = e.get("dof") or None
     if dof and dof not in r.get("dof_gaps", {}):
         return which + "true DOF not analysed"
-    if r["kind"] in ("single", "actuator") and r["selected"]:
+    if r["kind"] in ("single", "actuator", "imbalance") and r["selected"]:
         s0 = r["selected"][0]
         if s0["effect"] == e["effect"] and e.get("label") and s0.get("label") != e["label"]:
             return which + "right effect, wrong actuator"
@@ -990,7 +998,7 @@ def random_report(results: list[dict]) -> None:
     ran = [r for r in results if "selected" in r]
     errors = [r for r in results if "error" in r]
     skipped = [r for r in results if r.get("skipped")]
-    single = [r for r in ran if r["kind"] in ("single", "actuator")]
+    single = [r for r in ran if r["kind"] in ("single", "actuator", "imbalance")]
     clean = [r for r in ran if r["kind"] in ("clean", "pvs_clean", "twin_clean")]
     pvs = [r for r in ran if r["kind"] == "pvs_clean"]
     pair = [r for r in ran if r["kind"] == "pair"]
@@ -1097,7 +1105,7 @@ def random_report(results: list[dict]) -> None:
             print(f"  {c:<52} {len(names):>2}  {' '.join(names)}")
     print("\nmisses:")
     for r in ran:
-        ok = ((r["kind"] in ("single", "actuator") and r in right)
+        ok = ((r["kind"] in ("single", "actuator", "imbalance") and r in right)
               or (r["kind"] in ("clean", "pvs_clean", "twin_clean") and not r["selected"])
               or (r["kind"] == "pair" and r in both) or (r["kind"] == "outside" and r in unexp))
         if not ok:
