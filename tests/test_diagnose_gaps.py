@@ -1,4 +1,4 @@
-"""Only a dropout of a channel a DOF uses cuts its windows.
+"""Only a dropout of a channel a DOF uses (or of an input) ends its segments and cuts its windows.
 
 A GNSS that drops out for a few seconds every ten (a log rate that aliases the fixes) leaves a yaw
 record of gyro, compass and rudder whole; before, every channel's gap ended every DOF's segments and
@@ -59,7 +59,11 @@ def test_gnss_gap_does_not_interrupt_yaw_but_its_own_channels(tmp_path):
 
 def test_yaw_segments_and_windows_run_through_gnss_gaps(tmp_path):
     trial = _yaw_log(tmp_path)
-    steps = [s for s in extend_segments(trial, list(segment_trial(trial).items)) if s.dof == "yaw"]
+    # Every rudder step is detected, also one made while the GNSS was out (6 of 22 here).
+    delta = trial.data["delta"].to_numpy()
+    detected = [s for s in segment_trial(trial).items if s.dof == "yaw"]
+    assert len(detected) == int(np.sum(np.diff(delta) != 0))
+    steps = [s for s in extend_segments(trial, list(detected)) if s.dof == "yaw"]
     # Held 25-40 s: a segment cut at every GNSS gap would last at most 7 s.
     assert steps and max(s.t_end - s.t_start for s in steps) > 15.0
     yaw = next(p for p in build_problems(trial, diagnose_segments(trial)) if p.dof == "yaw")
