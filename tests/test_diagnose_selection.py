@@ -317,3 +317,26 @@ def test_delay_and_rate_limit_of_one_input_in_one_dof_are_reported_unsure(first,
     eff = selected_effects([(a, None, 1.0), (b, None, 0.5)], states)
     assert not eff[0].why.startswith("unsure")
     assert eff[1].why.startswith("unsure:") == unsure
+
+
+@pytest.mark.parametrize("chosen, rival, unsure", [
+    (("actuator_rate_limit", "actuator_rate_limit[delta]", 15.3, "delta"),
+     ("actuator_delay", "actuator_delay", 12.2, None), True),                     # seed 22, r016
+    (("actuator_delay", "actuator_delay", 97.0, None),
+     ("actuator_rate_limit", "actuator_rate_limit[delta]", 47.1, "delta"), False),  # far apart (seed 20, r005)
+    (("actuator_rate_limit", "actuator_rate_limit[delta]", 15.3, "delta"),
+     ("actuator_delay", "actuator_delay", 8.0, None), False),                     # the rival explains too little
+    (("actuator_rate_limit", "actuator_rate_limit[thruster_stbd]", 40.0, "thruster_stbd"),
+     ("actuator_delay", "actuator_delay[thruster_port]", 38.0, "thruster_port"), False),  # another actuator
+])
+def test_a_first_delay_or_rate_limit_with_a_close_rival_of_the_same_input_is_unsure(chosen, rival, unsure):
+    from types import SimpleNamespace
+
+    from pipeline.diagnose.selection import selected_effects
+
+    a = _transform_result("yaw", chosen[0], chosen[1], chosen[2], chosen[3])
+    b = _transform_result("yaw", rival[0], rival[1], rival[2], rival[3])
+    states = {"yaw": SimpleNamespace(problem=SimpleNamespace(channel="r", inputs=()), results=[],
+                                     first_results=[(a, None), (b, None)])}
+    (eff,) = selected_effects([(a, None, 1.0)], states)
+    assert eff.why.startswith("unsure:") == unsure, eff.why

@@ -699,10 +699,8 @@ class ThrustImbalance(Candidate):
 
     Parameters
     ----------
-    problem : DofProblem
-        The DOF problem.
-    data : GridData
-        Its analysis-grid data.
+    problem, data : DofProblem, GridData
+        The DOF problem and its analysis-grid data.
     actuator : Actuator
         One of ``problem.actuators``.
     channel : str
@@ -734,15 +732,7 @@ class ThrustImbalance(Candidate):
         return self.separable
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
-        """Refit on windows ``train``; see :meth:`Candidate.fit`.
-
-        Parameters
-        ----------
-        train : numpy.ndarray
-            Window indices.
-        start : Fitted, optional
-            The baseline fitted on the same windows.
-        """
+        """Refit on windows ``train``, the input's gain and the share's together (:meth:`Candidate.fit`)."""
         d = self.data.rows(train)
         t, theta, sse = self._fit(d, self.ispec, start)
         params = {"T": t, **_gain_params(self.spec, theta[:-1]), "c": float(theta[-1])}
