@@ -1014,6 +1014,10 @@ def random_report(results: list[dict]) -> None:
     print(f"randomised trials: {len(results)} ({len(ran)} diagnosed, {len(errors)} refused or failed, "
           f"{len(skipped)} skipped)")
     print(f"right effect first          : {pct(right, single)}   target >= 95%")
+    unsure_first = [r for r in single if r["selected"] and r["selected"][0].get("unsure")]
+    if unsure_first:
+        print(f"  verdict reported unsure   : {len(unsure_first)} ({sum(r not in right for r in unsure_first)} of them "
+              f"wrong: {' '.join(r['case'] for r in unsure_first if r not in right)})")
     print(f"null on clean (all shapes)  : {pct([r for r in clean if not r['selected']], clean)}   target >= 97%"
           f"  (PVS frigate: {pct([r for r in pvs if not r['selected']], pvs)})")
     print(f"median shrink (right first) : {np.median(shr) if shr else float('nan'):.1f}%   target >= 70%")
