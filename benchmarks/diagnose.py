@@ -615,11 +615,12 @@ def twin_vessel(name: str = "twin", **extra) -> object:
 
 def twin_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, noise: float,
                act_lag: float = 0.0, gnss_lag: float = 0.0, quad_yaw: float = 0.0, extra=None,
-               one_lag: float = 0.0, one_rate: float = 0.0, side: str = "port") -> Path:
+               one_lag: float = 0.0, one_rate: float = 0.0, side: str = "port", one_gain: float = 1.0) -> Path:
     """A twin-thruster boat (surge and yaw from the same two thrusters), integrated here with
     random time constants and gains: GNSS speed over ground, gyro, compass, thrust commands.
     ``act_lag`` [s] delays both thrusters, ``one_lag`` [s] the ``side`` (port or stbd) one only,
-    and ``one_rate`` [N/s] (0: none) limits that thruster's rate of change (after its delay)."""
+    and ``one_rate`` [N/s] (0: none) limits that thruster's rate of change (after its delay);
+    ``one_gain`` scales that thruster's thrust (a weaker thruster: below 1)."""
     import pandas as pd
 
     n = int(minutes * 60 * fs)
@@ -636,11 +637,11 @@ def twin_trial(path: Path, rng: np.random.Generator, fs: float, minutes: float, 
         return np.concatenate([np.full(k, x[0]), x[:n - k]]) if k else x
 
     tx, tn = lagged(tau_x, act_lag), lagged(tau_n, act_lag)
-    if one_lag or one_rate:
+    if one_lag or one_rate or one_gain != 1.0:
         from pipeline.diagnose.candidates import rate_limit
 
         a1, a2 = (t1, t2) if side == "port" else (t2, t1)
-        a1 = lagged(a1, one_lag)
+        a1 = one_gain * lagged(a1, one_lag)
         if one_rate:
             a1 = rate_limit(a1, one_rate, fs)
         p1, p2 = (a1, a2) if side == "port" else (a2, a1)
@@ -813,9 +814,16 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, extra=extra)
         files, shape = _nuisances(path, rng, True)
         return files, twin_vessel() if case.allocation else None, {**truth, **shape}
-    if case.kind in ("actuator", "twin_clean"):
-        # The controlled actuator-space set: one thruster of the twin late or rate-limited, or none.
+    if case.kind in ("actuator", "twin_clean", "imbalance"):
+        # The controlled actuator-space set: one thruster of the twin late or rate-limited, or none;
+        # or (imbalance) one thruster weaker, by 1 - 0.3 x magnitude (0.4-0.91 of its allocation).
         kw: dict = {}
+        if case.kind == "imbalance":
+            mag = float(np.exp(rng.uniform(np.log(MAG_RANGE[0]), np.log(MAG_RANGE[1]))))
+            kw = {"side": str(rng.choice(["port", "stbd"])), "one_gain": 1.0 - 0.3 * mag}
+            # Only the thrusters' relative thrust is in the data: one label for a weaker port or a stronger stbd.
+            truth["effects"].append({"effect": "thrust_imbalance", "dof": "", "magnitude": mag,
+                                     "label": "thrust_imbalance[thruster_port/thruster_stbd]"})
         if case.kind == "actuator":
             mag = float(np.exp(rng.uniform(np.log(MAG_RANGE[0]), np.log(MAG_RANGE[1]))))
             side = str(rng.choice(["port", "stbd"]))
@@ -904,7 +912,8 @@ def run_random_case(case: RandomCase) -> dict:
         except Exception as exc:  # a crash or a refusal is a result, not an abort
             return {**out, "error": f"{type(exc).__name__}: {exc}"}
         out["t_diagnose"] = time.perf_counter() - t0
-    out["selected"] = [{"effect": e.effect, "dof": e.dof, "shrink": e.shrink, "label": e.label} for e in rep.effects]
+    out["selected"] = [{"effect": e.effect, "dof": e.dof, "shrink": e.shrink, "label": e.label,
+                        "unsure": e.why.startswith("unsure")} for e in rep.effects]
     out["unexplained"] = [{"channel": u.channel, "gap": u.gap} for u in rep.unexplained]
     out["gap_before"], out["gap_final"] = rep.gap_before, rep.gap_final
     out["dof_gaps"] = {d.dof: d.gap for d in rep.dofs}
@@ -956,18 +965,18 @@ def miss_cause(r: dict) -> str | None:
         return None
     effs = r["effects"]
     todo = [e for e in effs if not any(_hit(s, e) for s in r["selected"])]
-    if r["kind"] in ("single", "actuator"):
+    if r["kind"] in ("single", "actuator", "imbalance"):
         if r["selected"] and _hit(r["selected"][0], effs[0]):
             return None
         todo = effs
     if not todo:
         return None
     e = todo[0]
-    which = "single: " if r["kind"] in ("single", "actuator") else ("pair, both missed: " if len(todo) == 2 else "pair, second: ")
+    which = "single: " if r["kind"] in ("single", "actuator", "imbalance") else ("pair, both missed: " if len(todo) == 2 else "pair, second: ")
     dof = e.get("dof") or None
     if dof and dof not in r.get("dof_gaps", {}):
         return which + "true DOF not analysed"
-    if r["kind"] in ("single", "actuator") and r["selected"]:
+    if r["kind"] in ("single", "actuator", "imbalance") and r["selected"]:
         s0 = r["selected"][0]
         if s0["effect"] == e["effect"] and e.get("label") and s0.get("label") != e["label"]:
             return which + "right effect, wrong actuator"
@@ -989,7 +998,7 @@ def random_report(results: list[dict]) -> None:
     ran = [r for r in results if "selected" in r]
     errors = [r for r in results if "error" in r]
     skipped = [r for r in results if r.get("skipped")]
-    single = [r for r in ran if r["kind"] in ("single", "actuator")]
+    single = [r for r in ran if r["kind"] in ("single", "actuator", "imbalance")]
     clean = [r for r in ran if r["kind"] in ("clean", "pvs_clean", "twin_clean")]
     pvs = [r for r in ran if r["kind"] == "pvs_clean"]
     pair = [r for r in ran if r["kind"] == "pair"]
@@ -1005,6 +1014,10 @@ def random_report(results: list[dict]) -> None:
     print(f"randomised trials: {len(results)} ({len(ran)} diagnosed, {len(errors)} refused or failed, "
           f"{len(skipped)} skipped)")
     print(f"right effect first          : {pct(right, single)}   target >= 95%")
+    unsure_first = [r for r in single if r["selected"] and r["selected"][0].get("unsure")]
+    if unsure_first:
+        print(f"  verdict reported unsure   : {len(unsure_first)} ({sum(r not in right for r in unsure_first)} of them "
+              f"wrong: {' '.join(r['case'] for r in unsure_first if r not in right)})")
     print(f"null on clean (all shapes)  : {pct([r for r in clean if not r['selected']], clean)}   target >= 97%"
           f"  (PVS frigate: {pct([r for r in pvs if not r['selected']], pvs)})")
     print(f"median shrink (right first) : {np.median(shr) if shr else float('nan'):.1f}%   target >= 70%")
@@ -1056,6 +1069,14 @@ def random_report(results: list[dict]) -> None:
     if able:
         print(f"  second found when it is significant alone: {pct(got, able)} (power of the step on top)")
     print(f"out of library -> unexplained: {pct(unexp, outside)}   target >= 80%")
+    # Selected effects that name no true effect (single and pair trials), and how many of them the
+    # diagnosis itself reported as unsure (a delay and a rate limit of one input in one DOF).
+    extra = [(r["case"], s) for r in single + pair for s in r["selected"]
+             if not any(_hit(s, e) for e in r["effects"])]
+    print(f"selected outside the truth  : {len(extra)} in {len({c for c, _ in extra})} trials, "
+          f"{sum(bool(s.get('unsure')) for _, s in extra)} of them reported unsure"
+          + (f" ({', '.join(c + ' ' + s.get('label', s['effect']) + '/' + s['dof'] + (' unsure' if s.get('unsure') else '') for c, s in extra)})"
+             if extra else ""))
     times = [r["t_diagnose"] for r in ran if "t_diagnose" in r]
     print(f"diagnose time: median {np.median(times):.1f} s, max {np.max(times):.1f} s" if times else "")
     # Detection threshold per effect: excess gap of the true DOF, sqrt(gap^2 - 1), in noise units.
@@ -1088,7 +1109,7 @@ def random_report(results: list[dict]) -> None:
             print(f"  {c:<52} {len(names):>2}  {' '.join(names)}")
     print("\nmisses:")
     for r in ran:
-        ok = ((r["kind"] in ("single", "actuator") and r in right)
+        ok = ((r["kind"] in ("single", "actuator", "imbalance") and r in right)
               or (r["kind"] in ("clean", "pvs_clean", "twin_clean") and not r["selected"])
               or (r["kind"] == "pair" and r in both) or (r["kind"] == "outside" and r in unexp))
         if not ok:

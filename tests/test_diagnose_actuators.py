@@ -37,16 +37,17 @@ def twin_vessel(reverse: float = FULL):
     return parse_vessel({"name": "twin", "actuators": acts})
 
 
-def twin_log(path, seed=1, fs=5.0, minutes=5.0, port_lag=0.0, port_rate=0.0, lo=2.0):
+def twin_log(path, seed=1, fs=5.0, minutes=5.0, port_lag=0.0, port_rate=0.0, lo=2.0, port_gain=1.0, alike=False):
     """Thrust commands held 15-35 s (``lo`` to 12 N each); the port thruster applies its command
-    ``port_lag`` [s] late and (``port_rate`` > 0) at most ``port_rate`` [N/s] fast."""
+    ``port_lag`` [s] late, (``port_rate`` > 0) at most ``port_rate`` [N/s] fast and pushes
+    ``port_gain`` times its command; ``alike``: both thrusters always commanded alike."""
     rng = np.random.default_rng(seed)
     n = int(minutes * 60 * fs)
     t = np.arange(n) / fs
     hold = int(rng.uniform(15, 35) * fs)
     t1 = np.repeat(rng.uniform(lo, 12, n // hold + 1), hold)[:n]
-    t2 = np.repeat(rng.uniform(lo, 12, n // hold + 1), hold)[:n]
-    p1 = delay_input(t1, port_lag, fs)
+    t2 = t1.copy() if alike else np.repeat(rng.uniform(lo, 12, n // hold + 1), hold)[:n]
+    p1 = port_gain * delay_input(t1, port_lag, fs)
     if port_rate:
         p1 = rate_limit(p1, port_rate, fs)
     tx, tn = p1 + t2, ARM * (p1 - t2)
@@ -155,3 +156,21 @@ def test_a_rate_limited_port_thruster_is_named_and_a_clean_twin_stays_null(tmp_p
         [(e.label, e.dof, e.shrink) for e in rep.effects]
     clean = _verdict(tmp_path, twin_vessel(), seed=3)
     assert not clean.effects, [(e.label, e.dof, e.shrink) for e in clean.effects]
+
+
+def test_a_weaker_port_thruster_is_a_thrust_imbalance(tmp_path):
+    rep = _verdict(tmp_path, twin_vessel(), port_gain=0.7)
+    assert rep.effects, rep.notes
+    first = rep.effects[0]
+    assert first.label == "thrust_imbalance[thruster_port/thruster_stbd]", [(e.label, e.dof) for e in rep.effects]
+    ratio = next(q for q in first.params if q.name == "ratio")
+    assert abs(ratio.value - 0.7) < max(3 * ratio.stderr, 0.03), ratio
+
+
+def test_thrust_imbalance_needs_thrusters_driven_differently(tmp_path):
+    vessel = twin_vessel()
+    for alike, expected in ((False, True), (True, False)):
+        trial = load_trial([twin_log(tmp_path / f"twin_{alike}.csv", alike=alike)[0]], vessel)
+        surge = {p.dof: p for p in build_problems(trial, diagnose_segments(trial), vessel)}["surge"]
+        labels = [candidate_label(c) for c in candidates_for(surge, grid_data(surge))]
+        assert ("thrust_imbalance[thruster_port/thruster_stbd]" in labels) == expected, labels

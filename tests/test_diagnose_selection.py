@@ -243,3 +243,100 @@ def test_a_sway_speed_within_a_few_noise_units_per_sample_is_a_coupling_regresso
     p = next(q for q in build_problems(trial, diagnose_segments(trial)) if q.dof == "yaw")
     assert p.m >= 4
     assert ("v" in p.regressors) is expected
+
+
+def _transform_result(dof, effect, label, shrink, input_channel=None):
+    from pipeline.records import CandidateResult, ChannelGap
+
+    ch = {"yaw": "r", "sway": "v", "surge": "u"}[dof]
+    return CandidateResult(effect=effect, dof=dof, label=label, input_channel=input_channel, gap_before=10.0,
+                           gap_after=10.0 * (1 - shrink / 100), shrink=shrink, explained=0.1, p_value=1e-12,
+                           significant=True, channels=(ChannelGap(ch, 10.0, 10.0 * (1 - shrink / 100), 1e-12, 50.0),))
+
+
+def _delay_and_limit_states(limit_shrink):
+    """Yaw with a strong delay of every input; sway whose rate limit of tau_y ranks first by
+    ``limit_shrink - 54.9`` points over its delay of every input (randomised seed 18, r010)."""
+    from types import SimpleNamespace
+
+    from pipeline.diagnose.gridfit import GridData
+    from pipeline.diagnose.selection import DofState
+
+    states = {}
+    for dof, results in (("yaw", [_transform_result("yaw", "actuator_delay", "actuator_delay", 80.0)]),
+                         ("sway", [_transform_result("sway", "actuator_rate_limit", "actuator_rate_limit[tau_y]",
+                                                     limit_shrink, "tau_y"),
+                                   _transform_result("sway", "actuator_delay", "actuator_delay", 54.9)])):
+        y = np.zeros((3, 4))
+        data = GridData(dt=1.0, y=y, y0=y[:, 0].copy(), angle=None, mask=np.ones((3, 4), bool))
+        run = SimpleNamespace(heldout={"y": y})
+        states[dof] = DofState(problem=SimpleNamespace(channel=results[0].channels[0].channel, angle=None),
+                               data=data, results=[(r, run) for r in results], base_heldout={"y": y},
+                               channel_gaps={results[0].channels[0].channel: 10.0},
+                               channel_neff={results[0].channels[0].channel: 50.0}, selected=[],
+                               base_full={"y": y})
+    return states
+
+
+@pytest.mark.parametrize("limit_shrink, second", [(56.6, "actuator_delay"), (70.0, "actuator_rate_limit[tau_y]")])
+def test_delay_of_every_input_selected_elsewhere_is_preferred_to_a_rate_limit_nearly_as_good(limit_shrink, second):
+    from pipeline.diagnose.selection import forward_select, selected_effects
+
+    states = _delay_and_limit_states(limit_shrink)
+
+    def rescore(s):
+        s.results = []
+
+    chosen = forward_select(states, rescore)
+    assert [(c[0].dof, c[0].label) for c in chosen] == [("yaw", "actuator_delay"), ("sway", second)]
+    eff = selected_effects(chosen, states)
+    assert ("the delay of every input is selected in yaw" in eff[1].why) == (second == "actuator_delay")
+
+
+@pytest.mark.parametrize("first, second, unsure", [
+    (("surge", "actuator_delay", "actuator_delay", None),
+     ("surge", "actuator_rate_limit", "actuator_rate_limit[tau_x]", "tau_x"), True),        # seed 20, r005
+    (("surge", "actuator_rate_limit", "actuator_rate_limit[tau_x]", "tau_x"),
+     ("surge", "actuator_delay", "actuator_delay", None), True),
+    (("yaw", "actuator_delay", "actuator_delay", None),
+     ("surge", "actuator_rate_limit", "actuator_rate_limit[tau_x]", "tau_x"), False),       # another DOF
+    (("yaw", "actuator_delay", "actuator_delay[thruster_port]", "thruster_port"),
+     ("yaw", "actuator_rate_limit", "actuator_rate_limit[thruster_stbd]", "thruster_stbd"), False),  # other actuator
+    (("surge", "actuator_rate_limit", "actuator_rate_limit[tau_x]", "tau_x"),
+     ("surge", "actuator_delay", "actuator_delay after actuator_rate_limit[tau_x]", None), False),  # composed
+])
+def test_delay_and_rate_limit_of_one_input_in_one_dof_are_reported_unsure(first, second, unsure):
+    from types import SimpleNamespace
+
+    from pipeline.diagnose.selection import selected_effects
+
+    a = _transform_result(first[0], first[1], first[2], 60.0, first[3])
+    b = _transform_result(second[0], second[1], second[2], 30.0, second[3])
+    states = {d: SimpleNamespace(problem=SimpleNamespace(channel="x", inputs=()), results=[], first_results=[])
+              for d in {a.dof, b.dof}}
+    eff = selected_effects([(a, None, 1.0), (b, None, 0.5)], states)
+    assert not eff[0].why.startswith("unsure")
+    assert eff[1].why.startswith("unsure:") == unsure
+
+
+@pytest.mark.parametrize("chosen, rival, unsure", [
+    (("actuator_rate_limit", "actuator_rate_limit[delta]", 15.3, "delta"),
+     ("actuator_delay", "actuator_delay", 12.2, None), True),                     # seed 22, r016
+    (("actuator_delay", "actuator_delay", 97.0, None),
+     ("actuator_rate_limit", "actuator_rate_limit[delta]", 47.1, "delta"), False),  # far apart (seed 20, r005)
+    (("actuator_rate_limit", "actuator_rate_limit[delta]", 15.3, "delta"),
+     ("actuator_delay", "actuator_delay", 8.0, None), False),                     # the rival explains too little
+    (("actuator_rate_limit", "actuator_rate_limit[thruster_stbd]", 40.0, "thruster_stbd"),
+     ("actuator_delay", "actuator_delay[thruster_port]", 38.0, "thruster_port"), False),  # another actuator
+])
+def test_a_first_delay_or_rate_limit_with_a_close_rival_of_the_same_input_is_unsure(chosen, rival, unsure):
+    from types import SimpleNamespace
+
+    from pipeline.diagnose.selection import selected_effects
+
+    a = _transform_result("yaw", chosen[0], chosen[1], chosen[2], chosen[3])
+    b = _transform_result("yaw", rival[0], rival[1], rival[2], rival[3])
+    states = {"yaw": SimpleNamespace(problem=SimpleNamespace(channel="r", inputs=()), results=[],
+                                     first_results=[(a, None), (b, None)])}
+    (eff,) = selected_effects([(a, None, 1.0)], states)
+    assert eff.why.startswith("unsure:") == unsure, eff.why

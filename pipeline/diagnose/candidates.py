@@ -679,6 +679,68 @@ class ThrustAsymmetry(Candidate):
         return Fitted(params, self.param_names, sse, (self.aspec, theta))
 
 
+#: Largest correlation between one actuator's share of an input and the rest of that input for a
+#: thrust imbalance to be told from the input's own gain (two thrusters always driven alike are not).
+IMBALANCE_MAX_CORR = 0.95
+
+
+class ThrustImbalance(Candidate):
+    """One actuator pushes ``ratio`` times what its allocation states relative to the others (a
+    port thruster weaker than the starboard one: a fouled propeller, a motor of another make).
+
+    Actuator space only (:mod:`pipeline.diagnose.actuators`): the actuator's share of the DOF's input
+    (``contribution``) enters as a forcing of its own beside the input, ``k u + c s`` with ``s`` the
+    share; ``ratio = (k + c) / k``. Only the relative thrust is in the data (the input's gain ``k``
+    is fitted anyway), so with two actuators on the input there is one candidate, labelled with both
+    (``thrust_imbalance[thruster_port/thruster_stbd]``: the first's thrust over the second's, each
+    relative to its allocation; a weaker port and a stronger starboard thruster are the same model).
+    Applicable when the share is not proportional to the rest of the input (the thrusters are driven
+    differently somewhere in the trial), else it is the input's own gain.
+
+    Parameters
+    ----------
+    problem, data : DofProblem, GridData
+        The DOF problem and its analysis-grid data.
+    actuator : Actuator
+        One of ``problem.actuators``.
+    channel : str
+        The input it drives (one of ``problem.inputs``).
+    other : str, optional
+        Name of the only other actuator on the input (for the label).
+    """
+
+    effect = "thrust_imbalance"
+    param_names = ("ratio",)
+    n_extra = 1
+
+    def __init__(self, problem: DofProblem, data: GridData, actuator: Actuator, channel: str,
+                 other: str | None = None) -> None:
+        super().__init__(problem, data)
+        self.actuator = actuator
+        self.channel = f"{actuator.name}/{other}" if other else actuator.name
+        self.input = channel
+        self.separable = False
+        share = actuator.contribution(self.input, problem.raw[actuator_key(actuator.name)])
+        rest = problem.raw[self.input] - share
+        if np.std(share) > 0 and np.std(rest) > 0:
+            self.separable = bool(abs(np.corrcoef(share, rest)[0, 1]) < IMBALANCE_MAX_CORR)
+        self.data = data.with_forcing(__share=_forcing(problem, self.input, share))
+        self.ispec = LinearSpec(self.spec.forcing + ("__share",))
+
+    def applicable(self) -> bool:
+        """See :meth:`Candidate.applicable`."""
+        return self.separable
+
+    def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
+        """Refit on windows ``train``, the input's gain and the share's together (:meth:`Candidate.fit`)."""
+        d = self.data.rows(train)
+        t, theta, sse = self._fit(d, self.ispec, start)
+        params = {"T": t, **_gain_params(self.spec, theta[:-1]), "c": float(theta[-1])}
+        k = params.get(f"k_{self.input}", float("nan"))
+        params["ratio"] = (k + params["c"]) / k if k else float("nan")
+        return Fitted(params, self.param_names, sse, (self.ispec, theta))
+
+
 class Coupling(Candidate):
     """Missing off-diagonal damping: another DOF's measured velocity ``x`` drives this DOF,
     ``T y_dot = -y + sum k u + c x`` (for example ``N_v v`` in yaw: ``c = -N_v / N_r``).
@@ -891,6 +953,12 @@ def candidates_for(problem: DofProblem, data: GridData) -> list[Candidate]:
     out += [ActuatorRateLimit(problem, data, a.name, a) for a in acts]
     out += [ThrustAsymmetry(problem, data, c) for c in problem.inputs if c in FORCE_INPUTS and c not in covered]
     out += [ThrustAsymmetry(problem, data, a.name, a) for a in acts]
+    for c in problem.inputs:
+        on = [a for a in acts if c in a.gains]
+        if len(on) == 2:
+            out.append(ThrustImbalance(problem, data, on[0], c, on[1].name))
+        elif len(on) > 2:
+            out += [ThrustImbalance(problem, data, a, c) for a in on]
     out += [Waves(problem, data), Coupling(problem, data), SensorBias(problem, data)]
     return [c for c in out if c.applicable()]
 

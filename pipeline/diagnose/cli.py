@@ -12,8 +12,11 @@ Writes the diagnosis contract (:meth:`pipeline.diagnose.records.GapReport.to_dic
 
 ``verdict`` is the first of ``effects`` (forward selection). Effect names: the candidates'
 (``nonlinear_damping``, ``current``, ``actuator_delay``, ``actuator_rate_limit``, ``thrust_asymmetry``,
-``waves``, ``coupling``) and ``sensor_delay`` (an input delay that another channel driven by the same
-inputs does not show). It prints what is unexplained first, then the verdict and the further
+``waves``, ``coupling``, ``sensor_bias``, and with an actuator allocation ``thrust_imbalance``: one
+thruster pushing more or less than the other, relative to their allocation) and ``sensor_delay`` (an
+input delay that another channel driven by the same inputs does not show). An effect whose ``why``
+starts with ``unsure:`` is one the held-out data cannot tell from another (a rate limit on top of a
+delay of the same input). It prints what is unexplained first, then the verdict and the further
 effects, the candidates that count and where the gap lives. Every error is a
 :class:`pipeline.errors.DiagnoseError` naming what was expected and what was found.
 """
@@ -44,7 +47,7 @@ def add_diagnose_parser(subparsers) -> argparse.ArgumentParser:
         "diagnose", help="where and why the identified model disagrees with the boat, and what would fix it",
         description="Replay the logged inputs through the identified first-order models, find where the held-out "
                     "gap lives, test candidate unmodelled effects (nonlinear_damping, current, actuator_delay, "
-                    "actuator_rate_limit, thrust_asymmetry, waves, coupling) by cross-validation, and report the "
+                    "actuator_rate_limit, thrust_asymmetry, thrust_imbalance, waves, coupling, sensor_bias) by cross-validation, and report the "
                     "verdict and how far the gap shrinks.")
     p.add_argument("logs", nargs="+", metavar="LOG", help="log files of one trial (.csv, .tlog, ...)")
     p.add_argument("--vessel", required=True, metavar="VESSEL.toml", help="vessel config (a rudder ship may give only name)")

@@ -25,6 +25,7 @@ import scipy.optimize
 
 from ..records import Segments, Trial
 from ..segment import noise_std
+from ..segment.replay import gaps_of
 from .gridfit import GridData, channel_scale
 from .problem import Window, block_noise
 
@@ -164,8 +165,9 @@ def build_oscillatory(trial: Trial, segments: Segments, dof: str) -> OscProblem 
     m = max(int(round(period / STEPS_PER_PERIOD * fs)), 1)
     dt = m / fs
     wins = []
+    gaps = gaps_of(trial, (rate, angle, force))
     for s, (a, b) in zip(segs, spans):
-        for ga, gb in _gap_free(trial, a, b):
+        for ga, gb in _gap_free(trial, a, b, gaps):
             if (gb - ga) / fs >= MIN_PERIODS * period and (gb - ga) // m >= 8:
                 wins.append(Window(ga, gb, float(t[ga]), float(t[gb - 1]), (s.kind,), (dof,), s.kind))
     if len(wins) == 1 and (wins[0].i1 - wins[0].i0) / fs >= 2 * MIN_PERIODS * period:
@@ -216,10 +218,10 @@ def build_oscillatory(trial: Trial, segments: Segments, dof: str) -> OscProblem 
                       channel=rate if has_rate else f"d{angle}/dt", m=m, raw=raw)
 
 
-def _gap_free(trial: Trial, a: int, b: int) -> list[tuple[int, int]]:
+def _gap_free(trial: Trial, a: int, b: int, gaps: tuple) -> list[tuple[int, int]]:
     pieces = [(a, b)]
     t = trial.t
-    for g in trial.gaps:
+    for g in gaps:
         ga, gb = int(np.searchsorted(t, g.t_start)), int(np.searchsorted(t, g.t_end))
         nxt = []
         for x, y in pieces:

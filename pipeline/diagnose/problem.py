@@ -21,8 +21,9 @@ import numpy as np
 
 from ..errors import DiagnoseError
 from ..fit.data import first_present_channel
-from ..records import Segment, Segments, Trial
+from ..records import Gap, Segment, Segments, Trial
 from ..segment import noise_std
+from ..segment.replay import gaps_of
 from ..vessel import Actuator, Vessel
 from .actuators import ActuatorSpace, actuator_key, actuator_space, held_input
 
@@ -464,13 +465,13 @@ def _merge_windows(trial: Trial, segments: tuple[Segment, ...]) -> list[Window]:
     return out
 
 
-def _cut_gaps(trial: Trial, windows: list[Window]) -> list[Window]:
-    """A window never spans a dropout: cut it at the gap."""
+def _cut_gaps(trial: Trial, windows: list[Window], gaps: tuple[Gap, ...]) -> list[Window]:
+    """A window never spans a dropout of a channel it uses (``gaps``): cut it at the gap."""
     out = []
     t = trial.t
     for w in windows:
         pieces = [(w.i0, w.i1)]
-        for g in trial.gaps:
+        for g in gaps:
             nxt = []
             for a, b in pieces:
                 ga = int(np.searchsorted(t, g.t_start))
@@ -578,9 +579,11 @@ def quick_time_constant(y: np.ndarray, u: np.ndarray | None, fs: float, windows:
 INPUT_HISTORY_T = 0.6
 
 
-def _after_record_starts(trial: Trial, windows: list[Window], hist: float, keep_all: bool = False) -> list:
+def _after_record_starts(trial: Trial, windows: list[Window], hist: float, keep_all: bool = False,
+                         gaps: tuple[Gap, ...] | None = None) -> list:
     """Move window starts that lie within ``hist`` seconds after the start of the record (or the
-    end of a dropout or run gap) to ``hist`` seconds after it.
+    end of a dropout or run gap; of ``gaps``, default every gap of the trial) to ``hist`` seconds
+    after it.
 
     A delayed input needs its history: what the actuators did before the record began is not
     logged, and a model that assumes the first logged value was acting all along turns a step
@@ -590,7 +593,7 @@ def _after_record_starts(trial: Trial, windows: list[Window], hist: float, keep_
     becomes too short is returned as None in its place.
     """
     t = trial.t
-    starts = [float(t[0])] + [float(g.t_end) for g in trial.gaps]
+    starts = [float(t[0])] + [float(g.t_end) for g in (trial.gaps if gaps is None else gaps)]
     out = []
     for w in windows:
         s0 = max((s for s in starts if s <= w.t0 + 1e-9), default=float(t[0]))
@@ -642,7 +645,7 @@ def build_problems(trial: Trial, segments: Segments, vessel: Vessel | None = Non
     if not segments.items:
         raise DiagnoseError(f"{trial.name}: expected at least one segment (coast-down, step, zig-zag, decay) "
                             f"to replay, found none")
-    base = _cut_gaps(trial, _merge_windows(trial, segments.items))
+    base = _merge_windows(trial, segments.items)
     space = actuator_space(trial, vessel)
     problems = []
     for dof in dofs:
@@ -700,6 +703,12 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
     if ch is None:
         return None
     inputs = dof_inputs(trial, vessel, dof)
+    angle = "psi" if dof == "yaw" and trial.has("psi") else None
+    heading = "psi" if trial.has("psi") else ("cog" if trial.has("cog") else None)
+    # Only a dropout of a channel this DOF uses cuts its windows: a GNSS gap leaves a yaw record of
+    # gyro, compass and rudder whole (a channel derived from GNSS, u from sog, is cut by it).
+    gaps = gaps_of(trial, (ch, angle, heading, *inputs))
+    base = _cut_gaps(trial, base, gaps)
     own_w = [w for w in base if dof in w.dofs]
     if not inputs and not own_w:
         return None
@@ -738,7 +747,7 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         # At most a quarter of the shortest own window is given up for the input history.
         shortest = min((w.t1 - w.t0 for w in (own_w or windows0)), default=0.0)
         hist = min(INPUT_HISTORY_T * t_const, 0.25 * shortest)
-        moved = dict(zip(map(id, windows0), _after_record_starts(trial, windows0, hist, keep_all=True)))
+        moved = dict(zip(map(id, windows0), _after_record_starts(trial, windows0, hist, keep_all=True, gaps=gaps)))
         own_w = [moved[id(w)] for w in own_w if id(w) in moved and moved[id(w)] is not None]
         windows0 = [v for v in moved.values() if v is not None]
         if not windows0:
@@ -755,8 +764,6 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
                    Window(mid, w.i1, float(t[mid]), w.t1, w.kinds, w.dofs, f"{w.label} (2/2)")]
     if len(windows) < 2:
         return None
-    angle = "psi" if dof == "yaw" and trial.has("psi") else None
-    heading = "psi" if trial.has("psi") else ("cog" if trial.has("cog") else None)
     noises = {ch: noise}
     if angle:
         raw[angle] = _unwrap_nan(trial.data[angle].to_numpy(float))
@@ -768,6 +775,10 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         if c == ch or not trial.has(c):
             continue
         x = trial.data[c].to_numpy(float)
+        if any(w.t0 < g.t_end and g.t_start < w.t1 for g in set(gaps_of(trial, (c,))) - set(gaps) for w in windows):
+            # A dropout inside the windows that does not cut them (a sway speed derived from a GNSS
+            # that dropped out, in a yaw record of gyro, compass and rudder): no regressor.
+            continue
         vals = np.concatenate([x[w.i0:w.i1] for w in windows])
         vals = vals[np.isfinite(vals)]
         if len(vals) < 10:

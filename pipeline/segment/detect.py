@@ -15,10 +15,11 @@ from dataclasses import replace
 import numpy as np
 
 from ..align.plausibility import check_segmentable, without_implausible
-from ..records import DOF_CHANNELS, INPUT_UNITS, Segment, Segments, Trial
+from ..records import DOF_ANGLE, DOF_CHANNELS, DOF_NAMES, INPUT_UNITS, Segment, Segments, Trial
 from .decays import equilibrium, release_decays, release_index
 from .inputs import Level, split_levels
 from .quality import detection_quality, noise_std
+from .replay import dof_channels, gaps_of
 from .rudder import RudderChange, classify_changes, find_holds, is_command_like, sine_fit_r2, zigzag_runs
 from .speed_events import coast_down_segments
 
@@ -52,16 +53,26 @@ def _settle_index(y: np.ndarray, fs: float, noise: float) -> tuple[int, float]:
     return n, (i63 / fs if i63 < n else np.nan)
 
 
+def _gaps(trial: Trial, channel: str | None):
+    """Dropouts of ``channel``, of its DOF's velocity and attitude, or of an input (every dropout when
+    None): a GNSS gap does not end a yaw step, a compass gap does."""
+    if channel is None:
+        return trial.gaps
+    dof = DOF_NAMES.get(channel) or {a: d for d, a in DOF_ANGLE.items()}.get(channel)
+    return gaps_of(trial, (channel, *(dof_channels(trial, dof) if dof else ()), *INPUT_UNITS))
+
+
 def _gap_cut(trial: Trial, t_start: float, t_end: float, channel: str) -> float:
-    for g in trial.gaps:
+    for g in _gaps(trial, channel):
         if g.t_start >= t_start and g.t_start < t_end:
             t_end = g.t_start
     return t_end
 
 
-def _in_gap(trial: Trial, t: float) -> bool:
-    """True when ``t`` [s] falls inside a dropout: a segment starting there would span it."""
-    return any(g.t_start < t < g.t_end for g in trial.gaps)
+def _in_gap(trial: Trial, t: float, channel: str | None = None) -> bool:
+    """True when ``t`` [s] falls inside a dropout (of ``channel`` or an input): a segment starting
+    there would span it."""
+    return any(g.t_start < t < g.t_end for g in _gaps(trial, channel))
 
 
 def _input_segments(trial: Trial) -> list[Segment]:
@@ -106,14 +117,14 @@ def _input_segments(trial: Trial) -> list[Segment]:
             a, b = levels[run[0]], levels[run[-1]]
             t0 = float(t[a.i_start])
             t1 = _gap_cut(trial, t0, float(t[b.i_end - 1]), resp)
-            if _in_gap(trial, t0) or t1 - t0 < 5 / fs:
+            if _in_gap(trial, t0, resp) or t1 - t0 < 5 / fs:
                 continue
             segs.append(Segment("zigzag", dof, t0, t1, ch,
                                 levels[run[0] - 1].value if run[0] > 0 else 0.0, a.value,
                                 quality=1.0, label=f"{len(run)} rudder reversals"))
         for v in varying:
             seg = _sinusoid(trial, ch, dof, v.i_start, v.i_end)
-            if seg is None or _in_gap(trial, seg.t_start):
+            if seg is None or _in_gap(trial, seg.t_start, resp):
                 continue
             t1 = _gap_cut(trial, seg.t_start, seg.t_end, resp)
             if t1 - seg.t_start >= 5 / fs:
@@ -125,7 +136,7 @@ def _input_segments(trial: Trial) -> list[Segment]:
             if prev.i_end != lv.i_start:
                 continue  # a varying stretch or missing data came between: not a clean step
             t0 = float(t[lv.i_start])
-            if _in_gap(trial, t0):
+            if _in_gap(trial, t0, resp):
                 continue  # the response at the input change was not logged
             later = [c for c in changes if c > t0 + 0.5 / fs]
             t_end = min(later[0] if later else float(t[-1]), float(t[lv.i_end - 1]))
@@ -183,7 +194,7 @@ def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: 
         first, last = steps[run[0]], steps[run[-1]]
         t0 = float(t[first.before.i_end])
         t1 = _gap_cut(trial, t0, float(t[last.after.i_end - 1]), "r")
-        if _in_gap(trial, t0) or t1 - t0 < 5 / fs:
+        if _in_gap(trial, t0, "r") or t1 - t0 < 5 / fs:
             continue
         segs.append(Segment("zigzag", "yaw", t0, t1, "delta", first.before.value, first.after.value, quality=1.0,
                             label=f"{len(run)} rudder holds, measured rudder"))
@@ -195,7 +206,7 @@ def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: 
         r2, w, amp = sine_fit_r2(seg, fs)
         periods = w * (i1 - i0) / fs / (2 * np.pi) if np.isfinite(w) else 0.0
         t0, t1 = float(t[i0]), float(t[i1 - 1])
-        if r2 < 0.9 or periods < 1.0 or _in_gap(trial, t0):
+        if r2 < 0.9 or periods < 1.0 or _in_gap(trial, t0, "r"):
             continue
         t1 = _gap_cut(trial, t0, t1, "r")
         segs.append(Segment("sinusoid", "yaw", t0, t1, "delta", 0.0, amp, quality=float(np.clip(periods / 3, 0, 1)),
@@ -204,7 +215,7 @@ def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: 
         if k in in_zig:
             continue
         t0 = float(t[st.before.i_end])
-        if _in_gap(trial, t0):
+        if _in_gap(trial, t0, "r"):
             continue
         later = [c for c in changes if c > t0 + 0.5 / fs]
         t1 = min(later[0] if later else float(t[-1]), float(t[st.after.i_end - 1]))
@@ -297,7 +308,7 @@ def _decay_segments(trial: Trial, busy: list[tuple[float, float]]) -> list[Segme
             k1 = k0 + (int(done[0]) + int(fs) if len(done) else len(below) - 1)
             t0, t1 = float(t[k0]), float(t[min(k1, n - 1)])
             t1 = _gap_cut(trial, t0, t1, ang)
-            if _in_gap(trial, t0):
+            if _in_gap(trial, t0, ang):
                 i = max(k1, k0 + 1) + 1
                 continue
             seg_y = y[k0:min(k1, n - 1) + 1] - base

@@ -19,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 import scipy.ndimage
 
-from ..records import INPUT_UNITS, Segment, Trial
+from ..records import DOF_ANGLE, DOF_CHANNELS, INPUT_UNITS, RUN_BOUNDARY, Gap, Segment, Trial
 from .quality import noise_std, true_runs
 
 #: Smallest free decay: its peak over the noise, and its length in samples.
@@ -133,8 +133,62 @@ def input_changes(trial: Trial) -> np.ndarray:
     return np.unique(np.asarray(times, float))
 
 
+def gaps_of(trial: Trial, channels) -> tuple[Gap, ...]:
+    """The trial's gaps that interrupt any of ``channels``.
+
+    A gap interrupts them when it is a dropout of one of them (a suffixed source, ``sog@gnss2``,
+    counts as ``sog``), a run boundary, or a dropout of another channel during which one of them
+    is missing on the trial grid (a channel derived from the one that dropped out: ``u`` and ``v``
+    from ``sog``, ``cog`` and ``psi``). A GNSS dropout does not interrupt a yaw record of gyro,
+    compass and rudder.
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial.
+    channels : iterable of str
+        Canonical channel names; those the trial does not hold are ignored.
+
+    Returns
+    -------
+    tuple[Gap, ...]
+        In the trial's order.
+    """
+    names = {c for c in channels if c}
+    held = [trial.data[c].to_numpy(float) for c in sorted(names) if trial.has(c)]
+    t = trial.t
+    out = []
+    for g in trial.gaps:
+        if g.channel == RUN_BOUNDARY or g.channel.split("@")[0] in names:
+            out.append(g)
+            continue
+        a, b = int(np.searchsorted(t, g.t_start, "right")), int(np.searchsorted(t, g.t_end, "left"))
+        if b > a and any(not np.isfinite(x[a:b]).all() for x in held):
+            out.append(g)
+    return tuple(out)
+
+
+def dof_channels(trial: Trial, dof: str, inputs=()) -> tuple[str, ...]:
+    """Channels a replay of ``dof`` uses: its velocity (speed over ground for a surge without
+    ``u``), its attitude angle and ``inputs``.
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial.
+    dof : str
+        DOF name (``surge``, ``sway``, ``yaw``, ``roll``, ``pitch``).
+    inputs : iterable of str
+        Input channels that drive it.
+    """
+    vel, force = DOF_CHANNELS.get(dof, (None, None))
+    out = [vel if vel is None or trial.has(vel) or dof != "surge" else "sog", DOF_ANGLE.get(dof), force, *inputs]
+    return tuple(dict.fromkeys(c for c in out if c))
+
+
 def extend_segments(trial: Trial, items: list[Segment]) -> list[Segment]:
-    """Input-driven segments run on to the next input change (never across a dropout).
+    """Input-driven segments run on to the next input change (never across a dropout of a channel
+    the segment's DOF uses, :func:`gaps_of`).
 
     Parameters
     ----------
@@ -145,13 +199,17 @@ def extend_segments(trial: Trial, items: list[Segment]) -> list[Segment]:
     """
     changes = input_changes(trial)
     out = []
+    cut: dict = {}
     for s in items:
         if s.input_channel is None or s.kind == "free_run":
             out.append(s)
             continue
         later = changes[changes > s.t_end - 1.5 / trial.fs]
         end = float(later[0]) - 1.0 / trial.fs if len(later) else s.t_end
-        for g in trial.gaps:
+        key = (s.dof, s.input_channel)
+        if key not in cut:
+            cut[key] = gaps_of(trial, dof_channels(trial, s.dof, (s.input_channel,)))
+        for g in cut[key]:
             if s.t_start < g.t_start < end:
                 end = g.t_start
         out.append(replace(s, t_end=max(s.t_end, end)))
