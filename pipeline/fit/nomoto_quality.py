@@ -44,7 +44,13 @@ decided clearly or the two disagree) is added in quadrature to the combined stan
 segments, so it is added after combining, never averaged down. A speed term follows
 (:func:`add_speed_term`): half the largest relative speed loss in the turns of the records behind K or T
 (``SPEED_RANGE`` notes of :func:`pipeline.fit.nomoto_segment.speed_range_note`) times the value,
-because Nomoto's K and T scale with the speed and a ship slows in its turns.
+because Nomoto's K and T scale with the speed and a ship slows in its turns; it is added only where the
+segments' values show a speed dependence (:func:`speed_trend`: a trend with their speed loss, or a
+disagreement beyond their errors), not on a ship whose K and T do not change with the speed.
+A combined first-order K or T is also unsure when it differs materially and beyond its error from
+the first-order fit of all the segments' records with one rudder bias (:func:`shared_bias_reason`, the
+fit by :func:`pipeline.fit.nomoto_structure.shared_bias_note`): the per-segment biases then took up
+dynamics the first order misses.
 The per-segment rules (a near-tie between first- and second-order Nomoto whose K or T differ
 materially; a second order called for but not fitted) are in :mod:`pipeline.fit.nomoto_segment`.
 """

@@ -31,6 +31,11 @@ ship choose differently. Here the choice is made once:
    fitted jointly and the structure chosen on their jointly fitted held-out ends
    (:func:`joint_sinusoids`).
 
+When the first order is chosen, the records are also fitted together with one rudder bias
+(:func:`shared_bias_note`): one ship has one rudder offset, and a combined K or T that differs from that
+fit materially and beyond its errors is marked unsure
+(:func:`pipeline.fit.nomoto_quality.shared_bias_reason`).
+
 4. Where the held-out errors do not decide the structure clearly (the first order kept on a near-tie,
    including a second order significantly better by less than ``MIN_SHRINK``; or a lone zig-zag or
    sinusoid, which only its own record's end can test), the difference between the two structures'
