@@ -404,10 +404,13 @@ def test_sinusoids_of_a_second_order_ship_fitted_jointly():
     assert [is_joint_follower(sf) for sf in sines] == [False, True]
     assert all("T3" in sf.params for sf in sines)
     assert k.n_segments == 1 and t.n_segments == 1
-    assert k.success and t.success, (k.message, t.message)
+    assert k.success, k.message
     assert k.value == pytest.approx(0.09, rel=0.02)
     assert t.value == pytest.approx(13.5 - 10.8, rel=0.05)
     assert abs(t.value - 2.7) < 3 * t.stderr + 0.01 * 2.7
+    # Two frequencies give four numbers for the four constants: nothing is left to test the structure
+    # (PythonVehicleSimulator's Clarke83 ship: T -4 % with a 0.8 % error), so T is not marked success.
+    assert not t.success and "leave none to test the structure" in t.message, t.message
 
 
 @pytest.mark.slow

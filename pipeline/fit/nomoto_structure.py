@@ -288,6 +288,10 @@ def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit],
     counts its servo even when the joint fit dropped the lag (it left its range): the servo's phase then
     goes into the ship's constants (measured: PythonVehicleSimulator's tanker at 25 m, rate-limited
     servo, commanded sinusoids with waves, T +8 % with a 10.6 % standard error marked success).
+    With ``2 n = 4 + n_servo`` the numbers fix the constants exactly and leave none to test the
+    structure: T is marked unsure too, K is not (measured: PythonVehicleSimulator's Clarke83 ship,
+    measured-rudder sinusoids at 10 deg, white output-error residuals, T -2.6 to -4.1 % with standard
+    errors of 0.7-1.2 % on 3 of 7 seeds, marked success; K within 0.35 %).
 
     A wave noise model whose peak lies below the corner frequency (:func:`pipeline.fit.nomoto_segment.slow_noise_note`)
     is checked against the output-error fit of the same records (consistent for sinusoids, which are
@@ -342,6 +346,12 @@ def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit],
                   f"per frequency) for the second order's 4 and the servo's {n_servo}: the servo lag trades off "
                   f"against the pole-zero pair, so T1 + T2 - T3 is not identified (add a rudder step, a zig-zag or "
                   f"a sinusoid at a third frequency)")
+    elif 2 * len(recs) == 4 + n_servo:
+        unsure = (f"{STRUCTURE_UNDECIDED} T: {len(recs)} sinusoids give {2 * len(recs)} numbers (a gain and a phase "
+                  f"per frequency) for the second order's 4 constants{' and the servo lag' if n_servo else ''}: they "
+                  f"fix them exactly and leave none to test the structure, so a response that is not exactly a "
+                  f"linear second order (a nonlinearity at this amplitude, a speed change) goes into T1 + T2 - T3 "
+                  f"unseen by its error (add a rudder step, a zig-zag or a sinusoid at a third frequency)")
     lead = segment_label(wins[0].segment)
     out = {}
     for i, (c, w) in enumerate(zip(cands, wins)):
