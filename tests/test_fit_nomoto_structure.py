@@ -234,6 +234,15 @@ def test_first_order_steps_stop_the_second_order_early():
     assert "first-order Nomoto" in k.message and "stopped after" in k.message, k.message
     assert k.value == pytest.approx(K_TRUE, rel=0.01) and t.value == pytest.approx(T_TRUE, rel=0.03)
     assert "T3_nomoto" not in fits.estimates
+    # The records fitted together with one rudder bias agree with the steps' own fits on a first-order
+    # ship with a constant offset: nothing is marked unsure for it.
+    from pipeline.fit.nomoto_quality import SHARED_BIAS
+
+    notes = [p for sf in fits.segment_fits for p in sf.message.split("; ") if p.startswith(SHARED_BIAS)]
+    assert notes, [sf.message for sf in fits.segment_fits]
+    joint_t = float(notes[0].split("T = ")[1].split(" ")[0])
+    assert joint_t == pytest.approx(T_TRUE, rel=0.03)
+    assert k.success and t.success and "rudder bias is modelled" not in k.message + t.message
 
 
 def test_gain_floor_stops_a_second_order_fit_on_first_order_data():
@@ -395,10 +404,13 @@ def test_sinusoids_of_a_second_order_ship_fitted_jointly():
     assert [is_joint_follower(sf) for sf in sines] == [False, True]
     assert all("T3" in sf.params for sf in sines)
     assert k.n_segments == 1 and t.n_segments == 1
-    assert k.success and t.success, (k.message, t.message)
+    assert k.success, k.message
     assert k.value == pytest.approx(0.09, rel=0.02)
     assert t.value == pytest.approx(13.5 - 10.8, rel=0.05)
     assert abs(t.value - 2.7) < 3 * t.stderr + 0.01 * 2.7
+    # Two frequencies give four numbers for the four constants: nothing is left to test the structure
+    # (PythonVehicleSimulator's Clarke83 ship: T -4 % with a 0.8 % error), so T is not marked success.
+    assert not t.success and "leave none to test the structure" in t.message, t.message
 
 
 @pytest.mark.slow

@@ -214,7 +214,7 @@ def test_speed_loss_in_turns_widens_k_and_t_by_nomoto_scaling():
 
     import pandas as pd
 
-    from pipeline.fit.nomoto_quality import speed_range
+    from pipeline.fit.nomoto_quality import speed_range, speed_trend
     from pipeline.fit.nomoto_segment import speed_range_note
 
     rng = np.random.default_rng(3)
@@ -232,18 +232,67 @@ def test_speed_loss_in_turns_widens_k_and_t_by_nomoto_scaling():
     assert float(from_rest.split(" ")[5]) == 0.0
     assert speed_range_note(pd.DataFrame({"t": t, "r": r})) == ""
 
+    # Four steps whose turns lost 2-7 % of the speed, K falling with the loss (the tanker: K shifts
+    # with the speed it turns at): the trend shows the speed dependence, and the term is added.
     truth = 0.021795
-    ks = [0.95 * truth * (1 + 0.002 * i) for i in range(4)]
+    losses = [0.02, 0.035, 0.05, 0.07]
+    ks = [truth * (1 - 0.7 * loss) for loss in losses]
     k = combine("K_nomoto", "1/s", "m", [Contribution(v, 1e-5, f"s{i}") for i, v in enumerate(ks)])
     assert not k.ci95[0] <= truth <= k.ci95[1]
-    fits = [SimpleNamespace(params={"K": v}, stderr={"K": 1e-5}, segment=SimpleNamespace(kind="rudder_step"),
-                            message=f"OE, order 1; {note}") for v in ks]
-    assert speed_range(fits) == rel
+
+    def seg(v, loss):
+        return SimpleNamespace(params={"K": v}, stderr={"K": 1e-5}, segment=SimpleNamespace(kind="rudder_step"),
+                               message=f"OE, order 1; {note.replace(f'{rel:.4g}', f'{loss:.4g}', 1)}")
+
+    fits = [seg(v, loss) for v, loss in zip(ks, losses)]
+    assert speed_range(fits) == pytest.approx(0.07)
+    assert speed_trend(fits, "K")
     out = judge_nomoto({"K_nomoto": k}, fits)["K_nomoto"]
     assert out.ci95[0] <= truth <= out.ci95[1]
     assert "speed term" in out.message and out.success
     plain = [SimpleNamespace(**{**vars(f), "message": "OE, order 1"}) for f in fits]
     assert judge_nomoto({"K_nomoto": k}, plain)["K_nomoto"].stderr == k.stderr
+    # The same losses with a K that does not change with them (the project's own simulator: K
+    # does not depend on the speed): no trend, no term, and a note says why.
+    flat = [seg(truth * (1 + 1e-4 * (-1) ** i), loss) for i, loss in enumerate(losses)]
+    k_flat = combine("K_nomoto", "1/s", "m", [Contribution(f.params["K"], 1e-5, f"s{i}") for i, f in enumerate(flat)])
+    assert speed_trend(flat, "K") == ""
+    out = judge_nomoto({"K_nomoto": k_flat}, flat)["K_nomoto"]
+    assert out.stderr == k_flat.stderr and "no speed term" in out.message
+    # Equal losses cannot show a trend; values that disagree beyond their errors still count (something
+    # unmodelled changes between the segments), values that agree do not.
+    assert "disagree beyond their errors" in speed_trend([seg(v, 0.05) for v in ks], "K")
+    assert speed_trend([seg(f.params["K"], 0.05) for f in flat], "K") == ""
+
+
+def test_value_that_depends_on_how_the_rudder_bias_is_modelled_is_unsure():
+    # The combined per-segment T (each segment with its own rudder bias) against the records fitted
+    # together with one bias (pipeline.fit.nomoto_structure.shared_bias_note): PythonVehicleSimulator's
+    # tanker at 20 m, seed 1, T 10.68 +- 0.32 s against 9.81 +- 0.19 s (truth 9.32 s).
+    from types import SimpleNamespace
+
+    from pipeline.fit.nomoto_quality import SHARED_BIAS, shared_bias_reason
+
+    def fits(t_joint, se_joint):
+        note = (f"{SHARED_BIAS} 6 records (first order): K = -0.00578626 +- 4.32e-06 1/s, T = {t_joint:.6g} +- "
+                f"{se_joint:.3g} s, b = -0.654 deg (the records' own fits: b from -0.775 to -0.507 deg)")
+        return [SimpleNamespace(params={"T": 10.68}, stderr={"T": 0.6}, segment=SimpleNamespace(kind="rudder_step"),
+                                message=f"OE, order 1; {note}") for _ in range(6)]
+
+    t = combine("T_nomoto", "s", "m", [Contribution(10.68 + 0.01 * i, 0.78, f"s{i}") for i in range(6)])
+    why = shared_bias_reason(t, fits(9.808, 0.193), "T")
+    assert why and why[0].startswith("unsure: T depends on how the rudder bias is modelled"), why
+    out = judge_nomoto({"T_nomoto": t}, fits(9.808, 0.193))["T_nomoto"]
+    assert not out.success and "rudder bias" in out.message
+    # Within the errors, or immaterial (below 2 % of the value), or no note: nothing.
+    assert shared_bias_reason(t, fits(10.3, 0.2), "T") == []
+    precise = combine("T_nomoto", "s", "m", [Contribution(10.68, 0.01, f"s{i}") for i in range(6)])
+    assert shared_bias_reason(precise, fits(10.5, 0.001), "T") == []
+    # The same seed's K: -0.0058275 +- 0.00019 1/s combined, -0.0057863 with one bias (0.7 %).
+    k = combine("K_nomoto", "1/s", "m", [Contribution(-0.0058275, 0.00045, f"s{i}") for i in range(6)])
+    assert shared_bias_reason(k, fits(9.808, 0.193), "K") == []
+    plain = [SimpleNamespace(**{**vars(f), "message": "OE, order 1"}) for f in fits(9.808, 0.193)]
+    assert shared_bias_reason(t, plain, "T") == []
 
 
 def test_correlation_length_counts_a_slow_component_under_white_noise():
