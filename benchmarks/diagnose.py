@@ -699,20 +699,80 @@ def pvs_frigate_trial(path: Path, rng: np.random.Generator, fs: float, minutes: 
     return path
 
 
+def thin_log(df, rate: float):
+    """A canonical log as a logger at ``rate`` [Hz] writes it: rows on a regular clock, each sensor at
+    its own rate capped by the clock's, so no channel has holes its sensor does not have.
+
+    The simulated CSV's rows are the union of the sensors' sample times (a GNSS fix between two gyro
+    samples is a row of its own). The clock is every ``k``-th sample of the fastest sensor
+    (``k = round(fastest / rate)``, at least 1), so that sensor keeps its exact sample times. A sensor at
+    least as fast as the clock gives each row its sample nearest in time (shifted by at most half its
+    own interval); a slower one puts each of its samples in the row nearest in time (at most half a
+    clock interval) and leaves the other rows empty. Both shifts are centred: no sensor is made late.
+    With ``k = 1`` the log is returned unchanged (each sensor already at its own rate).
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        Canonical log: ``t`` [s] and one column per channel, empty (NaN) where a sensor has no sample.
+    rate : float
+        Drawn log rate [Hz].
+
+    Returns
+    -------
+    tuple
+        (the thinned log, the clock's rate [Hz]).
+    """
+    import pandas as pd
+
+    t = df["t"].to_numpy(dtype=float)
+    chans = [c for c in df.columns if c != "t"]
+    have = {c: df[c].notna().to_numpy() for c in chans}
+    own = {c: float(np.median(np.diff(t[have[c]]))) for c in chans if have[c].sum() > 1}
+    if not own:
+        raise ValueError(f"error: a log with at least one channel sampled twice expected, found columns {chans}")
+    fastest = min(own, key=lambda c: (own[c], -have[c].sum()))
+    t_fast = t[have[fastest]]
+    k = max(int(round(1.0 / (own[fastest] * rate))), 1)
+    if k == 1:
+        return df, 1.0 / own[fastest]
+    clock = t_fast[::k]
+    interval = k * own[fastest]
+    out = {"t": clock}
+    for c in chans:
+        col = np.full(len(clock), np.nan)
+        tc, vc = t[have[c]], df[c].to_numpy(dtype=float)[have[c]]
+        if c not in own:
+            pass
+        elif own[c] <= interval * (1 + 1e-6):
+            # At least as fast as the clock: each row takes the sample nearest to it.
+            j = np.clip(np.searchsorted(tc, clock), 1, len(tc) - 1)
+            j = np.where(np.abs(tc[j - 1] - clock) <= np.abs(tc[j] - clock), j - 1, j)
+            ok = np.abs(tc[j] - clock) <= 0.5 * own[c] * (1 + 1e-6)
+            col[ok] = vc[j[ok]]
+        else:
+            # Slower than the clock: each sample in the row nearest to it (one sample a row).
+            i = np.clip(np.searchsorted(clock, tc), 1, len(clock) - 1)
+            i = np.where(np.abs(clock[i - 1] - tc) <= np.abs(clock[i] - tc), i - 1, i)
+            ok = np.abs(clock[i] - tc) <= 0.5 * interval * (1 + 1e-6)
+            i, v = i[ok], vc[ok]
+            first = np.r_[True, np.diff(i) > 0]
+            col[i[first]] = v[first]
+        out[c] = col
+    return pd.DataFrame(out)[list(df.columns)], 1.0 / interval
+
+
 def _nuisances(path: Path, rng: np.random.Generator, keep_velocity: bool) -> tuple[list[Path], dict]:
     """Apply the trial-shape draws to a canonical CSV: log rate (1-100 Hz, never above the file's),
     body velocities dropped or kept, and a split into a sensor file and a command file (with the gyro)."""
     import pandas as pd
 
     df = pd.read_csv(path)
-    fs0 = 1.0 / float(np.median(np.diff(df["t"].to_numpy())))
-    fs = float(min(np.exp(rng.uniform(np.log(1.0), np.log(100.0))), fs0))
-    step = max(int(round(fs0 / fs)), 1)
-    df = df.iloc[::step].reset_index(drop=True)
+    df, rate = thin_log(df, float(np.exp(rng.uniform(np.log(1.0), np.log(100.0)))))
     if not keep_velocity:
         df = df.drop(columns=[c for c in ("u", "v") if c in df.columns and "sog" in df.columns])
     inputs = [c for c in ("delta", "tau_x", "tau_y", "tau_n", "tau_k", "tau_m") if c in df.columns]
-    shape = {"log_rate_hz": fs0 / step, "velocities": keep_velocity or not {"u", "v"} & set(df.columns)}
+    shape = {"log_rate_hz": rate, "velocities": keep_velocity or not {"u", "v"} & set(df.columns)}
     if inputs and rng.random() < 0.5:
         a, b = path.with_name(path.stem + "_sensors.csv"), path.with_name(path.stem + "_commands.csv")
         df.drop(columns=inputs).to_csv(a, index=False, float_format="%.9g")
