@@ -14,7 +14,7 @@ from diagnose_synthetic import simulated_trial
 from pipeline.diagnose import diagnose
 from pipeline.diagnose.candidates import Candidate
 from pipeline.diagnose.crossval import cross_validate
-from pipeline.diagnose.floor import heldout_floor
+from pipeline.diagnose.floor import heldout_floor, heldout_floors
 from pipeline.diagnose.gridfit import grid_data
 from pipeline.diagnose.problem import build_problems
 from pipeline.diagnose.segments import diagnose_segments
@@ -42,6 +42,21 @@ def test_floor_predicts_the_clean_heldout_gap(clean_slow_ship):
     assert gaps["psi"] > 3.0          # far above the compass noise, with no model error at all
     assert floor["psi"] == pytest.approx(gaps["psi"], rel=0.35)
     assert floor["r"] == pytest.approx(gaps["r"], rel=0.25)
+
+
+def test_floors_of_several_dofs_in_one_call_are_each_dofs_own_floor(clean_slow_ship):
+    # heldout_floors runs every DOF's replicates in one ordered_map (the diagnosis's noise floors);
+    # each DOF's floor must be the one heldout_floor finds for it alone, whatever else is in the call.
+    v, trial = clean_slow_ship
+    p = next(q for q in build_problems(trial, diagnose_segments(trial), v, time_constants={"yaw": 22.0})
+             if q.dof == "yaw")
+    d = grid_data(p)
+    base = cross_validate(p, d, [Candidate(p, d)])[0]
+    full = base.candidate.simulate(base.full, np.arange(len(p.windows)))
+    alone = heldout_floor(p, d, full, replicates=2)
+    together = heldout_floors([(p, d, full), (p, d, None), (p, d, full)], replicates=2)
+    assert set(alone) == {"r", "psi"}
+    assert together == [alone, {}, alone]
 
 
 @pytest.mark.slow

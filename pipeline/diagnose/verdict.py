@@ -24,7 +24,7 @@ from . import selection as sel
 from .candidates import Candidate, candidate_label, candidates_for, composed_candidates, is_input_transform
 from .crossval import CandidateRun, cross_validate, cross_validate_all, jackknife_stderr
 from .actuators import actuator_space
-from .floor import heldout_floor
+from .floor import heldout_floors
 from .gridfit import grid_data
 from .problem import DofProblem, build_problems
 from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
@@ -152,16 +152,20 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     per_dof: dict[str, dict] = {}
     states: dict[str, sel.DofState] = {}
     pre = _cross_validate_all(problems, datas, cands, jobs, tick)
+    scored_dofs = []
     for p, d, cs, runs0 in zip(problems, datas, cands, pre):
-        names = {"y": p.channel, "angle": p.angle}
         runs, scored, base_score = _score_dof(p, d, cs, tick, runs=runs0)
+        scored_dofs.append((runs, scored, base_score, _full_outputs(runs[0], len(p.windows))))
+    # Every DOF's noise-floor replicates in one call, their units side by side (one call per DOF, 3
+    # units on 2 workers, left a worker idle a third of the time).
+    floors = heldout_floors([(p, d, s[3]) for p, d, s in zip(problems, datas, scored_dofs)])
+    for p, d, (runs, scored, base_score, base_full), floor_of in zip(problems, datas, scored_dofs, floors):
+        names = {"y": p.channel, "angle": p.angle}
         base = runs[0]
         results += [res for res, _, _ in scored]
         gaps, neff = sel.channel_gaps_of(base_score)
         per_dof[p.dof] = {"problem": p, "data": d, "runs": runs, "scored": scored, "names": names,
                           "channel_gaps": dict(gaps)}
-        base_full = _full_outputs(base, len(p.windows))
-        floor_of = heldout_floor(p, d, base_full) if base_full is not None else {}
         states[p.dof] = sel.DofState(problem=p, data=d, results=[(res, r) for res, r, _ in scored],
                                      base_heldout=base.heldout, channel_gaps=dict(gaps), channel_neff=dict(neff),
                                      selected=[], base_full=base_full, channel_floor=dict(floor_of))
