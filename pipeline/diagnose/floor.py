@@ -70,7 +70,7 @@ def heldout_floors(dofs: Sequence[tuple[DofProblem, GridData, Mapping[str, np.nd
     """:func:`heldout_floor` of several DOFs, every replicate of every DOF in one :func:`ordered_map`.
 
     One call for all the DOFs' replicates keeps both workers busy where one call per DOF (3 units
-    on 2 workers) leaves one idle a third of the time. Each DOF's noise is drawn with its own
+    on 2 workers) runs its third unit with the other worker idle. Each DOF's noise is drawn with its own
     generator seeded :data:`SEED`, so its floor is the same as :func:`heldout_floor` of it alone.
 
     Parameters
