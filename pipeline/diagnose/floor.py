@@ -92,7 +92,14 @@ def heldout_floors(dofs: Sequence[tuple[DofProblem, GridData, Mapping[str, np.nd
         contexts.append((p, d, {"y": p.channel, "angle": p.angle}))
         if full is not None:
             units += [(k, kw) for kw in _synthetic(d, full, replicates)]
-    gaps = ordered_map(_replicate_gaps, units, context=contexts)
+    # The largest DOFs' replicates first (cost taken as the size of the DOF's window grid), so that
+    # the small ones fill in at the end rather than one large unit running alone; the results are
+    # put back in unit order (each unit's result does not depend on when it runs).
+    order = sorted(range(len(units)), key=lambda i: -int(np.size(dofs[units[i][0]][1].y)))
+    gaps_sorted = ordered_map(_replicate_gaps, [units[i] for i in order], context=contexts)
+    gaps: list = [None] * len(units)
+    for i, g in zip(order, gaps_sorted):
+        gaps[i] = g
     per_dof: list[list] = [[] for _ in dofs]
     for (k, _), g in zip(units, gaps):
         per_dof[k].append(g)
