@@ -298,7 +298,7 @@ def design_autopilot(fits: Fits, vessel: Vessel | None = None,
     return build_autopilot(nomoto_from_fits(fits), vessel=vessel, **kwargs)
 
 
-def diagnose_trial(trial: Trial, vessel: Vessel, fits: Fits):
+def diagnose_trial(trial: Trial, vessel: Vessel, fits: Fits, detected: Segments | None = None):
     """Where and why the identified model disagrees with the trial (diagnose stage).
 
     Parameters
@@ -309,6 +309,9 @@ def diagnose_trial(trial: Trial, vessel: Vessel, fits: Fits):
         Vessel config.
     fits : Fits
         The fit stage's result.
+    detected : Segments, optional
+        The segment stage's detection with no manifest segments (``segment_trial(trial)``), which
+        the diagnosis then does not run again; default: the diagnosis detects them.
 
     Returns
     -------
@@ -323,7 +326,7 @@ def diagnose_trial(trial: Trial, vessel: Vessel, fits: Fits):
     from .parallel import worker_count
 
     # The DOFs are cross-validated side by side when the cores allow (the results do not depend on it).
-    return diagnose(trial, vessel, fits=fits, jobs=worker_count())
+    return diagnose(trial, vessel, fits=fits, jobs=worker_count(), detected=detected)
 
 
 # --------------------------------------------------------------------------- provenance
@@ -472,8 +475,12 @@ def _run_steps(bar, steps, logs, vessel, out, load, model, manual_segments, segm
         trial = step(steps[0], lambda: load_trial(logs, vessel, **load))
     else:
         bar.update()
+    # The segment stage's detection, when it is the diagnosis's own (no manifest segments): handed
+    # to the diagnosis, which would otherwise detect the same segments again.
+    detected = None
     if segments is None:
         segments = step(steps[1], lambda: segment_trial(trial, manual_segments, segments_mode))
+        detected = segments if not manual_segments else None
     else:
         bar.update()
     fits = step(steps[2], lambda: fit_segments(trial, segments, vessel, model))
@@ -487,7 +494,7 @@ def _run_steps(bar, steps, logs, vessel, out, load, model, manual_segments, segm
         skipped["autopilot"] = str(exc)
         bar.update()
     try:
-        diagnosis = step(steps[4], lambda: diagnose_trial(trial, vessel, fits))
+        diagnosis = step(steps[4], lambda: diagnose_trial(trial, vessel, fits, detected))
     except DiagnoseError as exc:
         skipped["diagnose"] = str(exc)
         bar.update()

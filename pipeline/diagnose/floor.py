@@ -20,7 +20,7 @@ significance tests compare two held-out fits on the same data and need no floor.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -62,9 +62,55 @@ def heldout_floor(p: DofProblem, d: GridData, full: Mapping[str, np.ndarray],
     dict[str, float]
         Channel -> floor; empty when the noise floor is unknown or a replicate cannot be fitted.
     """
+    return heldout_floors([(p, d, full)], replicates)[0]
+
+
+def heldout_floors(dofs: Sequence[tuple[DofProblem, GridData, Mapping[str, np.ndarray] | None]],
+                   replicates: int = REPLICATES) -> list[dict[str, float]]:
+    """:func:`heldout_floor` of several DOFs, every replicate of every DOF in one :func:`ordered_map`.
+
+    One call for all the DOFs' replicates keeps both workers busy where one call per DOF (3 units
+    on 2 workers) runs its third unit with the other worker idle. Each DOF's noise is drawn with its own
+    generator seeded :data:`SEED`, so its floor is the same as :func:`heldout_floor` of it alone.
+
+    Parameters
+    ----------
+    dofs : Sequence[tuple]
+        ``(problem, data, full)`` per DOF; ``full`` (the baseline's outputs on every window, as in
+        :func:`heldout_floor`) None where there is none.
+    replicates : int
+        Synthetic trials per DOF.
+
+    Returns
+    -------
+    list of dict[str, float]
+        Per DOF, in order: channel -> floor [noise units]; empty where ``full`` is None, the noise
+        floor is unknown or a replicate cannot be fitted.
+    """
+    contexts, units = [], []
+    for k, (p, d, full) in enumerate(dofs):
+        contexts.append((p, d, {"y": p.channel, "angle": p.angle}))
+        if full is not None:
+            units += [(k, kw) for kw in _synthetic(d, full, replicates)]
+    # The largest DOFs' replicates first (cost taken as the size of the DOF's window grid), so that
+    # the small ones fill in at the end rather than one large unit running alone; the results are
+    # put back in unit order (each unit's result does not depend on when it runs).
+    order = sorted(range(len(units)), key=lambda i: -int(np.size(dofs[units[i][0]][1].y)))
+    gaps_sorted = ordered_map(_replicate_gaps, [units[i] for i in order], context=contexts)
+    gaps: list = [None] * len(units)
+    for i, g in zip(order, gaps_sorted):
+        gaps[i] = g
+    per_dof: list[list] = [[] for _ in dofs]
+    for (k, _), g in zip(units, gaps):
+        per_dof[k].append(g)
+    return [_floor(g) for g in per_dof]
+
+
+def _synthetic(d: GridData, full: Mapping[str, np.ndarray], replicates: int) -> list[dict]:
+    """The replicates' synthetic outputs (``y``, ``y0``, ``angle``) of one DOF; none when its noise
+    floor is unknown."""
     if not (np.isfinite(d.sigma_y) and d.sigma_y > 0):
-        return {}
-    names = {"y": p.channel, "angle": p.angle}
+        return []
     rng = np.random.default_rng(SEED)
     # The replicates' noise is drawn here, in turn (the same draws whatever runs them); each
     # replicate's cross-validation is independent (worker processes when the cores allow).
@@ -82,8 +128,12 @@ def heldout_floor(p: DofProblem, d: GridData, full: Mapping[str, np.ndarray],
         elif d.angle is not None:
             kw["angle"] = None
         synthetic.append(kw)
-    gaps = ordered_map(_replicate_gaps, synthetic, context=(p, d, names))
-    if any(g is None for g in gaps):
+    return synthetic
+
+
+def _floor(gaps: list) -> dict[str, float]:
+    """Channel -> floor from one DOF's replicate gaps; empty when there are none or one failed."""
+    if not gaps or any(g is None for g in gaps):
         return {}
     sums: dict[str, list[float]] = {}
     for g in gaps:
@@ -92,12 +142,14 @@ def heldout_floor(p: DofProblem, d: GridData, full: Mapping[str, np.ndarray],
     return {ch: float(max(np.sqrt(np.mean(v)), 1.0)) for ch, v in sums.items() if np.all(np.isfinite(v))}
 
 
-def _replicate_gaps(inputs: tuple, kw: dict) -> list[tuple[str, float]] | None:
-    """Held-out gap per channel of one synthetic replicate (``inputs``: problem, data, channel
-    names; ``kw``: the replicate's outputs); None when it cannot be fitted."""
+def _replicate_gaps(contexts: list, unit: tuple) -> list[tuple[str, float]] | None:
+    """Held-out gap per channel of one synthetic replicate (``contexts``: problem, data, channel
+    names per DOF; ``unit``: the DOF's index and the replicate's outputs); None when it cannot be
+    fitted."""
     from . import significance as sig
 
-    p, d, names = inputs
+    k, kw = unit
+    p, d, names = contexts[k]
     ds = replace(d, **kw)
     try:
         runs = cross_validate(p, ds, [Candidate(p, ds)])
@@ -105,8 +157,8 @@ def _replicate_gaps(inputs: tuple, kw: dict) -> list[tuple[str, float]] | None:
         return None
     if not runs:
         return None
-    sc = sig.score(ds, runs[0].heldout, runs[0].heldout, 1, {k: v for k, v in names.items() if v})
+    sc = sig.score(ds, runs[0].heldout, runs[0].heldout, 1, {c: v for c, v in names.items() if v})
     return [(c.channel, c.gap_before) for c in sc.channels]
 
 
-__all__ = ["heldout_floor", "REPLICATES"]
+__all__ = ["heldout_floor", "heldout_floors", "REPLICATES"]

@@ -15,20 +15,24 @@ from ..segment.replay import extend_segments, free_runs, velocity_decays
 from .problem import FORCE, RESPONSE, dof_inputs
 
 
-def diagnose_segments(trial: Trial) -> Segments:
+def diagnose_segments(trial: Trial, detected: Segments | None = None) -> Segments:
     """Detected segments, plus velocity free decays and free runs where the detector sees nothing.
 
     Parameters
     ----------
     trial : Trial
         Aligned trial.
+    detected : Segments, optional
+        The segment stage's detection on this trial, ``segment_trial(trial)`` with no manifest
+        segments (the flow has it already); default: detected here.
 
     Returns
     -------
     Segments
         In time order; input-driven segments extended to the next input change.
     """
-    detected = segment_trial(trial)
+    if detected is None:
+        detected = segment_trial(trial)
     items = extend_segments(trial, list(detected.items))
     for dof in ("surge", "sway", "yaw"):
         ch = first_present_channel(trial, RESPONSE[dof])

@@ -24,7 +24,7 @@ from . import selection as sel
 from .candidates import Candidate, candidate_label, candidates_for, composed_candidates, is_input_transform
 from .crossval import CandidateRun, cross_validate, cross_validate_all, jackknife_stderr
 from .actuators import actuator_space
-from .floor import heldout_floor
+from .floor import heldout_floors
 from .gridfit import grid_data
 from .problem import DofProblem, build_problems
 from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
@@ -82,7 +82,8 @@ def _refine_time_constants(trial: Trial, segments: Segments, vessel: Vessel | No
 
 
 def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | None = None, fits: Fits | None = None,
-             progress: Callable[[int], Callable[[], None]] | None = None, jobs: int = 1) -> GapReport:
+             progress: Callable[[int], Callable[[], None]] | None = None, jobs: int = 1,
+             detected: Segments | None = None) -> GapReport:
     """Diagnose the sim-to-real gap of a trial.
 
     Parameters
@@ -101,6 +102,10 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     jobs : int
         Processes that cross-validate the DOFs side by side (1: in this process). The results do
         not depend on it.
+    detected : Segments, optional
+        Without ``segments``: the segment stage's detection on this trial, ``segment_trial(trial)``
+        with no manifest segments, so that it is not run again (see
+        :func:`pipeline.diagnose.segments.diagnose_segments`).
 
     Returns
     -------
@@ -112,7 +117,7 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         No segment, or no DOF that is both excited by the trial and measured.
     """
     notes: list[str] = []
-    segs = segments if segments is not None else diagnose_segments(trial)
+    segs = segments if segments is not None else diagnose_segments(trial, detected)
     if not segs.items:
         raise DiagnoseError(f"{trial.name}: expected at least one manoeuvre segment (coast-down, step, zig-zag, "
                             f"decay) or a logged input to replay, found none in channels "
@@ -152,16 +157,20 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     per_dof: dict[str, dict] = {}
     states: dict[str, sel.DofState] = {}
     pre = _cross_validate_all(problems, datas, cands, jobs, tick)
+    scored_dofs = []
     for p, d, cs, runs0 in zip(problems, datas, cands, pre):
-        names = {"y": p.channel, "angle": p.angle}
         runs, scored, base_score = _score_dof(p, d, cs, tick, runs=runs0)
+        scored_dofs.append((runs, scored, base_score, _full_outputs(runs[0], len(p.windows))))
+    # Every DOF's noise-floor replicates in one call, their units side by side (one call per DOF
+    # put 3 units on 2 workers: the third ran with the other worker idle).
+    floors = heldout_floors([(p, d, s[3]) for p, d, s in zip(problems, datas, scored_dofs)])
+    for p, d, (runs, scored, base_score, base_full), floor_of in zip(problems, datas, scored_dofs, floors):
+        names = {"y": p.channel, "angle": p.angle}
         base = runs[0]
         results += [res for res, _, _ in scored]
         gaps, neff = sel.channel_gaps_of(base_score)
         per_dof[p.dof] = {"problem": p, "data": d, "runs": runs, "scored": scored, "names": names,
                           "channel_gaps": dict(gaps)}
-        base_full = _full_outputs(base, len(p.windows))
-        floor_of = heldout_floor(p, d, base_full) if base_full is not None else {}
         states[p.dof] = sel.DofState(problem=p, data=d, results=[(res, r) for res, r, _ in scored],
                                      base_heldout=base.heldout, channel_gaps=dict(gaps), channel_neff=dict(neff),
                                      selected=[], base_full=base_full, channel_floor=dict(floor_of))
