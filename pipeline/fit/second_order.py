@@ -127,7 +127,8 @@ def guess_damped_oscillation(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
     Raises
     ------
     FitError
-        Fewer than ``MIN_EXTREMA`` extrema stand out of the noise.
+        Fewer than ``MIN_EXTREMA`` extrema stand out of the noise and the linear-prediction start
+        (:func:`guess_by_linear_prediction`, tried next) fails too; the message gives both reasons.
     """
     t = np.asarray(t, float)
     y = np.asarray(y, float)
