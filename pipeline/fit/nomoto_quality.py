@@ -183,6 +183,7 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if name == "K_nomoto":
             why += sinusoid_k_reason(est, kinds, t_why)
         why += nonlinear_reason(est, fits, short)
+        why += superposition_reason(est, fits, short)
         for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
             if est.success and f" {short} " in part.split(":")[1] + " ":
                 kept = minority_note_kept(fits, part, short)
@@ -369,6 +370,76 @@ def nonlinear_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) -> l
     return []
 
 
+#: |t| of the difference between steps into a turn and steps out of one that breaks superposition.
+SUPERPOSITION_T = 3.0
+#: Difference between the two groups' means, relative to the combined value, that is material [-].
+SUPERPOSITION_MATERIAL = 0.02
+
+
+def superposition_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) -> list[str]:
+    """Why K or T is unsure when rudder steps into a turn and steps out of one give different values.
+
+    A linear ship's response to a rudder step does not depend on the steady level it starts from
+    (superposition, whatever the order, servo or rudder bias): a step from straight ahead into a turn
+    and the step back out of it give the same K and T. When the two groups' inverse-variance means
+    (each group's error scaled by its own Birge ratio, at least 1) differ by ``|t| >= SUPERPOSITION_T``
+    and by more than ``SUPERPOSITION_MATERIAL`` of the combined value, the ship is nonlinear (a cubic
+    yaw-rate term, a speed change in the turns), each group's value holds for its own direction, and
+    the combined one, an average of two values that are not the linearisation's, need not lie near
+    it. This needs no range of amplitudes, which equal +-10 deg steps lack (measured:
+    PythonVehicleSimulator's frigate at 6 m/s with Norrbin's ``n3 = 150 s^2/rad^2``, measured rudder,
+    equal 10 deg steps: T into turns -4.1 to -4.9 %, out of them -2.1 to -2.4 %, each +- 0.2-0.5 %,
+    combined -3.4 +- 4.9 % marked success before this rule).
+
+    Steps between two turns (a reversal, ``|before| == |after|``) are neither. Not applied to K and T
+    read from the pooled second-order vector: a second-order segment's own T, the difference of two
+    correlated constants, scatters beyond its error, and the pooled vector's Birge ratio carries the
+    segments' disagreement.
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K or T.
+    fits : sequence of SegmentFit
+        The segment fits behind it (their ``segment.input_before`` and ``input_after`` are read).
+    short : str
+        ``K`` or ``T``.
+    """
+    if not (est.success and math.isfinite(est.value) and est.value != 0) or POOLED_NOTE in est.message:
+        return []
+    groups: dict[bool, list[tuple[float, float]]] = {True: [], False: []}
+    for f in fits:
+        seg = f.segment
+        if seg.kind != "rudder_step" or is_joint_follower(f):
+            continue
+        lo, hi = getattr(seg, "input_before", math.nan), getattr(seg, "input_after", math.nan)
+        before, after, step = abs(lo), abs(hi), abs(hi - lo)
+        v, s = f.params.get(short, math.nan), f.stderr.get(short, math.nan)
+        if not (step > 0 and math.isfinite(v) and math.isfinite(s) and s > 0):
+            continue
+        if abs(after - before) > 0.5 * step:
+            groups[after > before].append((v, s))
+    if not groups[True] or not groups[False] or len(groups[True]) + len(groups[False]) < 3:
+        return []
+    means = {}
+    for into, rows in groups.items():
+        x, s = (np.array(c, float) for c in zip(*rows))
+        w = 1.0 / s**2
+        mu = float(w @ x / w.sum())
+        birge2 = max(1.0, float(w @ (x - mu) ** 2) / (x.size - 1)) if x.size > 1 else 1.0
+        means[into] = (mu, math.sqrt(birge2 / w.sum()), x.size)
+    (m_in, s_in, n_in), (m_out, s_out, n_out) = means[True], means[False]
+    t = (m_in - m_out) / math.hypot(s_in, s_out)
+    rel = abs(m_in - m_out) / abs(est.value)
+    if not (abs(t) >= SUPERPOSITION_T and rel > SUPERPOSITION_MATERIAL):
+        return []
+    return [f"unsure: nonlinear: {n_in} rudder steps into a turn give {short} = {m_in:.4g} +- {s_in:.2g} {est.unit}, "
+            f"{n_out} steps out of one {m_out:.4g} +- {s_out:.2g} (difference {rel:.1%} of the value, t = {t:+.2g}): "
+            f"a linear ship's step response does not depend on where the step starts, so the ship is nonlinear "
+            f"(a cubic yaw-rate term, a speed change in the turns) and the combined {short}, an average of the "
+            f"two, is not its linear value"]
+
+
 def sinusoid_k_reason(est: Estimate, kinds: Sequence[str], t_reasons: Sequence[str]) -> list[str]:
     """Why a K from sinusoids only is unsure when their T spread already shows a structure error.
 
@@ -515,6 +586,10 @@ def speed_rows(fits: Sequence[SegmentFit], short: str) -> tuple[np.ndarray, np.n
 #: p of the chi-square of the segments about their speed-loss line below which the line does not
 #: describe them (the same level as the consistency test of :mod:`pipeline.fit.combine`).
 LINE_FIT_ALPHA = CONSISTENCY_ALPHA
+#: Largest speed loss in the turns [-] up to which the speed term of :func:`add_speed_term` covers a speed
+#: dependence: by Nomoto's scaling (``K = K' U / L``, ``T = T' L / U``) a loss ``l`` shifts K and T by about
+#: ``l``, immaterial below this (the same 2 % as ``AMPLITUDE_MATERIAL``).
+SPEED_MATERIAL = 0.02
 #: The smallest speed loss of the segments must be at most this share of the largest for the line to
 #: be extrapolated to zero loss (the extrapolation then reaches no farther than the span it rests on).
 EXTRAPOLATION_REACH = 0.5
@@ -543,7 +618,10 @@ def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) ->
 
     Otherwise the estimate keeps its value, gets the speed term of :func:`add_speed_term` and is
     ``unsure`` with the reason (returned, not yet in the message). Where the segments show no
-    speed dependence nothing changes but the note of :func:`add_speed_term`.
+    speed dependence, or the largest loss is at most ``SPEED_MATERIAL`` (the speed term covers what such
+    a loss can shift; a speed-held ship loses none), only :func:`add_speed_term` applies (measured:
+    PythonVehicleSimulator's tanker at 20 m, losses 0-1 %, K -2.0 to -2.4 % with segments disagreeing
+    beyond their errors: extrapolation would have marked a K within 3 % unsure).
 
     Parameters
     ----------
@@ -565,7 +643,7 @@ def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) ->
     spread_counts = not (short == "T" and POOLED_NOTE in est.message)
     trend = speed_trend(fits, short, spread_counts=spread_counts)
     rel_range = speed_range(fits)
-    if not trend or not (math.isfinite(est.value) and math.isfinite(est.stderr)):
+    if not trend or not rel_range > SPEED_MATERIAL or not (math.isfinite(est.value) and math.isfinite(est.stderr)):
         return add_speed_term(est, rel_range, trend), []
     a, x, s = speed_rows(fits, short)
     why = ""
