@@ -355,3 +355,48 @@ def test_structure_note_on_a_minority_of_segments_is_tested_against_the_rest():
     assert not off.success and off.message.startswith(note)
     most = judge_nomoto({"K_nomoto": k}, fits(0.0801, n_flagged=3))["K_nomoto"]
     assert not most.success and most.message.startswith(note)
+
+
+def test_steps_into_and_out_of_turns_that_differ_mark_the_value_nonlinear():
+    # A first-order ship with Norrbin's cubic yaw-rate term (PythonVehicleSimulator's frigate at 6 m/s,
+    # n3 = 150 s^2/rad^2, measured rudder, equal 10 deg steps): steps into a turn give T about 4.5 %
+    # low, steps back out of it 2.3 % low; a linear ship's steps give the same T from any start level.
+    from types import SimpleNamespace
+
+    from pipeline.fit.nomoto_quality import superposition_reason
+
+    a = math.radians(10.0)
+    levels = [0.0, a, 0.0, -a, 0.0, a, 0.0, -a, 0.0]
+
+    def fits(t_into, t_out, se=0.05):
+        out = []
+        for i, (lo, hi) in enumerate(zip(levels[:-1], levels[1:])):
+            into = abs(hi) > abs(lo)
+            t = (t_into if into else t_out) + 0.3 * se * (-1) ** (i // 2)
+            out.append(SimpleNamespace(params={"T": t, "K": 0.078}, stderr={"T": se, "K": 4e-5},
+                                       segment=SimpleNamespace(kind="rudder_step", input_before=lo, input_after=hi),
+                                       message="OE, order 1"))
+        return out
+
+    nonlinear = fits(19.1, 19.55)
+    t = combine("T_nomoto", "s", "m", [Contribution(f.params["T"], 0.05, f"s{i}") for i, f in enumerate(nonlinear)])
+    why = superposition_reason(t, nonlinear, "T")
+    assert why and why[0].startswith("unsure: nonlinear: 4 rudder steps into a turn give T"), why
+    out = judge_nomoto({"T_nomoto": t}, nonlinear)["T_nomoto"]
+    assert not out.success and "steps out of one" in out.message
+    k = combine("K_nomoto", "1/s", "m", [Contribution(0.078, 4e-5, f"s{i}") for i in range(8)])
+    assert superposition_reason(k, nonlinear, "K") == []
+    # A linear ship (the same T both ways), or a difference below 2 % of the value: nothing.
+    assert superposition_reason(t, fits(19.3, 19.3), "T") == []
+    assert superposition_reason(t, fits(19.3, 19.55, se=0.01), "T") == []
+    # Reversals (+a to -a) are neither into nor out of a turn; K and T from the pooled second-order
+    # vector are not tested (a second-order segment's own T scatters beyond its error).
+    reversals = [SimpleNamespace(**{**vars(f), "segment": SimpleNamespace(kind="rudder_step", input_before=a,
+                                                                         input_after=-a)}) for f in nonlinear]
+    assert superposition_reason(t, reversals, "T") == []
+    from pipeline.fit.nomoto_pool import POOLED_NOTE
+
+    from dataclasses import replace
+
+    pooled = replace(t, message=f"{POOLED_NOTE}: ...")
+    assert superposition_reason(pooled, nonlinear, "T") == []
