@@ -46,7 +46,12 @@ segments, so it is added after combining, never averaged down. A speed term foll
 (``SPEED_RANGE`` notes of :func:`pipeline.fit.nomoto_segment.speed_range_note`) times the value,
 because Nomoto's K and T scale with the speed and a ship slows in its turns; it is added only where the
 segments' values show a speed dependence (:func:`speed_trend`: a trend with their speed loss, or a
-disagreement beyond their errors), not on a ship whose K and T do not change with the speed.
+disagreement beyond their errors), not on a ship whose K and T do not change with the speed; where
+the largest loss exceeds ``SPEED_MATERIAL``, the straight-run value is instead the intercept at zero
+loss of the segments' values against their losses, or, when that line cannot be extrapolated, the
+value is unsure (:func:`straight_run_value`). K or T is also unsure when rudder steps into a turn and
+steps out of one give different values (:func:`superposition_reason`: a linear ship's step response
+does not depend on where the step starts).
 A combined first-order K or T is also unsure when it differs materially and beyond its error from
 the first-order fit of all the segments' records with one rudder bias (:func:`shared_bias_reason`, the
 fit by :func:`pipeline.fit.nomoto_structure.shared_bias_note`): the per-segment biases then took up
@@ -612,9 +617,10 @@ def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) ->
       is the wrong shape (a K that changes with the amplitude, not in proportion to the speed loss,
       or differs between port and starboard turns), and its intercept is no better than its shape
       (measured: PythonVehicleSimulator's tanker at 25 m, 10 and 5 deg steps, losses 0.9-7.8 %,
-      chi-square about the line 27-125 on 4 dof, intercept K still +3.4 to +3.9 % with an error of
-      0.3-0.7 %; noise-free steps of 1 deg give K within 0.1 % of the linearisation, 5 deg +2.9 %:
-      the dependence is steepest near zero amplitude, where no segment is).
+      chi-square about the line 26-149 on 3-4 dof over seeds 0-7, intercept K still +3.4 to +3.9 %
+      with an error of 0.3-0.7 % on seeds 0-3; noise-free step programs of 1 deg give K within 0.1 %
+      of the linearisation, of 5 deg +2.9 %: the dependence is steepest near zero amplitude, where
+      no segment is).
 
     Otherwise the estimate keeps its value, gets the speed term of :func:`add_speed_term` and is
     ``unsure`` with the reason (returned, not yet in the message). Where the segments show no
