@@ -569,9 +569,9 @@ def speed_rows(fits: Sequence[SegmentFit], short: str) -> tuple[np.ndarray, np.n
     Parameters
     ----------
     fits : sequence of SegmentFit
-        Nomoto segment fits.
+        Nomoto segment fits; each one's message carries its record's ``SPEED_RANGE`` note.
     short : str
-        ``K`` or ``T``.
+        The coefficient read from each fit's ``params`` and ``stderr``: ``K`` or ``T``.
     """
     rows = []
     for f in fits:
