@@ -393,8 +393,8 @@ def superposition_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     the combined one, an average of two values that are not the linearisation's, need not lie near
     it. This needs no range of amplitudes, which equal +-10 deg steps lack (measured:
     PythonVehicleSimulator's frigate at 6 m/s with Norrbin's ``n3 = 150 s^2/rad^2``, measured rudder,
-    equal 10 deg steps: T into turns -4.1 to -4.9 %, out of them -2.1 to -2.4 %, each +- 0.2-0.5 %,
-    combined -3.4 +- 4.9 % marked success before this rule).
+    equal 10 deg steps, 4 seeds: T into turns -4.1 to -5.2 %, out of them -1.8 to -2.8 %, each
+    +- 0.2-0.6 %; combined -3.3 to -3.7 % (+- 4.2-7.5 %) marked success before this rule).
 
     Steps between two turns (a reversal, ``|before| == |after|``) are neither. Not applied to K and T
     read from the pooled second-order vector: a second-order segment's own T, the difference of two
