@@ -228,8 +228,13 @@ def simulate(ship: Ship, kind: str, truth: dict) -> dict[str, np.ndarray]:
         if k % every == 0:
             dc = prog(t, psi, st)       # a digital command, updated at the log rate and held
             rows.append((t, psi, nu[5], nu[0], dc, ua[0]))
+        r_before = nu[5]
         nu, ua = vehicle.dynamics(eta, nu, ua, np.array([dc]), H_SIM)
-        psi += H_SIM * nu[5]
+        # The heading is the integral of the simulator's own yaw rate, piecewise linear between its
+        # Euler steps: the trapezoid. (psi += h r_new, PVS's own attitude update, makes the heading lead
+        # the yaw rate by h/2 = 0.025 s: T shifted by -0.13 to -0.16 % on the frigate's slow sinusoid,
+        # seeds 0-2, 2-4 of its standard errors.)
+        psi += 0.5 * H_SIM * (r_before + nu[5])
     arr = np.array(rows)
     return dict(zip(("t", "psi", "r", "u", "delta_c", "delta"), arr.T))
 

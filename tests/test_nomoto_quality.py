@@ -206,7 +206,7 @@ def test_k_trending_with_the_rudder_amplitude_is_unsure():
     assert nonlinear_reason(k, plain, "K") == []
 
 
-def test_speed_loss_in_turns_widens_k_and_t_by_nomoto_scaling():
+def test_speed_loss_in_turns_gives_the_straight_run_value_or_unsure():
     # A ship that slows from 7.19 to 6.64 m/s in its turns (PythonVehicleSimulator's tanker at
     # 25 m, 10 deg steps): the speed lost is read through 0.05 m/s noise, and the combined
     # K's interval then spans a K shift across the whole range; a speed-held ship gets no term.
@@ -232,11 +232,13 @@ def test_speed_loss_in_turns_widens_k_and_t_by_nomoto_scaling():
     assert float(from_rest.split(" ")[5]) == 0.0
     assert speed_range_note(pd.DataFrame({"t": t, "r": r})) == ""
 
-    # Four steps whose turns lost 2-7 % of the speed, K falling with the loss (the tanker: K shifts
-    # with the speed it turns at): the trend shows the speed dependence, and the term is added.
+    # Four steps whose turns lost 2-7 % of the speed, K falling with the loss (K shifts with the speed
+    # it turns at): the trend shows the speed dependence, and the straight-run K is the intercept of
+    # the weighted line at zero loss (the combined value misses the truth).
     truth = 0.021795
     losses = [0.02, 0.035, 0.05, 0.07]
-    ks = [truth * (1 - 0.7 * loss) for loss in losses]
+    noise = [0.6, -1.1, 0.9, -0.4]      # the segments' own scatter, in standard errors
+    ks = [truth * (1 - 0.7 * loss) + 1e-5 * e for loss, e in zip(losses, noise)]
     k = combine("K_nomoto", "1/s", "m", [Contribution(v, 1e-5, f"s{i}") for i, v in enumerate(ks)])
     assert not k.ci95[0] <= truth <= k.ci95[1]
 
@@ -248,21 +250,43 @@ def test_speed_loss_in_turns_widens_k_and_t_by_nomoto_scaling():
     assert speed_range(fits) == pytest.approx(0.07)
     assert speed_trend(fits, "K")
     out = judge_nomoto({"K_nomoto": k}, fits)["K_nomoto"]
-    assert out.ci95[0] <= truth <= out.ci95[1]
-    assert "speed term" in out.message and out.success
+    assert out.ci95[0] <= truth <= out.ci95[1] and out.success, out.message
+    assert out.message.startswith("straight-run value: K at zero speed loss")
+    assert abs(out.value - truth) < 3 * out.stderr and out.stderr < 4e-5
     plain = [SimpleNamespace(**{**vars(f), "message": "OE, order 1"}) for f in fits]
     assert judge_nomoto({"K_nomoto": k}, plain)["K_nomoto"].stderr == k.stderr
+    # K that is not a line in the loss (the tanker at 25 m: port and starboard turns differ, and the
+    # dependence is steepest near zero amplitude): the line misses its points, so its intercept is not
+    # trusted; K is unsure with the speed term, not an extrapolation.
+    bent = [seg(truth * (1 - 0.7 * loss) + (3e-4 if i % 2 else 0.0), loss) for i, loss in enumerate(losses)]
+    k_bent = combine("K_nomoto", "1/s", "m", [Contribution(f.params["K"], 1e-5, f"s{i}") for i, f in enumerate(bent)])
+    out = judge_nomoto({"K_nomoto": k_bent}, bent)["K_nomoto"]
+    assert not out.success and "a straight line in the speed loss misses" in out.message
+    assert "speed term" in out.message and out.stderr > k_bent.stderr
+    # Losses that do not reach near zero (5-7 %): too far to extrapolate, unsure.
+    far = [seg(truth * (1 - 0.7 * loss), loss) for loss in (0.05, 0.06, 0.07)]
+    k_far = combine("K_nomoto", "1/s", "m", [Contribution(f.params["K"], 1e-5, f"s{i}") for i, f in enumerate(far)])
+    out = judge_nomoto({"K_nomoto": k_far}, far)["K_nomoto"]
+    assert not out.success and "zero lies farther from the smallest" in out.message
+    # Losses of at most 2 % (the tanker at 20 m, 0-1 %): what they can shift is covered by the speed
+    # term, and the value stays a success however its segments disagree.
+    slight = [seg(v, loss) for v, loss in zip(ks, (0.0, 0.005, 0.01, 0.015))]
+    out = judge_nomoto({"K_nomoto": k}, slight)["K_nomoto"]
+    assert out.success and "speed term" in out.message and out.value == k.value and out.stderr > k.stderr
     # The same losses with a K that does not change with them (the project's own simulator: K
     # does not depend on the speed): no trend, no term, and a note says why.
     flat = [seg(truth * (1 + 1e-4 * (-1) ** i), loss) for i, loss in enumerate(losses)]
     k_flat = combine("K_nomoto", "1/s", "m", [Contribution(f.params["K"], 1e-5, f"s{i}") for i, f in enumerate(flat)])
     assert speed_trend(flat, "K") == ""
     out = judge_nomoto({"K_nomoto": k_flat}, flat)["K_nomoto"]
-    assert out.stderr == k_flat.stderr and "no speed term" in out.message
+    assert out.stderr == k_flat.stderr and "no speed term" in out.message and out.success
     # Equal losses cannot show a trend; values that disagree beyond their errors still count (something
-    # unmodelled changes between the segments), values that agree do not.
-    assert "disagree beyond their errors" in speed_trend([seg(v, 0.05) for v in ks], "K")
+    # unmodelled changes between the segments), values that agree do not; with no span of losses the
+    # value cannot be extrapolated and is unsure.
+    same = [seg(v, 0.05) for v in ks]
+    assert "disagree beyond their errors" in speed_trend(same, "K")
     assert speed_trend([seg(f.params["K"], 0.05) for f in flat], "K") == ""
+    assert not judge_nomoto({"K_nomoto": k}, same)["K_nomoto"].success
 
 
 def test_value_that_depends_on_how_the_rudder_bias_is_modelled_is_unsure():
@@ -331,3 +355,48 @@ def test_structure_note_on_a_minority_of_segments_is_tested_against_the_rest():
     assert not off.success and off.message.startswith(note)
     most = judge_nomoto({"K_nomoto": k}, fits(0.0801, n_flagged=3))["K_nomoto"]
     assert not most.success and most.message.startswith(note)
+
+
+def test_steps_into_and_out_of_turns_that_differ_mark_the_value_nonlinear():
+    # A first-order ship with Norrbin's cubic yaw-rate term (PythonVehicleSimulator's frigate at 6 m/s,
+    # n3 = 150 s^2/rad^2, measured rudder, equal 10 deg steps): steps into a turn give T about 4.5 %
+    # low, steps back out of it 2.3 % low; a linear ship's steps give the same T from any start level.
+    from types import SimpleNamespace
+
+    from pipeline.fit.nomoto_quality import superposition_reason
+
+    a = math.radians(10.0)
+    levels = [0.0, a, 0.0, -a, 0.0, a, 0.0, -a, 0.0]
+
+    def fits(t_into, t_out, se=0.05):
+        out = []
+        for i, (lo, hi) in enumerate(zip(levels[:-1], levels[1:])):
+            into = abs(hi) > abs(lo)
+            t = (t_into if into else t_out) + 0.3 * se * (-1) ** (i // 2)
+            out.append(SimpleNamespace(params={"T": t, "K": 0.078}, stderr={"T": se, "K": 4e-5},
+                                       segment=SimpleNamespace(kind="rudder_step", input_before=lo, input_after=hi),
+                                       message="OE, order 1"))
+        return out
+
+    nonlinear = fits(19.1, 19.55)
+    t = combine("T_nomoto", "s", "m", [Contribution(f.params["T"], 0.05, f"s{i}") for i, f in enumerate(nonlinear)])
+    why = superposition_reason(t, nonlinear, "T")
+    assert why and why[0].startswith("unsure: nonlinear: 4 rudder steps into a turn give T"), why
+    out = judge_nomoto({"T_nomoto": t}, nonlinear)["T_nomoto"]
+    assert not out.success and "steps out of one" in out.message
+    k = combine("K_nomoto", "1/s", "m", [Contribution(0.078, 4e-5, f"s{i}") for i in range(8)])
+    assert superposition_reason(k, nonlinear, "K") == []
+    # A linear ship (the same T both ways), or a difference below 2 % of the value: nothing.
+    assert superposition_reason(t, fits(19.3, 19.3), "T") == []
+    assert superposition_reason(t, fits(19.3, 19.55, se=0.01), "T") == []
+    # Reversals (+a to -a) are neither into nor out of a turn; K and T from the pooled second-order
+    # vector are not tested (a second-order segment's own T scatters beyond its error).
+    reversals = [SimpleNamespace(**{**vars(f), "segment": SimpleNamespace(kind="rudder_step", input_before=a,
+                                                                         input_after=-a)}) for f in nonlinear]
+    assert superposition_reason(t, reversals, "T") == []
+    from pipeline.fit.nomoto_pool import POOLED_NOTE
+
+    from dataclasses import replace
+
+    pooled = replace(t, message=f"{POOLED_NOTE}: ...")
+    assert superposition_reason(pooled, nonlinear, "T") == []

@@ -46,7 +46,12 @@ segments, so it is added after combining, never averaged down. A speed term foll
 (``SPEED_RANGE`` notes of :func:`pipeline.fit.nomoto_segment.speed_range_note`) times the value,
 because Nomoto's K and T scale with the speed and a ship slows in its turns; it is added only where the
 segments' values show a speed dependence (:func:`speed_trend`: a trend with their speed loss, or a
-disagreement beyond their errors), not on a ship whose K and T do not change with the speed.
+disagreement beyond their errors), not on a ship whose K and T do not change with the speed; where
+the largest loss exceeds ``SPEED_MATERIAL``, the straight-run value is instead the intercept at zero
+loss of the segments' values against their losses, or, when that line cannot be extrapolated, the
+value is unsure (:func:`straight_run_value`). K or T is also unsure when rudder steps into a turn and
+steps out of one give different values (:func:`superposition_reason`: a linear ship's step response
+does not depend on where the step starts).
 A combined first-order K or T is also unsure when it differs materially and beyond its error from
 the first-order fit of all the segments' records with one rudder bias (:func:`shared_bias_reason`, the
 fit by :func:`pipeline.fit.nomoto_structure.shared_bias_note`): the per-segment biases then took up
@@ -59,7 +64,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
@@ -176,13 +181,14 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
             continue
         short = name.split("_")[0]
         bias_why = shared_bias_reason(est, fits, short)
+        est, speed_why = straight_run_value(est, fits, short)
         est = add_structure_term(est, structure_term(fits, short))
-        est = add_speed_term(est, speed_range(fits), speed_trend(fits, short))
         out[name] = est
-        why = bias_why + unsure_reasons(est, kinds)
+        why = bias_why + speed_why + unsure_reasons(est, kinds)
         if name == "K_nomoto":
             why += sinusoid_k_reason(est, kinds, t_why)
         why += nonlinear_reason(est, fits, short)
+        why += superposition_reason(est, fits, short)
         for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
             if est.success and f" {short} " in part.split(":")[1] + " ":
                 kept = minority_note_kept(fits, part, short)
@@ -369,6 +375,76 @@ def nonlinear_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) -> l
     return []
 
 
+#: |t| of the difference between steps into a turn and steps out of one that breaks superposition.
+SUPERPOSITION_T = 3.0
+#: Difference between the two groups' means, relative to the combined value, that is material [-].
+SUPERPOSITION_MATERIAL = 0.02
+
+
+def superposition_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) -> list[str]:
+    """Why K or T is unsure when rudder steps into a turn and steps out of one give different values.
+
+    A linear ship's response to a rudder step does not depend on the steady level it starts from
+    (superposition, whatever the order, servo or rudder bias): a step from straight ahead into a turn
+    and the step back out of it give the same K and T. When the two groups' inverse-variance means
+    (each group's error scaled by its own Birge ratio, at least 1) differ by ``|t| >= SUPERPOSITION_T``
+    and by more than ``SUPERPOSITION_MATERIAL`` of the combined value, the ship is nonlinear (a cubic
+    yaw-rate term, a speed change in the turns), each group's value holds for its own direction, and
+    the combined one, an average of two values that are not the linearisation's, need not lie near
+    it. This needs no range of amplitudes, which equal +-10 deg steps lack (measured:
+    PythonVehicleSimulator's frigate at 6 m/s with Norrbin's ``n3 = 150 s^2/rad^2``, measured rudder,
+    equal 10 deg steps, 4 seeds: T into turns -4.1 to -5.2 %, out of them -1.8 to -2.8 %, each
+    +- 0.2-0.6 %; combined -3.3 to -3.7 % (+- 4.2-7.5 %) marked success before this rule).
+
+    Steps between two turns (a reversal, ``|before| == |after|``) are neither. Not applied to K and T
+    read from the pooled second-order vector: a second-order segment's own T, the difference of two
+    correlated constants, scatters beyond its error, and the pooled vector's Birge ratio carries the
+    segments' disagreement.
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K or T.
+    fits : sequence of SegmentFit
+        The segment fits behind it (their ``segment.input_before`` and ``input_after`` are read).
+    short : str
+        ``K`` or ``T``.
+    """
+    if not (est.success and math.isfinite(est.value) and est.value != 0) or POOLED_NOTE in est.message:
+        return []
+    groups: dict[bool, list[tuple[float, float]]] = {True: [], False: []}
+    for f in fits:
+        seg = f.segment
+        if seg.kind != "rudder_step" or is_joint_follower(f):
+            continue
+        lo, hi = getattr(seg, "input_before", math.nan), getattr(seg, "input_after", math.nan)
+        before, after, step = abs(lo), abs(hi), abs(hi - lo)
+        v, s = f.params.get(short, math.nan), f.stderr.get(short, math.nan)
+        if not (step > 0 and math.isfinite(v) and math.isfinite(s) and s > 0):
+            continue
+        if abs(after - before) > 0.5 * step:
+            groups[after > before].append((v, s))
+    if not groups[True] or not groups[False] or len(groups[True]) + len(groups[False]) < 3:
+        return []
+    means = {}
+    for into, rows in groups.items():
+        x, s = (np.array(c, float) for c in zip(*rows))
+        w = 1.0 / s**2
+        mu = float(w @ x / w.sum())
+        birge2 = max(1.0, float(w @ (x - mu) ** 2) / (x.size - 1)) if x.size > 1 else 1.0
+        means[into] = (mu, math.sqrt(birge2 / w.sum()), x.size)
+    (m_in, s_in, n_in), (m_out, s_out, n_out) = means[True], means[False]
+    t = (m_in - m_out) / math.hypot(s_in, s_out)
+    rel = abs(m_in - m_out) / abs(est.value)
+    if not (abs(t) >= SUPERPOSITION_T and rel > SUPERPOSITION_MATERIAL):
+        return []
+    return [f"unsure: nonlinear: {n_in} rudder steps into a turn give {short} = {m_in:.4g} +- {s_in:.2g} {est.unit}, "
+            f"{n_out} steps out of one {m_out:.4g} +- {s_out:.2g} (difference {rel:.1%} of the value, t = {t:+.2g}): "
+            f"a linear ship's step response does not depend on where the step starts, so the ship is nonlinear "
+            f"(a cubic yaw-rate term, a speed change in the turns) and the combined {short}, an average of the "
+            f"two, is not its linear value"]
+
+
 def sinusoid_k_reason(est: Estimate, kinds: Sequence[str], t_reasons: Sequence[str]) -> list[str]:
     """Why a K from sinusoids only is unsure when their T spread already shows a structure error.
 
@@ -477,26 +553,187 @@ def weighted_slope_t(a: np.ndarray, x: np.ndarray, w: np.ndarray) -> float:
     w : numpy.ndarray
         Weights of ``x``, 1 / standard error squared.
     """
-    if a.size < 3 or np.ptp(a) <= 1e-9 * max(np.max(np.abs(a)), 1e-12):
-        return math.nan
-    design = np.column_stack([np.ones_like(a), a])
-    info = design.T @ (design * w[:, None])
-    try:
-        cov = np.linalg.inv(info)
-    except np.linalg.LinAlgError:
-        return math.nan
-    beta = cov @ (design.T @ (w * x))
-    resid = x - design @ beta
-    birge2 = max(1.0, float(w @ resid**2) / (a.size - 2)) if a.size > 2 else 1.0
-    se = math.sqrt(cov[1, 1] * birge2)
-    return float(beta[1] / se) if se > 0 else math.nan
+    line = weighted_line(a, x, w)
+    return line.slope_t if line is not None else math.nan
 
 
 #: |t| of the per-segment values' slope against their speed loss that shows a speed dependence.
 SPEED_TREND_T = 3.0
 
 
-def speed_trend(fits: Sequence[SegmentFit], short: str) -> str:
+def speed_rows(fits: Sequence[SegmentFit], short: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each segment's speed loss (``SPEED_RANGE`` note) [-], value and standard error of ``K`` or ``T``.
+
+    Segments without the note, without a finite value or error, and joint followers are left out.
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Nomoto segment fits; each one's message carries its record's ``SPEED_RANGE`` note.
+    short : str
+        The coefficient read from each fit's ``params`` and ``stderr``: ``K`` or ``T``.
+    """
+    rows = []
+    for f in fits:
+        if is_joint_follower(f):
+            continue
+        loss = largest_noted([f], f"{SPEED_RANGE} ")
+        has = any(p.startswith(SPEED_RANGE) for p in f.message.split("; "))
+        v, s = f.params.get(short, math.nan), f.stderr.get(short, math.nan)
+        if has and all(math.isfinite(x) for x in (loss, v, s)) and s > 0:
+            rows.append((loss, v, s))
+    if not rows:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    a, x, s = (np.array(c, float) for c in zip(*rows))
+    return a, x, s
+
+
+#: p of the chi-square of the segments about their speed-loss line below which the line does not
+#: describe them (the same level as the consistency test of :mod:`pipeline.fit.combine`).
+LINE_FIT_ALPHA = CONSISTENCY_ALPHA
+#: Largest speed loss in the turns [-] up to which the speed term of :func:`add_speed_term` covers a speed
+#: dependence: by Nomoto's scaling (``K = K' U / L``, ``T = T' L / U``) a loss ``l`` shifts K and T by about
+#: ``l``, immaterial below this (the same 2 % as ``AMPLITUDE_MATERIAL``).
+SPEED_MATERIAL = 0.02
+#: The smallest speed loss of the segments must be at most this share of the largest for the line to
+#: be extrapolated to zero loss (the extrapolation then reaches no farther than the span it rests on).
+EXTRAPOLATION_REACH = 0.5
+
+
+def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) -> tuple[Estimate, list[str]]:
+    """K or T at zero speed loss where the segments show a speed dependence, or why it is unsure.
+
+    The linearisation a user compares with is the ship's at its straight-run speed and zero rudder
+    amplitude; a ship that slows in its turns (and whose K and T change with the amplitude that makes
+    it slow) gives each segment the value at its own speed loss. Where the segments show that
+    dependence (:func:`speed_trend`), the straight-run value is the intercept at zero loss of the
+    weighted straight line of the segments' values against their losses, with the intercept's error
+    scaled by the line's Birge ratio (at least 1), when the line can be extrapolated:
+
+    - at least 3 segments, the smallest loss at most ``EXTRAPOLATION_REACH`` of the largest (the
+      line then reaches zero from no farther than its own span), and
+    - the line describes the segments: the chi-square of their values about it on ``n - 2`` degrees
+      of freedom has ``p >= LINE_FIT_ALPHA``. A line that misses its own points beyond their errors
+      is the wrong shape (a K that changes with the amplitude, not in proportion to the speed loss,
+      or differs between port and starboard turns), and its intercept is no better than its shape
+      (measured: PythonVehicleSimulator's tanker at 25 m, 10 and 5 deg steps, losses 0.9-7.8 %,
+      chi-square about the line 26-149 on 3-4 dof over seeds 0-7, intercept K still +3.4 to +3.9 %
+      with an error of 0.3-0.7 % on seeds 0-3; noise-free step programs of 1 deg give K within 0.1 %
+      of the linearisation, of 5 deg +2.9 %: the dependence is steepest near zero amplitude, where
+      no segment is).
+
+    Otherwise the estimate keeps its value, gets the speed term of :func:`add_speed_term` and is
+    ``unsure`` with the reason (returned, not yet in the message). Where the segments show no
+    speed dependence, or the largest loss is at most ``SPEED_MATERIAL`` (the speed term covers what such
+    a loss can shift; a speed-held ship loses none), only :func:`add_speed_term` applies (measured:
+    PythonVehicleSimulator's tanker at 20 m, losses 0-1 %, K -2.0 to -2.4 % with segments disagreeing
+    beyond their errors: extrapolation would have marked a K within 3 % unsure).
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K or T (``per_segment`` and the segments' errors are in ``fits``).
+    fits : sequence of SegmentFit
+        The segment fits behind it.
+    short : str
+        ``K`` or ``T``.
+
+    Returns
+    -------
+    (Estimate, list of str)
+        The estimate (the intercept, or the value with the speed term), and the unsure reasons.
+    """
+    # The per-segment T of a second-order fit (T1 + T2 - T3, a difference of two correlated constants)
+    # scatters beyond its error; in the pooled vector that spread is in the Birge-scaled error, so it
+    # is no evidence of a speed dependence (its trend still is).
+    spread_counts = not (short == "T" and POOLED_NOTE in est.message)
+    trend = speed_trend(fits, short, spread_counts=spread_counts)
+    rel_range = speed_range(fits)
+    if not trend or not rel_range > SPEED_MATERIAL or not (math.isfinite(est.value) and math.isfinite(est.stderr)):
+        return add_speed_term(est, rel_range, trend), []
+    a, x, s = speed_rows(fits, short)
+    why = ""
+    if a.size < 3:
+        why = f"only {a.size} segments with a speed loss (a line through fewer than 3 cannot be tested)"
+    elif not a.min() <= EXTRAPOLATION_REACH * a.max():
+        why = (f"their losses span {a.min():.1%} to {a.max():.1%}: zero lies farther from the smallest than "
+               f"{EXTRAPOLATION_REACH:.0%} of the largest (add manoeuvres with a smaller rudder, which lose less speed)")
+    else:
+        line = weighted_line(a, x, 1.0 / s**2)
+        if line is None:
+            why = "the weighted line is singular"
+        elif line.p < LINE_FIT_ALPHA:
+            why = (f"a straight line in the speed loss misses their values beyond their errors (chi-square "
+                   f"{line.chi2:.3g} on {a.size - 2} dof, p = {line.p:.2g} < {LINE_FIT_ALPHA}): the value changes "
+                   f"with the manoeuvre in a way the line does not describe (the rudder amplitude, port against "
+                   f"starboard), so its intercept is no better than its shape")
+        else:
+            value, se = line.intercept, line.intercept_se
+            note = (f"straight-run value: {short} at zero speed loss = {value:.4g} +- {se:.2g} {est.unit}, the "
+                    f"intercept of the weighted line of the {a.size} segments' {short} against their speed loss "
+                    f"({a.min():.1%} to {a.max():.1%}; slope t = {line.slope_t:+.2g}, chi-square about it "
+                    f"{line.chi2:.3g} on {a.size - 2} dof, p = {line.p:.2g}; error scaled by the Birge ratio "
+                    f"{line.birge:.2g}), in place of the combined {est.value:.4g} +- {est.stderr:.2g} ({trend})")
+            return replace(est, value=value, stderr=se, ci95=confidence_interval(value, se, math.inf),
+                           message="; ".join([note] + ([est.message] if est.message else []))), []
+    out = add_speed_term(est, rel_range, trend)
+    return out, [f"unsure: {short} changes with the speed lost in the turns ({trend}), and the straight-run value "
+                 f"(zero speed loss, the linearisation's) cannot be read off the segments: {why}"]
+
+
+@dataclass(frozen=True)
+class WeightedLine:
+    """A weighted straight line ``x = intercept + slope a`` and how well it fits.
+
+    Attributes
+    ----------
+    intercept, intercept_se : float
+        Value at ``a = 0`` and its standard error, scaled by ``birge`` [unit of x].
+    slope_t : float
+        Slope over its Birge-scaled error [-].
+    chi2, p : float
+        Weighted residual sum of squares and its chi-square p on ``n - 2`` degrees of freedom.
+    birge : float
+        ``sqrt(chi2 / (n - 2))``, at least 1.
+    """
+
+    intercept: float
+    intercept_se: float
+    slope_t: float
+    chi2: float
+    p: float
+    birge: float
+
+
+def weighted_line(a: np.ndarray, x: np.ndarray, w: np.ndarray) -> WeightedLine | None:
+    """Weighted least-squares line of ``x`` on ``a`` (at least 3 points, ``a`` not all equal; None otherwise).
+
+    Parameters
+    ----------
+    a, x : numpy.ndarray
+        Abscissae and values.
+    w : numpy.ndarray
+        Weights of ``x``, 1 / standard error squared.
+    """
+    if a.size < 3 or np.ptp(a) <= 1e-9 * max(np.max(np.abs(a)), 1e-12):
+        return None
+    design = np.column_stack([np.ones_like(a), a])
+    info = design.T @ (design * w[:, None])
+    try:
+        cov = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        return None
+    beta = cov @ (design.T @ (w * x))
+    resid = x - design @ beta
+    chi2 = float(w @ resid**2)
+    birge2 = max(1.0, chi2 / (a.size - 2))
+    se_slope = math.sqrt(cov[1, 1] * birge2)
+    return WeightedLine(intercept=float(beta[0]), intercept_se=math.sqrt(cov[0, 0] * birge2),
+                        slope_t=float(beta[1] / se_slope) if se_slope > 0 else math.nan, chi2=chi2,
+                        p=float(stats.chi2.sf(chi2, a.size - 2)), birge=math.sqrt(birge2))
+
+
+def speed_trend(fits: Sequence[SegmentFit], short: str, spread_counts: bool = True) -> str:
     """Whether the segments' K or T change with the speed their turns lost: the evidence, or ''.
 
     Each segment fit's ``SPEED_RANGE`` note gives its record's relative speed loss; a weighted straight
@@ -518,28 +755,24 @@ def speed_trend(fits: Sequence[SegmentFit], short: str) -> str:
         Nomoto segment fits (joint followers are skipped).
     short : str
         ``K`` or ``T``.
+    spread_counts : bool
+        Whether a disagreement beyond the errors counts (not for the per-segment T behind a pooled
+        second-order T, whose spread is no evidence: :func:`straight_run_value`).
     """
-    rows = []
-    for f in fits:
-        if is_joint_follower(f):
-            continue
-        loss = largest_noted([f], f"{SPEED_RANGE} ")
-        has = any(p.startswith(SPEED_RANGE) for p in f.message.split("; "))
-        v, s = f.params.get(short, math.nan), f.stderr.get(short, math.nan)
-        if has and all(math.isfinite(x) for x in (loss, v, s)) and s > 0:
-            rows.append((loss, v, s))
-    if len(rows) < 2:
+    a, x, s = speed_rows(fits, short)
+    if a.size < 2:
         return ""
-    a, x, s = (np.array(c) for c in zip(*rows))
     w = 1.0 / s**2
     t = weighted_slope_t(a, x, w)
     if math.isfinite(t) and abs(t) >= SPEED_TREND_T:
-        return (f"the {len(rows)} segments' {short} trends with their speed loss ({a.min():.1%} to {a.max():.1%}, "
+        return (f"the {a.size} segments' {short} trends with their speed loss ({a.min():.1%} to {a.max():.1%}, "
                 f"slope t = {t:+.2g})")
+    if not spread_counts:
+        return ""
     chi2 = float(w @ (x - float(w @ x) / w.sum()) ** 2)
     p = float(stats.chi2.sf(chi2, x.size - 1))
     if p < CONSISTENCY_ALPHA:
-        return (f"the {len(rows)} segments' {short} disagree beyond their errors (chi-square p = {p:.2g}) and "
+        return (f"the {a.size} segments' {short} disagree beyond their errors (chi-square p = {p:.2g}) and "
                 f"their turns lost {a.min():.1%} to {a.max():.1%} of the speed")
     return ""
 
