@@ -14,7 +14,9 @@ models predict block averages exactly (see :mod:`pipeline.diagnose.gridfit`).
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Mapping
 
 import numpy as np
@@ -140,7 +142,7 @@ class DofProblem:
         """Output channels scored: the response and, for yaw, the heading."""
         return (self.channel,) + ((self.angle,) if self.angle else ())
 
-    @property
+    @cached_property
     def n(self) -> int:
         """Longest window in analysis samples."""
         return max(len_blocks(w, self.m) for w in self.windows)
@@ -205,6 +207,12 @@ def block_average(x: np.ndarray, windows: tuple[Window, ...], m: int, n: int, tr
     return out
 
 
+#: Input moments kept for reuse (:func:`input_moments`), newest last: ``(u, windows, m, n) -> moments``.
+_MOMENTS: "OrderedDict[tuple[int, int, int, int], tuple[np.ndarray, tuple, np.ndarray]]" = OrderedDict()
+#: How many :func:`input_moments` results are kept.
+MOMENTS_KEPT = 8
+
+
 def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) -> np.ndarray:
     """Moments of a held input within each block: ``sum u_j``, ``sum (m-1-j) u_j``, ``sum (m-1-j)^2 u_j``.
 
@@ -212,10 +220,15 @@ def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) ->
     before the block ends (an input switching inside a block, as a zig-zag's does), to second order
     in ``h / T``, for any time constant T.
 
+    The result of a call with the same input array and windows objects (``u is`` and ``windows
+    is`` a recent call's) is that call's, not recomputed: a candidate that transforms one input
+    asks for the moments of the others, unchanged, at every value it tries. It is read-only.
+
     Parameters
     ----------
     u : numpy.ndarray
-        Held input on the trial grid [SI].
+        Held input on the trial grid [SI]; not modified afterwards (the moments of an array are
+        kept by its identity).
     windows : tuple[Window, ...]
         Windows.
     m : int
@@ -226,20 +239,36 @@ def input_moments(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) ->
     Returns
     -------
     numpy.ndarray, shape (3, len(windows), n)
-        Zero-padded; NaN inputs count as zero.
+        Zero-padded; NaN inputs count as zero. Read-only.
     """
+    key = (id(u), id(windows), int(m), int(n))
+    kept = _MOMENTS.get(key)
+    if kept is not None and kept[0] is u and kept[1] is windows:
+        _MOMENTS.move_to_end(key)
+        return kept[2]
+    src = u
     out = np.zeros((3, len(windows), n))
     lag = (m - 1 - np.arange(m)).astype(float)
+    lag2 = lag**2
     u = np.asarray(u, float)
     u = np.where(np.isfinite(u), u, 0.0) if not np.isfinite(u).all() else u
+    # Each window's blocks through the same reductions as ever (a window's products are a BLAS call of
+    # its own: stacking windows into one call changes how BLAS groups rows, hence the last bits),
+    # written in place.
+    o0, o1, o2 = out
     for k, w in enumerate(windows):
         nb = len_blocks(w, m)
         if nb == 0:
             continue
         seg = u[w.i0:w.i0 + nb * m].reshape(nb, m)
-        out[0, k, :nb] = seg.sum(axis=1)
-        out[1, k, :nb] = seg @ lag
-        out[2, k, :nb] = seg @ lag**2
+        np.add.reduce(seg, axis=1, out=o0[k, :nb])
+        np.matmul(seg, lag, out=o1[k, :nb])
+        np.matmul(seg, lag2, out=o2[k, :nb])
+    out.setflags(write=False)
+    if isinstance(src, np.ndarray):
+        _MOMENTS[key] = (src, windows, out)
+        while len(_MOMENTS) > MOMENTS_KEPT:
+            _MOMENTS.popitem(last=False)
     return out
 
 
