@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from pipeline.diagnose import problem
 from pipeline.diagnose.problem import Window, input_moments
 
 
@@ -38,6 +39,11 @@ def test_moments_match_their_definition_and_are_reused_only_for_the_same_array()
     assert other is not first
     np.testing.assert_allclose(other, _reference(changed, w, 4, 7), rtol=1e-12, atol=1e-12)
     assert other[0, 0, 0] == pytest.approx(first[0, 0, 0] + 1.0)
+    # Only window 0 differs, so only it was recomputed: the same bits as computed from scratch.
+    problem._MOMENTS.clear()
+    alone = input_moments(changed.copy(), w, 4, 7)
+    assert np.array_equal(other.view(np.int64), alone.view(np.int64))
+    assert problem._windows_differing(changed, u, w, 4) == [0]
     # Other windows or another block length: not the kept result either.
     assert input_moments(u, w[:2], 4, 7).shape == (3, 2, 7)
     np.testing.assert_allclose(input_moments(u, w, 2, 14), _reference(u, w, 2, 14), rtol=1e-12, atol=1e-12)
