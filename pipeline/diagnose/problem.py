@@ -303,11 +303,28 @@ def _closest_kept(u: np.ndarray, windows: tuple[Window, ...], m: int, n: int) ->
 def _windows_differing(u: np.ndarray, v: np.ndarray, windows: tuple[Window, ...], m: int) -> list[int]:
     """Windows whose block samples differ between float64 arrays ``u`` and ``v`` in any bit (a
     signed zero or a NaN's payload counts)."""
-    diff = np.flatnonzero(u.view(np.int64) != v.view(np.int64))
-    i0 = np.array([w.i0 for w in windows], int)
-    i1 = i0 + np.array([len_blocks(w, m) for w in windows], int) * m
+    i0, i1 = _block_spans(windows, m)
+    lo, hi = (int(i0.min()), int(i1.max())) if len(i0) else (0, 0)
+    diff = lo + np.flatnonzero(u[lo:hi].view(np.int64) != v[lo:hi].view(np.int64))
     hit = np.searchsorted(diff, i1) > np.searchsorted(diff, i0)
-    return [int(k) for k in np.flatnonzero(hit)]
+    return np.flatnonzero(hit).tolist()
+
+
+#: :func:`_block_spans` results by ``(id(windows), m)``, with the windows they are of.
+_SPANS: dict[tuple[int, int], tuple[tuple, tuple[np.ndarray, np.ndarray]]] = {}
+
+
+def _block_spans(windows: tuple[Window, ...], m: int) -> tuple[np.ndarray, np.ndarray]:
+    """First and one-past-last trial sample of each window's whole blocks (kept per windows object)."""
+    kept = _SPANS.get((id(windows), m))
+    if kept is not None and kept[0] is windows:
+        return kept[1]
+    i0 = np.array([w.i0 for w in windows], int)
+    spans = (i0, i0 + np.array([len_blocks(w, m) for w in windows], int) * m)
+    if len(_SPANS) >= MOMENTS_KEPT:
+        _SPANS.clear()
+    _SPANS[(id(windows), m)] = (windows, spans)
+    return spans
 
 
 def _contrasts(x: np.ndarray, windows: tuple[Window, ...], q: int, mb: int | None = None) -> np.ndarray:
