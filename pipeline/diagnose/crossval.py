@@ -64,12 +64,33 @@ def signature(problem: DofProblem, i: int) -> frozenset[str]:
     i : int
         Window index.
     """
+    return _signature(problem, i, _input_amplitudes(problem))
+
+
+def signatures(problem: DofProblem) -> list[frozenset[str]]:
+    """:func:`signature` of every window, in window order (each input's amplitude found once).
+
+    Parameters
+    ----------
+    problem : DofProblem
+        The DOF problem.
+    """
+    amps = _input_amplitudes(problem)
+    return [_signature(problem, i, amps) for i in range(len(problem.windows))]
+
+
+def _input_amplitudes(problem: DofProblem) -> dict[str, float]:
+    """Largest absolute value of each input over the trial [SI] (0 for an empty signal)."""
+    return {c: float(np.max(np.abs(problem.raw[c]))) if len(problem.raw[c]) else 0.0 for c in problem.inputs}
+
+
+def _signature(problem: DofProblem, i: int, amps: Mapping[str, float]) -> frozenset[str]:
+    """:func:`signature` with the inputs' amplitudes given."""
     w = problem.windows[i]
     out = set()
     for c in problem.inputs:
-        u = problem.raw[c]
-        amp = float(np.max(np.abs(u))) if len(u) else 0.0
-        seg = u[w.i0:w.i1]
+        amp = amps[c]
+        seg = problem.raw[c][w.i0:w.i1]
         if amp <= 0 or len(seg) == 0:
             continue
         if np.mean(seg > 0.05 * amp) > 0.2:
@@ -121,7 +142,8 @@ def excitation(problem: DofProblem, i: int) -> float:
     return total
 
 
-def assign_folds(problem: DofProblem, k_max: int = MAX_FOLDS) -> np.ndarray:
+def assign_folds(problem: DofProblem, k_max: int = MAX_FOLDS,
+                 sigs: Sequence[frozenset[str]] | None = None) -> np.ndarray:
     """Fold index of each window.
 
     The DOF's own windows are dealt round-robin, the most excited first (most input change, then
@@ -135,9 +157,11 @@ def assign_folds(problem: DofProblem, k_max: int = MAX_FOLDS) -> np.ndarray:
         The DOF problem.
     k_max : int
         Largest number of folds (fewer when there are fewer windows).
+    sigs : sequence of frozenset, optional
+        :func:`signatures` of the problem, when already known.
     """
     n = len(problem.windows)
-    sigs = [signature(problem, i) for i in range(n)]
+    sigs = signatures(problem) if sigs is None else sigs
     exc = [round(excitation(problem, i), 3) for i in range(n)]
     own = [i for i, w in enumerate(problem.windows) if problem.dof in w.dofs]
     own.sort(key=lambda i: (-exc[i], sorted(sigs[i]), problem.windows[i].t0))
@@ -151,7 +175,8 @@ def assign_folds(problem: DofProblem, k_max: int = MAX_FOLDS) -> np.ndarray:
     return folds
 
 
-def supported(problem: DofProblem, train: np.ndarray, test: np.ndarray) -> np.ndarray:
+def supported(problem: DofProblem, train: np.ndarray, test: np.ndarray,
+              sigs: Sequence[frozenset[str]] | None = None) -> np.ndarray:
     """Test windows whose inputs (and signs) all appear in some training window.
 
     Parameters
@@ -160,9 +185,12 @@ def supported(problem: DofProblem, train: np.ndarray, test: np.ndarray) -> np.nd
         The DOF problem.
     train, test : numpy.ndarray
         Window indices.
+    sigs : sequence of frozenset, optional
+        :func:`signatures` of the problem, when already known.
     """
-    seen = set().union(*(signature(problem, i) for i in train)) if len(train) else set()
-    return np.array([signature(problem, i) <= seen for i in test], bool)
+    sigs = signatures(problem) if sigs is None else sigs
+    seen = set().union(*(sigs[i] for i in train)) if len(train) else set()
+    return np.array([sigs[i] <= seen for i in test], bool)
 
 
 def cross_validate(problem: DofProblem, data: GridData, candidates: list[Candidate],
@@ -217,14 +245,15 @@ def cross_validate_all(problems: Sequence[DofProblem], datas: Sequence[GridData]
     list of list[CandidateRun]
         Per DOF, in the order of its ``candidates``.
     """
-    folds = [assign_folds(p) for p in problems]
+    sigs = [signatures(p) for p in problems]
+    folds = [assign_folds(p, sigs=s) for p, s in zip(problems, sigs)]
     units = []
     for i, f in enumerate(folds):
         k = int(f.max()) + 1
         units += [(i, fold) for fold in range(k)] + [(i, k)]
     size = [float(np.sum(d.mask)) * len(c) for d, c in zip(datas, candidates)]
     order = sorted(range(len(units)), key=lambda u: (-size[units[u][0]], units[u][0], units[u][1]))
-    context = (list(problems), list(datas), [list(c) for c in candidates], folds)
+    context = (list(problems), list(datas), [list(c) for c in candidates], folds, sigs)
     done = ordered_map(_cross_validate_unit, [units[u] for u in order], context=context, jobs=jobs)
     result = dict(zip((units[u] for u in order), done))
     out = []
@@ -267,7 +296,7 @@ def _cross_validate_unit(context: tuple, unit: tuple[int, int]):
     """One fold of one DOF: ``(test windows, per candidate (params, held-out prediction) or None when
     it failed)``, None when the fold has no training windows; the fold index past the last: the fits
     on every window (per candidate a :class:`Fitted`, or None when it failed)."""
-    problems, datas, candidates, folds = context
+    problems, datas, candidates, folds, sigs = context
     i, fold = unit
     problem, cs, f = problems[i], candidates[i], folds[i]
     if fold > int(f.max()):
@@ -285,7 +314,7 @@ def _cross_validate_unit(context: tuple, unit: tuple[int, int]):
     if len(train) == 0:
         return None
     # Windows driven by an input the training set never saw are not scored for anyone.
-    test = test[supported(problem, train, test)]
+    test = test[supported(problem, train, test, sigs[i])]
     base = cs[0].fit(train)
     per = []
     for j, c in enumerate(cs):

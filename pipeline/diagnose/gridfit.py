@@ -289,14 +289,15 @@ class _Normal:
     bb: float
 
 
-def _normal(d: GridData, spec: LinearSpec, t_const: float) -> _Normal:
+def _normal(d: GridData, spec: LinearSpec, t_const: float, columns: tuple | None = None) -> _Normal:
     """Normal equations of the output-error fit for a given T.
 
     Each window's initial state multiplies the free response ``H`` on that window only, so its
     block of the Gram matrix is diagonal and every product is a per-window sum (no dense design
-    matrix with one column per window).
+    matrix with one column per window). ``columns``: ``_columns(d, spec, t_const)`` when the
+    caller has them.
     """
-    cols, h0, cols_w, h0_w = _columns(d, spec, t_const)
+    cols, h0, cols_w, h0_w = _columns(d, spec, t_const) if columns is None else columns
     m = d.mask
     # Each masked array once (the response and the heading channels both use it).
     h0m = np.where(m, h0[None, :], 0.0)
@@ -385,7 +386,8 @@ def solve_linear(d: GridData, spec: LinearSpec, t_const: float, ridge: float = 1
     return theta, max(bb_r - float(np.sum(theta * r_r)), 0.0)
 
 
-def initial_states(d: GridData, spec: LinearSpec, t_const: float, theta: np.ndarray) -> np.ndarray:
+def initial_states(d: GridData, spec: LinearSpec, t_const: float, theta: np.ndarray,
+                   columns: tuple | None = None) -> np.ndarray:
     """Least-squares initial state of every window given the model (W,) [SI of y].
 
     On a held-out window this is the only thing fitted to it: the state the boat was in when the
@@ -402,8 +404,10 @@ def initial_states(d: GridData, spec: LinearSpec, t_const: float, theta: np.ndar
         Time constant [s].
     theta : numpy.ndarray
         Linear parameters.
+    columns : tuple, optional
+        The response columns of these windows at ``t_const``, when the caller has them.
     """
-    ne = _normal(d, spec, t_const)
+    ne = _normal(d, spec, t_const, columns)
     gy = np.where(ne.g_yy > 0, ne.g_yy, 1.0)
     th = np.asarray(theta, float)
     return (ne.r_y - (np.einsum("wi,i->w", ne.g_yt, th) if len(th) else 0.0)) / gy
@@ -438,8 +442,12 @@ def fit_linear(d: GridData, spec: LinearSpec, t_guess: float, t_range: tuple[flo
     T, theta, sse
         Time constant [s], linear parameters (``spec.names`` order), weighted SSE.
     """
+    solved: dict[float, tuple[np.ndarray, float]] = {}
+
     def cost(lt: float) -> float:
-        return solve_linear(d, spec, float(np.exp(lt)))[1]
+        t = float(np.exp(lt))
+        solved[t] = solve_linear(d, spec, t)
+        return solved[t][1]
 
     if t_range is None:
         lo, hi = max(t_guess / 20.0, d.dt / 20.0), t_guess * 20.0
@@ -454,7 +462,8 @@ def fit_linear(d: GridData, spec: LinearSpec, t_guess: float, t_range: tuple[flo
     res = scipy.optimize.minimize_scalar(cost, bounds=(a_, b_), method="bounded", options={"xatol": 1e-4})
     if res.fun < best_c:
         best_t = float(np.exp(res.x))
-    theta, s = solve_linear(d, spec, best_t)
+    # The search's best point was solved already (the same T, so the same numbers).
+    theta, s = solved[best_t] if best_t in solved else solve_linear(d, spec, best_t)
     return best_t, theta, s
 
 
@@ -496,8 +505,9 @@ def predict_linear(d: GridData, spec: LinearSpec, t_const: float, theta: np.ndar
         ``"y"``: response (W, n); ``"angle"``: integrated heading with the per-window offset
         fitted to the measurement (W, n), when ``d.angle`` is given. NaN outside the windows.
     """
-    cols, h0, cols_w, h0_w = _columns(d, spec, t_const)
-    y0 = initial_states(d, spec, t_const, theta) if y0 is None else np.asarray(y0, float)
+    columns = _columns(d, spec, t_const)
+    cols, h0, cols_w, h0_w = columns
+    y0 = initial_states(d, spec, t_const, theta, columns) if y0 is None else np.asarray(y0, float)
     yhat = y0[:, None] * h0[None, :]
     within = y0[:, None] * h0_w[None, :]
     bias = 0.0
