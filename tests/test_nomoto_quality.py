@@ -400,3 +400,46 @@ def test_steps_into_and_out_of_turns_that_differ_mark_the_value_nonlinear():
 
     pooled = replace(t, message=f"{POOLED_NOTE}: ...")
     assert superposition_reason(pooled, nonlinear, "T") == []
+
+
+def test_zigzag_speed_loss_is_read_against_the_straight_run_before_it():
+    # PythonVehicleSimulator's tanker at 25 m, 10/10 zig-zag: 7.19 m/s in the straight run before it,
+    # 7.14 m/s in its first tenth, slowing to 6.77 m/s; both ends turn, so the ends alone read no loss.
+    # With the straight run before it (rudder held at midships) the loss is the 5.9 % the ship lost,
+    # and one segment with that loss cannot show how K depends on it: unsure, with the speed term.
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from pipeline.fit.nomoto_segment import speed_range_note
+
+    rng = np.random.default_rng(5)
+    t = np.arange(30.0, 1237.0, 0.2)
+    amp = math.radians(10.0)
+    delta = amp * np.sign(np.sin(2 * math.pi * (t - 30.0) / 296.0)) + math.radians(0.1) * rng.standard_normal(t.size)
+    r = np.radians(0.15) * np.sin(2 * math.pi * (t - 100.0) / 296.0) + np.radians(0.3) * rng.standard_normal(t.size)
+    u = 6.76 + 0.43 * np.exp(-(t - 30.0) / 400.0) + 0.05 * rng.standard_normal(t.size)
+    rows = pd.DataFrame({"t": t, "u": u, "r": r, "delta": delta})
+    tl = np.arange(0.0, 30.0, 0.2)
+    lead = pd.DataFrame({"t": tl, "u": 7.19 + 0.05 * rng.standard_normal(tl.size),
+                         "r": np.radians(0.3) * rng.standard_normal(tl.size),
+                         "delta": math.radians(0.1) * rng.standard_normal(tl.size)})
+    ends = speed_range_note(rows)
+    assert float(ends.split(" ")[5]) < 0.01          # the ends both turn: no loss seen
+    note = speed_range_note(rows, lead=lead)
+    loss = float(note.split(" ")[5])
+    assert 0.05 < loss < 0.07 and "straight run before the manoeuvre" in note
+    # A lead-in with the rudder held over (a turn, not a straight run) is not a straight run.
+    turned = lead.assign(delta=amp + lead["delta"])
+    assert speed_range_note(rows, lead=turned) == ends
+
+    truth = 0.021795
+    k = combine("K_nomoto", "1/s", "m", [Contribution(truth * 0.93, 1e-4, "zigzag")])
+    fit = SimpleNamespace(params={"K": truth * 0.93}, stderr={"K": 1e-4}, segment=SimpleNamespace(kind="zigzag"),
+                          message=f"OE, order 1; {note}")
+    out = judge_nomoto({"K_nomoto": k}, [fit])["K_nomoto"]
+    assert not out.success and "from one segment whose turns lost" in out.message, out.message
+    assert out.stderr > k.stderr and "speed term" in out.message
+    # The same segment without a material loss keeps its success.
+    held = SimpleNamespace(**{**vars(fit), "message": f"OE, order 1; {note.replace(f'{loss:.4g}', '0.01', 1)}"})
+    assert judge_nomoto({"K_nomoto": k}, [held])["K_nomoto"].success

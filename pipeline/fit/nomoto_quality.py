@@ -49,7 +49,8 @@ segments' values show a speed dependence (:func:`speed_trend`: a trend with thei
 disagreement beyond their errors), not on a ship whose K and T do not change with the speed; where
 the largest loss exceeds ``SPEED_MATERIAL``, the straight-run value is instead the intercept at zero
 loss of the segments' values against their losses, or, when that line cannot be extrapolated, the
-value is unsure (:func:`straight_run_value`). K or T is also unsure when rudder steps into a turn and
+value is unsure (:func:`straight_run_value`), as it is when one segment (a single zig-zag) lost more than
+``SPEED_MATERIAL``. K or T is also unsure when rudder steps into a turn and
 steps out of one give different values (:func:`superposition_reason`: a linear ship's step response
 does not depend on where the step starts).
 A combined first-order K or T is also unsure when it differs materially and beyond its error from
@@ -629,6 +630,11 @@ def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) ->
     PythonVehicleSimulator's tanker at 20 m, losses 0-1 %, K -2.0 to -2.4 % with segments disagreeing
     beyond their errors: extrapolation would have marked a K within 3 % unsure).
 
+    One segment (a single zig-zag) whose turns lost more than ``SPEED_MATERIAL`` can neither show nor
+    rule out that dependence: its value gets the speed term and is ``unsure`` (measured:
+    PythonVehicleSimulator's tanker at 25 m, one 10/10 zig-zag that lost 5.9 % of the straight-run
+    speed, K +7.0 % and T -11.3 % were marked success before).
+
     Parameters
     ----------
     est : Estimate
@@ -649,6 +655,15 @@ def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) ->
     spread_counts = not (short == "T" and POOLED_NOTE in est.message)
     trend = speed_trend(fits, short, spread_counts=spread_counts)
     rel_range = speed_range(fits)
+    if (not trend and rel_range > SPEED_MATERIAL and speed_rows(fits, short)[0].size < 2
+            and math.isfinite(est.value) and math.isfinite(est.stderr)):
+        # One segment can neither show nor rule out a speed dependence.
+        trend = f"one segment, whose turns lost {rel_range:.1%} of the speed: no trend can be shown or ruled out"
+        return add_speed_term(est, rel_range, trend), [
+            f"unsure: {short} comes from one segment whose turns lost {rel_range:.1%} of the straight-run speed; "
+            f"Nomoto's K and T scale with the speed, and one segment cannot show how its value depends on it, "
+            f"so the straight-run value (the linearisation's) is not known (add manoeuvres with a smaller "
+            f"rudder, or rudder steps, which lose less speed)"]
     if not trend or not rel_range > SPEED_MATERIAL or not (math.isfinite(est.value) and math.isfinite(est.stderr)):
         return add_speed_term(est, rel_range, trend), []
     a, x, s = speed_rows(fits, short)

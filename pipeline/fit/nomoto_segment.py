@@ -198,7 +198,12 @@ def prepare_window(trial: Trial, segment: Segment, t0: float, t1: float) -> Nomo
         servo, servo_note = _choose_servo(rec, channels)
         notes.append(servo_note)
     # The segment itself, not the lead-in before it (which may hold an earlier throttle change).
-    speed = speed_range_note(rows[rows["t"] >= segment.t_start])
+    lead = None
+    if segment.kind == "zigzag":
+        # Both ends of a zig-zag turn: its straight-run speed is the straight run's before it.
+        lead = trial.window(segment.t_start - LEAD_SPEED_SECONDS, segment.t_start)
+        lead = lead[lead["t"] < segment.t_start]
+    speed = speed_range_note(rows[rows["t"] >= segment.t_start], lead=lead)
     if speed:
         notes.append(speed)
     return NomotoWindow(segment, rec, tuple(channels), servo, tuple(notes), t - segment.t_start)
@@ -678,7 +683,14 @@ SPEED_CHUNK_SAMPLES = 25
 SPEED_CHUNKS = 10
 
 
-def speed_range_note(rows) -> str:
+#: Longest stretch before a zig-zag read as its straight run in :func:`speed_range_note` [s].
+LEAD_SPEED_SECONDS = 120.0
+#: Largest offset of the rudder in that stretch from the zig-zag's centre, as a share of its amplitude,
+#: for the stretch to count as the straight run before it (a rudder held near midships).
+LEAD_RUDDER_SHARE = 0.25
+
+
+def speed_range_note(rows, lead=None) -> str:
     """The speed a ship lost in the turns of a Nomoto window, as a note (``SPEED_RANGE``; '' when none).
 
     Nomoto's K and T scale with the speed (``K = K' U / L``, ``T = T' L / U``; Fossen 2021, sec.
@@ -697,10 +709,23 @@ def speed_range_note(rows) -> str:
     a throttle cut inside the window would tilt a line). :func:`pipeline.fit.nomoto_quality.add_speed_term` turns the largest loss
     behind a combined K or T into an error term.
 
+    Both ends of a zig-zag turn (measured: PythonVehicleSimulator's tanker at 25 m, 10/10 zig-zag,
+    7.14 m/s in its first tenth, 6.77 m/s in its last, 7.19 m/s in the straight run before it: the
+    ends gave 0 loss where the ship lost 5.9 %). With ``lead``, the rows before such a manoeuvre, the
+    straight-run speed is the median speed of ``lead`` when at least ``SPEED_CHUNK_SAMPLES`` of them
+    have a speed and their median rudder lies within ``LEAD_RUDDER_SHARE`` of the manoeuvre's rudder
+    amplitude from its centre (the midpoint of its 5th and 95th percentiles: a rudder held near
+    midships, the straight run before the manoeuvre; the yaw rate cannot tell, waves of 0.3 deg/s
+    drown a slow ship's turn rate), and the turning speed is the slowest chunk's; otherwise the
+    window's ends are compared as above.
+
     Parameters
     ----------
     rows : pandas.DataFrame
-        The window's rows of the trial (``r``, or ``psi`` and ``t``, for the yaw rate).
+        The window's rows of the trial (``r``, or ``psi`` and ``t``, for the yaw rate; ``delta`` for
+        the rudder when ``lead`` is given).
+    lead : pandas.DataFrame, optional
+        The trial's rows just before a manoeuvre whose ends both turn (a zig-zag) [same columns].
     """
     if "r" in rows and np.isfinite(rows["r"].to_numpy(dtype=float)).any():
         r = rows["r"].to_numpy(dtype=float)
@@ -720,14 +745,48 @@ def speed_range_note(rows) -> str:
         r2 = np.array([np.median(c) for c in np.array_split(r[ok] ** 2, n)])
         if not np.ptp(r2) > 0:
             return ""
-        # The straighter end (smaller yaw rate) against the end that turns harder.
-        straight, turning = (speed[0], speed[-1]) if r2[0] <= r2[-1] else (speed[-1], speed[0])
+        before = lead_speed(lead, rows, ch)
+        if before is not None:
+            straight, turning = before, float(speed.min())
+            where = "in the straight run before the manoeuvre", "in its slowest tenth"
+        else:
+            # The straighter end (smaller yaw rate) against the end that turns harder.
+            straight, turning = (speed[0], speed[-1]) if r2[0] <= r2[-1] else (speed[-1], speed[0])
+            where = "at the straighter end", "at the turning end"
         if not straight > 0:
             return ""
         loss = max(0.0, (straight - turning) / straight)
-        return (f"{SPEED_RANGE} {loss:.4g} of the straight-run speed ({ch} {straight:.4g} m/s at the straighter "
-                f"end, {turning:.4g} m/s at the turning end)")
+        return (f"{SPEED_RANGE} {loss:.4g} of the straight-run speed ({ch} {straight:.4g} m/s {where[0]}, "
+                f"{turning:.4g} m/s {where[1]})")
     return ""
+
+
+def lead_speed(lead, rows, ch: str) -> float | None:
+    """Median speed ``ch`` of ``lead`` when it is the straight run before the manoeuvre in ``rows`` [m/s]
+    (None otherwise; see :func:`speed_range_note`).
+
+    Parameters
+    ----------
+    lead : pandas.DataFrame or None
+        The rows before the manoeuvre (``delta`` and ``ch``).
+    rows : pandas.DataFrame
+        The manoeuvre's rows (``delta``).
+    ch : str
+        The speed column, ``sog`` or ``u``.
+    """
+    if lead is None or ch not in lead or "delta" not in lead or "delta" not in rows:
+        return None
+    u = np.abs(lead[ch].to_numpy(dtype=float))
+    d_lead = lead["delta"].to_numpy(dtype=float)
+    d = rows["delta"].to_numpy(dtype=float)
+    ok = np.isfinite(u) & np.isfinite(d_lead)
+    d = d[np.isfinite(d)]
+    if ok.sum() < SPEED_CHUNK_SAMPLES or d.size < SPEED_CHUNK_SAMPLES:
+        return None
+    lo, hi = np.percentile(d, [5.0, 95.0])
+    if not hi > lo or abs(float(np.median(d_lead[ok])) - 0.5 * (lo + hi)) > LEAD_RUDDER_SHARE * 0.5 * (hi - lo):
+        return None
+    return float(np.median(u[ok]))
 
 
 def slow_noise_note(fit: NomotoFit) -> str:
