@@ -74,3 +74,18 @@ def test_no_improvement_no_significance():
     s1 = sig.score(one, {"y": ty}, {"y": ty + 0.45 * e}, 1, {"y": "r"}, folds=np.arange(W) % 4)
     assert s1.significant == sig.is_significant(s1.p_value, s1.p_robust, s1.shrink, s1.explained)
     assert s1.significant
+
+
+def test_the_report_says_which_channel_carries_a_small_dof_shrink():
+    from pipeline.diagnose.selection import by_channel, channel_shrink
+    from pipeline.records import CandidateResult, ChannelGap
+
+    chans = (ChannelGap("r", 1.34, 1.16, 8e-48, 900.0), ChannelGap("psi", 23.7, 23.65, 0.3, 40.0))
+    res = CandidateResult("nonlinear_damping", "yaw", "nonlinear_damping", None, 16.8, 16.76, 0.2, 0.01, 1e-47,
+                          True, channels=chans)
+    assert abs(channel_shrink(res) - 100 * (1 - 1.16 / 1.34)) < 1e-9
+    why = by_channel(res)
+    assert why.startswith("significant in r:") and "dominated by psi" in why
+    # A DOF shrink of at least MIN_SHRINK needs no such note.
+    assert by_channel(CandidateResult("waves", "yaw", "waves", None, 16.8, 8.0, 52.4, 0.1, 1e-9, True,
+                                      channels=chans)) == ""

@@ -623,6 +623,27 @@ def sensor_or_actuator(res: CandidateResult, states: Mapping[str, DofState]) -> 
         f"({v:.3g} +- {se:.2g} s): the inputs act late")
 
 
+def by_channel(res: CandidateResult) -> str:
+    """Where an effect whose DOF gap shrinks by less than ``MIN_SHRINK`` passed the per-channel rule
+    ("" otherwise): the channel that carries it and the one that dominates the DOF gap.
+
+    Parameters
+    ----------
+    res : CandidateResult
+        A selected candidate.
+    """
+    if not res.shrink < sig.MIN_SHRINK or len(res.channels) < 2:
+        return ""
+    ok = [g for g in res.channels if math.isfinite(g.gap_before) and g.gap_before > 0 and math.isfinite(g.gap_after)]
+    if not ok:
+        return ""
+    best = max(ok, key=lambda g: 1.0 - g.gap_after / g.gap_before)
+    big = max(ok, key=lambda g: g.gap_before)
+    return (f"significant in {best.channel}: its gap {best.gap_before:.3g} -> {best.gap_after:.3g} noise units "
+            f"({100 * (1 - best.gap_after / best.gap_before):.1f} %, p = {best.p_value:.2g}); the DOF's gap, "
+            f"dominated by {big.channel} ({big.gap_before:.3g}), shrinks by {res.shrink:.1f} % only")
+
+
 def selected_effects(chosen, states: Mapping[str, DofState],
                      params_of: Callable[[CandidateResult], tuple[EffectParam, ...]] | None = None,
                      ) -> tuple[SelectedEffect, ...]:
@@ -643,7 +664,7 @@ def selected_effects(chosen, states: Mapping[str, DofState],
         unsure = confused_with(res, [c[0] for c in chosen[:i]])
         if not unsure and res.dof in states and not any(c[0].dof == res.dof for c in chosen[:i]):
             unsure = close_rival(res, getattr(states[res.dof], "first_results", None) or [])
-        why = "; ".join(w for w in (unsure, why, *joint) if w)
+        why = "; ".join(w for w in (unsure, why, *joint, by_channel(res)) if w)
         label = res.label if effect == res.effect else f"{effect}[{inp}]"
         out.append(SelectedEffect(step=i + 1, effect=effect, dof=res.dof, label=label, input_channel=inp,
                                   gap_before=res.gap_before, gap_after=res.gap_after, shrink=res.shrink,
