@@ -1181,7 +1181,10 @@ def signature_report(single: list[dict], right: list[dict], pair: list[dict], bo
             thr = detection_threshold([(x, ok) for _, x, ok in rows])
             thr_all[eff] = thr
             miss = sorted(round(x, 2) for _, x, ok in rows if not ok and np.isfinite(x))
-            print(f"  {eff:<20} n={len(rows):<3} threshold " + (f"{thr:.3g}" if thr is not None else "not reached")
+            # With no miss below it the threshold is only bounded: the effect may be found at smaller signatures.
+            bound = thr is not None and not any(not ok and x < thr for _, x, ok in rows)
+            print(f"  {eff:<20} n={len(rows):<3} threshold "
+                  + (f"{'<= ' if bound else ''}{thr:.3g}" if thr is not None else "not reached")
                   + f"; found {sum(ok for _, _, ok in rows)}/{len(rows)}; signatures of the misses {miss}")
         above, no_thr = [], []
         for eff, rows in by.items():
@@ -1211,6 +1214,9 @@ def signature_report(single: list[dict], right: list[dict], pair: list[dict], bo
               f"thresholds: {len(ba)}/{len(pa)}" + (f" = {100 * len(ba) / len(pa):.1f}%" if pa else "")
               + f"; one below: {sum(r in both for r in below)}/{len(below)}; an effect without a threshold: "
               f"{sum(r in both for r in pn)}/{len(pn)}")
+        miss = [r["case"] for r in above if r not in right] + [r["case"] for r in pa if r not in both]
+        if miss:
+            print(f"  misses above the threshold: {' '.join(miss)}")
 
 
 def _hit(sel: dict, eff: dict) -> bool:
