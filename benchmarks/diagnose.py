@@ -21,6 +21,12 @@ Usage::
     .venv/bin/python benchmarks/diagnose.py --random 16 --kinds pair --magnitude 1 2   # a controlled pair set
     .venv/bin/python benchmarks/diagnose.py --random 24 --kinds actuator,actuator,twin_clean   # actuator space
     .venv/bin/python benchmarks/diagnose.py --report s15.jsonl   # the report (and misses by cause) of a saved run
+    .venv/bin/python benchmarks/diagnose.py --report s15.jsonl s16.jsonl   # several runs pooled
+    .venv/bin/python benchmarks/diagnose.py --add-signatures s15.jsonl --seed 15   # effect signatures, older run
+
+Detection thresholds (issue 12): each true effect's noise-free signature (:func:`effect_signatures`, in noise
+units) is saved per trial; the report gives each effect's threshold (the smallest signature found first in
+>= 90 % of trials) and right-first and both-of-two over all trials and over those above the thresholds.
 
 ``--realdata`` converts the measured sets in ``../shared/realdata`` (never copied into the
 project) to canonical CSV in a temporary folder, runs ``vesselid diagnose`` on each, writes the
