@@ -21,6 +21,12 @@ Usage::
     .venv/bin/python benchmarks/diagnose.py --random 16 --kinds pair --magnitude 1 2   # a controlled pair set
     .venv/bin/python benchmarks/diagnose.py --random 24 --kinds actuator,actuator,twin_clean   # actuator space
     .venv/bin/python benchmarks/diagnose.py --report s15.jsonl   # the report (and misses by cause) of a saved run
+    .venv/bin/python benchmarks/diagnose.py --report s15.jsonl s16.jsonl   # several runs pooled
+    .venv/bin/python benchmarks/diagnose.py --add-signatures s15.jsonl --seed 15   # effect signatures, older run
+
+Detection thresholds (issue 12): each true effect's noise-free signature (:func:`effect_signatures`, in noise
+units) is saved per trial; the report gives each effect's threshold (the smallest signature found first in
+>= 90 % of trials) and right-first and both-of-two over all trials and over those above the thresholds.
 
 ``--realdata`` converts the measured sets in ``../shared/realdata`` (never copied into the
 project) to canonical CSV in a temporary folder, runs ``vesselid diagnose`` on each, writes the
@@ -847,13 +853,26 @@ def _same(x, y) -> bool:
         return False
 
 
-def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], object, dict]:
-    """Draw and write one randomised trial; returns (files, vessel or None, truth)."""
+def make_random_trial(case: RandomCase, folder: Path, quiet: bool = False,
+                      drop: int | None = None) -> tuple[list[Path], object, dict]:
+    """Draw and write one randomised trial; returns (files, vessel or None, truth).
+
+    Parameters
+    ----------
+    case : RandomCase
+        The trial.
+    folder : pathlib.Path
+        Where its files are written.
+    quiet : bool
+        Without sensor noise (every other draw as in the trial: :func:`effect_signatures`).
+    drop : int, optional
+        Leave out the trial's ``drop``-th effect (drawn all the same, so every other draw stays).
+    """
     global MAG_RANGE
     MAG_RANGE = case.mag_range  # a worker process draws the magnitudes the case was made with
     rng = np.random.default_rng(case.seed)
     noise_name = str(rng.choice(NOISES))
-    noise = {"low": 0.5, "nominal": 1.0, "high": 2.0}[noise_name]
+    noise = 0.0 if quiet else {"low": 0.5, "nominal": 1.0, "high": 2.0}[noise_name]
     truth: dict = {"kind": case.kind, "noise": noise_name, "effects": []}
     if case.kind == "pvs_clean":
         path = pvs_frigate_trial(folder / f"{case.name}.csv", rng, fs=20.0, minutes=float(rng.uniform(15, 30)),
@@ -880,7 +899,7 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         kw: dict = {}
         if case.kind == "imbalance":
             mag = float(np.exp(rng.uniform(np.log(MAG_RANGE[0]), np.log(MAG_RANGE[1]))))
-            kw = {"side": str(rng.choice(["port", "stbd"])), "one_gain": 1.0 - 0.3 * mag}
+            kw = {"side": str(rng.choice(["port", "stbd"])), "one_gain": 1.0 - 0.3 * mag * (drop != 0)}
             # Only the thrusters' relative thrust is in the data: one label for a weaker port or a stronger stbd.
             truth["effects"].append({"effect": "thrust_imbalance", "dof": "", "magnitude": mag,
                                      "label": "thrust_imbalance[thruster_port/thruster_stbd]"})
@@ -889,6 +908,8 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
             side = str(rng.choice(["port", "stbd"]))
             what = str(rng.choice(["actuator_delay", "actuator_rate_limit"]))
             kw = {"side": side, **({"one_lag": 0.3 * mag} if what == "actuator_delay" else {"one_rate": 2.0 / mag})}
+            if drop == 0:
+                kw = {"side": side}
             truth["effects"].append({"effect": what, "dof": "", "magnitude": mag, "label": f"{what}[thruster_{side}]"})
         truth["vessel"] = "twin"
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, **kw)
@@ -902,12 +923,13 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
             e, dof, _, mag = _library_effect(rng, "twin", None, exclude=[x["effect"] for x in truth["effects"]]
                                              + (["sensor_delay", "actuator_delay"] if any(
                                                  x["effect"].endswith("delay") for x in truth["effects"]) else []))
+            on = float(drop != len(truth["effects"]))
             if e == "actuator_delay":
-                kw["act_lag"] = 0.3 * mag
+                kw["act_lag"] = 0.3 * mag * on
             elif e == "sensor_delay":
-                kw["gnss_lag"] = 0.3 * mag
+                kw["gnss_lag"] = 0.3 * mag * on
             else:
-                kw["quad_yaw"] = 4.0 * mag
+                kw["quad_yaw"] = 4.0 * mag * on
             truth["effects"].append({"effect": e, "dof": dof, "magnitude": mag})
         truth["vessel"] = "twin"
         path = twin_trial(folder / f"{case.name}.csv", rng, 50.0, float(rng.uniform(8, 15)), noise, **kw)
@@ -920,7 +942,8 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         taken = [x["effect"] for x in truth["effects"]]
         e, _, _, mag = _library_effect(rng, vessel_kind, v, exclude=taken)
         one, dof = _sim_effects(e, mag, vessel_kind, v, rng)
-        eff = _merge(eff, one)
+        if drop != len(truth["effects"]):
+            eff = _merge(eff, one)
         truth["effects"].append({"effect": e, "dof": dof, "magnitude": mag})
     truth["vessel"] = v.name
     if vessel_kind == "aauship":
@@ -929,10 +952,110 @@ def make_random_trial(case: RandomCase, folder: Path) -> tuple[list[Path], objec
         t = v.nomoto["T"]
         dt = min(t / 100, 0.1)
         sensors, cmd = nomoto_sensors(noise_name, min(1.0 / dt, 50.0)), min(1.0 / dt, 50.0)
+    if quiet:
+        from dataclasses import replace
+
+        sensors = tuple(replace(x, noise={c: 0.0 for c in x.noise}) for x in sensors)
     res = simulate(v, schedule(v), eff, sensors=sensors, seed=case.seed, dt=dt, actuator_rate=cmd)
     path = write_log(res.log, folder / f"{case.name}.csv", vessel=v)
     files, shape = _nuisances(Path(path), rng, bool(rng.random() < 0.5))
     return files, v, {**truth, **shape}
+
+
+#: Response channels whose noise-free difference is an effect's signature (positions and course left
+#: out: the diagnosis reads speed, rates and attitudes).
+SIGNATURE_CHANNELS = ("u", "v", "sog", "r", "psi", "p", "phi", "q", "theta")
+_ANGLES = ("psi", "phi", "theta")
+
+
+def _responses(files: list[Path]):
+    """The response channels of a written trial (the sensor file when it was split)."""
+    import pandas as pd
+
+    df = pd.read_csv(files[0])
+    return df["t"].to_numpy(float), {c: df[c].to_numpy(float) for c in SIGNATURE_CHANNELS if c in df.columns}
+
+
+#: The heading's signature leaves out what varies slower than this [s] (a centred moving mean is taken
+#: off): the diagnosis restarts each window from the measured heading, so the drift a yaw-rate error
+#: builds over a whole trial (hundreds of noise units) is not what it sees; waves and the heading error
+#: within a window stay.
+HEADING_HIGHPASS_S = 30.0
+
+
+def _diff(a: np.ndarray, b: np.ndarray, ch: str, t: np.ndarray | None = None) -> np.ndarray:
+    d = a - b
+    if ch not in _ANGLES:
+        return d
+    d = np.angle(np.exp(1j * d))
+    if ch == "psi" and t is not None:
+        ok = np.isfinite(d)
+        if ok.sum() > 2:
+            tt, dd = t[ok], np.unwrap(d[ok])
+            c = np.concatenate([[0.0], np.cumsum(dd)])
+            lo = np.searchsorted(tt, tt - HEADING_HIGHPASS_S / 2)
+            hi = np.searchsorted(tt, tt + HEADING_HIGHPASS_S / 2, side="right")
+            d = d.copy()
+            d[ok] = dd - (c[hi] - c[lo]) / (hi - lo)
+    return d
+
+
+def effect_signatures(case: RandomCase) -> list[dict]:
+    """Each true effect's noise-free signature in noise units (issue 12's detection threshold).
+
+    The trial is made three ways with every random draw as in the diagnosed one (same vessel, log
+    rate, schedule, waves): as diagnosed, without sensor noise, and without sensor noise and without
+    effect ``i`` (the others kept, so a pair's effect is measured on top of the other). Per response
+    channel (:data:`SIGNATURE_CHANNELS`) the signature is the RMS over the log's rows of the noise-free
+    difference with and without the effect, divided by the channel's sensor noise (the standard
+    deviation of the diagnosed log minus the noise-free one, per sample at the log rate). The heading's
+    difference is taken less its centred moving mean over :data:`HEADING_HIGHPASS_S` (its drift over
+    the trial is no signature the window-by-window diagnosis sees).
+
+    Returns
+    -------
+    list of dict
+        Per true effect: ``channels`` ({channel: [RMS in noise units, rows]}), ``rms`` (the largest
+        over the channels) and ``snr`` (the largest of ``RMS sqrt(rows)``: the signature's
+        matched-filter signal-to-noise ratio, what white noise lets a known shape be seen at).
+        Empty for a trial without effects. The baseline refitted to the data can absorb part of a
+        signature (a quadratic damping partly by the linear one), so this is what the data carry,
+        an upper bound on what a diagnosis can see.
+    """
+    with tempfile.TemporaryDirectory() as tmp:
+        def made(name: str, **kw):
+            d = Path(tmp) / name
+            d.mkdir()
+            files, _, truth = make_random_trial(case, d, **kw)
+            return (_responses(files) if files else None), truth
+
+        noisy, truth = made("noisy")
+        if noisy is None or not truth["effects"]:
+            return []
+        quiet, _ = made("quiet", quiet=True)
+        t, yn = noisy
+        tq, yq = quiet
+        if len(t) != len(tq) or not np.allclose(t, tq):
+            raise RuntimeError(f"error: {case.name}: the noise-free trial's rows differ from the trial's "
+                               f"({len(tq)} against {len(t)})")
+        sigma = {}
+        for ch in yn:
+            d = _diff(yn[ch], yq[ch], ch)
+            ok = np.isfinite(d)
+            if ok.sum() > 10 and np.std(d[ok]) > 0:
+                sigma[ch] = float(np.std(d[ok]))
+        out = []
+        for i in range(len(truth["effects"])):
+            (tw, yw), _ = made(f"without{i}", quiet=True, drop=i)
+            chans = {}
+            for ch, sd in sigma.items():
+                d = _diff(yq[ch], yw[ch], ch, t)
+                ok = np.isfinite(d)
+                if ok.any():
+                    chans[ch] = [float(np.sqrt(np.mean(d[ok] ** 2)) / sd), int(ok.sum())]
+            out.append({"channels": chans, "rms": max((v[0] for v in chans.values()), default=float("nan")),
+                        "snr": float(max((v[0] * np.sqrt(v[1]) for v in chans.values()), default=float("nan")))})
+        return out
 
 
 def stated_noise(case: RandomCase, truth: dict, vessel):
@@ -994,7 +1117,112 @@ def run_random_case(case: RandomCase) -> dict:
         alone.append(None if best is None else {"dof": best.dof, "shrink": best.shrink, "p": best.p_value,
                                                 "significant": bool(best.significant)})
     out["alone"] = alone
+    if truth["effects"]:
+        try:
+            out["signature"] = effect_signatures(case)
+        except Exception as exc:  # noqa: BLE001 (reported; the diagnosis' result stays)
+            out["signature_error"] = str(exc)
     return out
+
+
+def add_signatures(path: Path, seed: int, jobs: int, allocation: bool = True) -> None:
+    """Add each trial's effect signatures (:func:`effect_signatures`) to a saved randomised run made
+    with ``--seed seed`` (a run of an older version of the tool: its trials are drawn the same way);
+    the file is rewritten."""
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    todo = [(i, RandomCase(int(r["case"][1:4]), r["kind"], int(seed * 1000 + int(r["case"][1:4])), MAG_RANGE,
+                           allocation)) for i, r in enumerate(rows) if r.get("effects") and "signature" not in r]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for (i, _), sg in zip(todo, pool.map(effect_signatures, [c for _, c in todo])):
+            rows[i]["signature"] = sg
+    path.write_text("".join(json.dumps(r, default=float) + "\n" for r in rows))
+    print(f"signatures added to {len(todo)} trials of {path}")
+
+
+#: Share of trials above an effect's detection threshold in which it is found (issue 12: 90 %).
+DETECT_SHARE = 0.9
+#: Fewest trials at or above a threshold for it to count.
+DETECT_MIN_TRIALS = 3
+
+
+def detection_threshold(rows: list[tuple[float, bool]]) -> float | None:
+    """Smallest signature at and above which at least :data:`DETECT_SHARE` of the trials found the
+    effect (at least :data:`DETECT_MIN_TRIALS` of them); None when no such value.
+
+    Parameters
+    ----------
+    rows : list of (float, bool)
+        Per trial: the effect's signature and whether it was found.
+    """
+    rows = sorted((x, ok) for x, ok in rows if np.isfinite(x))
+    return next((x for i, (x, _) in enumerate(rows) if len(rows) - i >= DETECT_MIN_TRIALS
+                 and np.mean([ok for _, ok in rows[i:]]) >= DETECT_SHARE), None)
+
+
+def _sig_of(r: dict, i: int, key: str) -> float:
+    sg = r.get("signature") or []
+    return float(sg[i][key]) if i < len(sg) and sg[i].get(key) is not None else float("nan")
+
+
+def signature_report(single: list[dict], right: list[dict], pair: list[dict], both: list[dict]) -> None:
+    """Detection threshold of each effect on its noise-free signature, and right-first and
+    second-of-two over the trials whose effects are above it (issue 12).
+
+    A single-effect trial is "above" when its signature is at or above the threshold measured on the
+    other single-effect trials of that effect (leave-one-out, so a trial does not set the bar it is
+    judged by); a pair when each effect is at or above the threshold of the single-effect trials.
+    Trials without a signature (an older run) or whose effect has no threshold are counted apart."""
+    if not any("signature" in r for r in single + pair):
+        print("\n(no effect signatures in these results: run --add-signatures on the file)")
+        return
+    for key, what in (("rms", "RMS per log row"), ("snr", "matched-filter SNR, RMS x sqrt(rows)")):
+        by: dict[str, list] = {}
+        for r in single:
+            by.setdefault(r["effects"][0]["effect"], []).append((r, _sig_of(r, 0, key), r in right))
+        print(f"\ndetection threshold per effect on the noise-free signature ({what}, noise units; the "
+              f"smallest signature at and above which >= {100 * DETECT_SHARE:.0f}% of the single-effect trials "
+              f"name it first, >= {DETECT_MIN_TRIALS} trials):")
+        thr_all = {}
+        for eff, rows in sorted(by.items()):
+            thr = detection_threshold([(x, ok) for _, x, ok in rows])
+            thr_all[eff] = thr
+            miss = sorted(round(x, 2) for _, x, ok in rows if not ok and np.isfinite(x))
+            # With no miss below it the threshold is only bounded: the effect may be found at smaller signatures.
+            bound = thr is not None and not any(not ok and x < thr for _, x, ok in rows)
+            print(f"  {eff:<20} n={len(rows):<3} threshold "
+                  + (f"{'<= ' if bound else ''}{thr:.3g}" if thr is not None else "not reached")
+                  + f"; found {sum(ok for _, _, ok in rows)}/{len(rows)}; signatures of the misses {miss}")
+        above, no_thr = [], []
+        for eff, rows in by.items():
+            for j, (r, x, ok) in enumerate(rows):
+                thr = detection_threshold([(y, o) for k, (_, y, o) in enumerate(rows) if k != j])
+                if thr is None or not np.isfinite(x):
+                    no_thr.append(r)
+                elif x >= thr:
+                    above.append(r)
+        ra = [r for r in above if r in right]
+        rn = [r for r in no_thr if r in right]
+        print(f"  right effect first, all single-effect trials: {len(right)}/{len(single)}; above the threshold "
+              f"(leave-one-out): {len(ra)}/{len(above)}"
+              + (f" = {100 * len(ra) / len(above):.1f}%" if above else "")
+              + f"; effect without a threshold (or no signature): {len(rn)}/{len(no_thr)}")
+        pa, pn = [], []
+        for r in pair:
+            xs = [_sig_of(r, i, key) for i in range(len(r["effects"]))]
+            ts = [thr_all.get(e["effect"]) for e in r["effects"]]
+            if any(t is None for t in ts) or not all(np.isfinite(xs)):
+                pn.append(r)
+            elif all(x >= t for x, t in zip(xs, ts)):
+                pa.append(r)
+        ba = [r for r in pa if r in both]
+        below = [r for r in pair if r not in pa and r not in pn]
+        print(f"  both of two effects found, all pairs: {len(both)}/{len(pair)}; both effects above their "
+              f"thresholds: {len(ba)}/{len(pa)}" + (f" = {100 * len(ba) / len(pa):.1f}%" if pa else "")
+              + f"; one below: {sum(r in both for r in below)}/{len(below)}; an effect without a threshold: "
+              f"{sum(r in both for r in pn)}/{len(pn)}")
+        miss = [r["case"] for r in above if r not in right] + [r["case"] for r in pa if r not in both]
+        if miss:
+            print(f"  misses above the threshold: {' '.join(miss)}")
 
 
 def _hit(sel: dict, eff: dict) -> bool:
@@ -1157,6 +1385,7 @@ def random_report(results: list[dict]) -> None:
         print(f"  {eff:<20} n={len(rows):<3} threshold "
               + (f"{thr:.2g} noise units" if thr is not None else "not reached") +
               f"; found {sum(ok for _, ok in rows)}/{len(rows)}")
+    signature_report(single, right, pair, both)
     causes: dict[str, list[str]] = {}
     for r in single + pair:
         c = miss_cause(r)
@@ -1178,7 +1407,9 @@ def random_report(results: list[dict]) -> None:
                   f"{r.get('files')} vel {r.get('velocities')} noise {r['noise']:<8}"
                   f"{' stated' if r.get('noise_stated') else ''} gaps [{gaps}] true "
                   f"{[(e['effect'], e.get('dof'), round(e['magnitude'], 2)) for e in r['effects']] or r.get('outside', '-')}"
-                  f" -> {[(s.get('label', s['effect']), s['dof']) for s in r['selected']]} unexplained "
+                  + (f" signature {[round(x.get('rms', float('nan')), 2) for x in r['signature']]}"
+                     if r.get("signature") else "")
+                  + f" -> {[(s.get('label', s['effect']), s['dof']) for s in r['selected']]} unexplained "
                   f"{[u['channel'] for u in r['unexplained']]}")
     for r in errors:
         print(f"  {r['case']:<16} {r.get('vessel', ''):<12} rate {r.get('log_rate_hz', 0):5.1f} Hz: {r['error'][:160]}")
@@ -1201,12 +1432,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-allocation", action="store_true",
                     help="with --random: diagnose twin-thruster trials without their [[actuators]] allocation")
     ap.add_argument("--resume", action="store_true", help="with --random and --save: keep the trials already saved")
-    ap.add_argument("--report", metavar="JSONL", help="print the randomised report from a --random --save file")
+    ap.add_argument("--report", metavar="JSONL", nargs="+",
+                    help="print the randomised report from --random --save files (pooled)")
+    ap.add_argument("--add-signatures", metavar="JSONL",
+                    help="add the effects' noise-free signatures to a --random --save file made with --seed")
     args = ap.parse_args(argv)
     if args.report:
-        results = [json.loads(line) for line in Path(args.report).read_text().splitlines() if line.strip()]
-        print(f"report of {len(results)} randomised trials saved in {args.report} (a partial run reports what finished)")
+        results = []
+        for f in args.report:
+            rows = [json.loads(line) for line in Path(f).read_text().splitlines() if line.strip()]
+            if len(args.report) > 1:
+                for r in rows:
+                    r["case"] = f"{Path(f).stem}:{r['case']}"
+            results += rows
+        print(f"report of {len(results)} randomised trials saved in {' '.join(args.report)} (a partial run "
+              f"reports what finished)")
         random_report(results)
+        return 0
+    if args.add_signatures:
+        add_signatures(Path(args.add_signatures), args.seed, args.jobs, not args.no_allocation)
         return 0
     if args.random:
         from concurrent.futures import as_completed

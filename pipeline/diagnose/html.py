@@ -100,11 +100,12 @@ def diagnose_html_section(report: GapReport, figures: Mapping[str, str] | None =
     parts.append(
         "<p class=\"notes\">Gaps are held-out RMS errors of the open-loop simulation (every window predicted by a "
         "model fitted without it, re-initialised from the measured state at the window start), in units of each "
-        "channel's sensor noise at the analysis step. A candidate is significant when its held-out F test gives "
-        f"p &lt; {_num(report.thresholds.get('alpha', math.nan), '.0e')}, it shrinks the gap by at least "
+        "channel's sensor noise at the analysis step. A candidate is significant when, in at least one channel of "
+        f"its DOF, its held-out F test gives p &lt; {_num(report.thresholds.get('alpha', math.nan), '.0e')} "
+        f"(Bonferroni over the channels), it shrinks that channel's gap by at least "
         f"{_num(report.thresholds.get('min_shrink_percent', math.nan), '.0f')}% and explains at least "
-        f"{_num(100 * report.thresholds.get('min_explained', math.nan), '.2g')}% of the channel's scale "
-        "(thresholds calibrated on clean simulated trials to at most 5% false verdicts).</p>")
+        f"{_num(100 * report.thresholds.get('min_explained', math.nan), '.2g')}% of the channel's scale, and the "
+        "DOF's gap does not grow (thresholds calibrated on clean simulated trials to at most 5% false verdicts).</p>")
     parts.append("<h3>Where</h3>")
     top = [p for p in report.places if p.share > 0][:12]
     if top:

@@ -91,6 +91,20 @@ def rank_key(c: CandidateResult) -> float:
     return -c.shrink if math.isfinite(c.shrink) else math.inf
 
 
+def channel_shrink(c: CandidateResult) -> float:
+    """The largest held-out shrink of one of a candidate's channels [%] (the per-channel
+    significance rule's shrink, :func:`pipeline.diagnose.significance.channel_significant`).
+
+    Parameters
+    ----------
+    c : CandidateResult
+        A scored candidate.
+    """
+    out = [100.0 * (1.0 - g.gap_after / g.gap_before) for g in c.channels
+           if math.isfinite(g.gap_before) and g.gap_before > 0 and math.isfinite(g.gap_after)]
+    return max(out) if out else (c.shrink if math.isfinite(c.shrink) else -math.inf)
+
+
 @dataclass
 class DofState:
     """Where the forward selection stands in one DOF (mutable working state, never returned).
@@ -453,7 +467,7 @@ def pair_step(states: dict[str, DofState], rescore: Callable[[DofState], None], 
     significant, though each removes a large share of the gap. In a DOF whose gap fails the
     "only what a correct model leaves" test (:func:`excess_gap`; on a clean trial the gap sits at
     its floor and nothing is tried), the :data:`PAIR_TRIES` candidates with the largest shrink
-    (at least ``MIN_SHRINK``) are each taken off in turn (backfitting, as a selection step does);
+    (at least ``MIN_SHRINK`` in one channel, the DOF's gap not growing) are each taken off in turn (backfitting, as a selection step does);
     the best candidate significant on top of it (``B``) is taken off the original data instead,
     and the first (``A``) is tested again on top of ``B``. Both are selected, ``A`` first (it ranks
     higher alone), only when each is significant on top of the other.
@@ -476,7 +490,8 @@ def pair_step(states: dict[str, DofState], rescore: Callable[[DofState], None], 
         if s.base_full is None or not s.results or not excess_gap(s):
             continue
         tries = sorted((x for x in s.results if x[0].label not in s.selected and math.isfinite(x[0].shrink)
-                        and x[0].shrink >= sig.MIN_SHRINK), key=lambda x: rank_key(x[0]))[:PAIR_TRIES]
+                        and x[0].shrink >= 0 and channel_shrink(x[0]) >= sig.MIN_SHRINK),
+                       key=lambda x: rank_key(x[0]))[:PAIR_TRIES]
         for res_a, run_a in tries:
             t = _tentative(s, s.base_full, heldout_or_full(run_a, s.data.y.shape[0]), rescore)
             ontop = [(r, u) for r, u in t.results if r.significant and r.label != res_a.label]
@@ -608,6 +623,27 @@ def sensor_or_actuator(res: CandidateResult, states: Mapping[str, DofState]) -> 
         f"({v:.3g} +- {se:.2g} s): the inputs act late")
 
 
+def by_channel(res: CandidateResult) -> str:
+    """Where an effect whose DOF gap shrinks by less than ``MIN_SHRINK`` passed the per-channel rule
+    ("" otherwise): the channel that carries it and the one that dominates the DOF gap.
+
+    Parameters
+    ----------
+    res : CandidateResult
+        A selected candidate.
+    """
+    if not res.shrink < sig.MIN_SHRINK or len(res.channels) < 2:
+        return ""
+    ok = [g for g in res.channels if math.isfinite(g.gap_before) and g.gap_before > 0 and math.isfinite(g.gap_after)]
+    if not ok:
+        return ""
+    best = max(ok, key=lambda g: 1.0 - g.gap_after / g.gap_before)
+    big = max(ok, key=lambda g: g.gap_before)
+    return (f"significant in {best.channel}: its gap {best.gap_before:.3g} -> {best.gap_after:.3g} noise units "
+            f"({100 * (1 - best.gap_after / best.gap_before):.1f} %, p = {best.p_value:.2g}); the DOF's gap, "
+            f"dominated by {big.channel} ({big.gap_before:.3g}), shrinks by {res.shrink:.1f} % only")
+
+
 def selected_effects(chosen, states: Mapping[str, DofState],
                      params_of: Callable[[CandidateResult], tuple[EffectParam, ...]] | None = None,
                      ) -> tuple[SelectedEffect, ...]:
@@ -628,7 +664,7 @@ def selected_effects(chosen, states: Mapping[str, DofState],
         unsure = confused_with(res, [c[0] for c in chosen[:i]])
         if not unsure and res.dof in states and not any(c[0].dof == res.dof for c in chosen[:i]):
             unsure = close_rival(res, getattr(states[res.dof], "first_results", None) or [])
-        why = "; ".join(w for w in (unsure, why, *joint) if w)
+        why = "; ".join(w for w in (unsure, why, *joint, by_channel(res)) if w)
         label = res.label if effect == res.effect else f"{effect}[{inp}]"
         out.append(SelectedEffect(step=i + 1, effect=effect, dof=res.dof, label=label, input_channel=inp,
                                   gap_before=res.gap_before, gap_after=res.gap_after, shrink=res.shrink,
