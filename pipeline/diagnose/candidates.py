@@ -130,7 +130,14 @@ def rate_limit(u: np.ndarray, rate: float, fs: float) -> np.ndarray:
     fs : float
         Trial rate [Hz].
     """
-    step = rate / fs
+    return _slew(u, rate / fs, lambda g, k, s: np.minimum(s * np.arange(1, k + 1), g))
+
+
+def _slew(u: np.ndarray, s: float, moved) -> np.ndarray:
+    """A limiter's output per run of constant command: from where the last run left it, toward the
+    new level by ``moved(gap, samples, s)`` ([SI] per sample of the run; ``s`` the most per sample);
+    each run ends where a continuous ramp would, ``min(s samples, gap)`` from its start."""
+    u = np.asarray(u, float)
     n = len(u)
     out = np.empty(n)
     if n == 0:
@@ -139,12 +146,9 @@ def rate_limit(u: np.ndarray, rate: float, fs: float) -> np.ndarray:
     x = float(u[0])
     for a, b in zip(starts[:-1], starts[1:]):
         c = float(u[a])
-        gap = c - x
-        j = np.arange(1, b - a + 1)
-        moved = np.minimum(step * j, abs(gap))
-        seg = x + np.sign(gap) * moved
-        out[a:b] = seg
-        x = float(seg[-1])
+        sign = np.sign(c - x)
+        out[a:b] = x + sign * moved(abs(c - x), b - a, s)
+        x = x + sign * min(s * (b - a), abs(c - x))
     return out
 
 
@@ -174,27 +178,15 @@ def rate_limit_means(u: np.ndarray, rate: float, fs: float) -> np.ndarray:
     numpy.ndarray
         Sample means [SI], same length as ``u``.
     """
-    s = rate / fs  # the ramp's move per sample
-    u = np.asarray(u, float)
-    n = len(u)
-    out = np.empty(n)
-    if n == 0:
-        return out
-    starts = np.concatenate([[0], np.flatnonzero(np.diff(u) != 0) + 1, [n]])
-    x = float(u[0])
-    for a, b in zip(starts[:-1], starts[1:]):
-        c = float(u[a])
-        g = abs(c - x)
-        i = np.arange(b - a, dtype=float)
+    def moved(g: float, k: int, s: float) -> np.ndarray:
         # Distance moved, averaged over sample [i, i + 1) after the switch: s (i + 1/2) while ramping,
         # g once there, and in the sample where it arrives (at tau = g / s) the two pieces.
+        i = np.arange(k, dtype=float)
         tau = g / s if s > 0 else np.inf
-        full = s * (i + 0.5)
         part = 0.5 * s * (np.minimum(tau, i + 1) ** 2 - np.minimum(tau, i) ** 2) + g * (i + 1 - np.clip(tau, i, i + 1))
-        moved = np.where(i + 1 <= tau, full, np.where(i >= tau, g, part))
-        out[a:b] = x + np.sign(c - x) * moved
-        x = x + np.sign(c - x) * min(s * (b - a), g)
-    return out
+        return np.where(i + 1 <= tau, s * (i + 0.5), np.where(i >= tau, g, part))
+
+    return _slew(u, rate / fs, moved)
 
 
 def _forcing(p: DofProblem, name: str, raw: np.ndarray, state: bool = False) -> np.ndarray:
@@ -534,11 +526,13 @@ class _InputTransform(Candidate):
 
         def unpack(x: np.ndarray) -> tuple[float, float]:
             v = float(np.exp(x[0])) if log else float(x[0])
-            return self._snap(float(np.clip(v, lo, hi))), float(np.exp(x[1]))
+            # T within a factor of three of where it started, as an effect's refit searches it.
+            return self._snap(float(np.clip(v, lo, hi))), t0 * float(np.exp(np.clip(x[1] - np.log(t0), -1.1, 1.1)))
 
         def cost(x: np.ndarray) -> float:
             v, t = unpack(x)
-            return solve_linear(self._data_for(v).rows(train), self.spec, t)[1]
+            c = solve_linear(self._data_for(v).rows(train), self.spec, t)[1]
+            return c if np.isfinite(c) else math.inf
 
         x0 = np.array([np.log(max(v0, lo)) if log else v0, np.log(t0)])
         step = self._grid_step()
