@@ -130,26 +130,30 @@ def rate_limit(u: np.ndarray, rate: float, fs: float) -> np.ndarray:
     fs : float
         Trial rate [Hz].
     """
-    return _slew(u, rate / fs, lambda g, k, s: np.minimum(s * np.arange(1, k + 1), g))
+    return _slew(u, rate / fs, lambda g, i, s: np.minimum(s * (i + 1), g))
 
 
 def _slew(u: np.ndarray, s: float, moved) -> np.ndarray:
     """A limiter's output per run of constant command: from where the last run left it, toward the
-    new level by ``moved(gap, samples, s)`` ([SI] per sample of the run; ``s`` the most per sample);
-    each run ends where a continuous ramp would, ``min(s samples, gap)`` from its start."""
+    new level by ``moved(gap, i, s)`` [SI] in sample ``i`` of the run (arrays over every sample; ``s``
+    the most per sample); each run ends where a continuous ramp would, ``min(s samples, gap)`` from
+    its start."""
     u = np.asarray(u, float)
     n = len(u)
-    out = np.empty(n)
     if n == 0:
-        return out
-    starts = np.concatenate([[0], np.flatnonzero(np.diff(u) != 0) + 1, [n]])
+        return np.empty(0)
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(u) != 0) + 1])
+    lengths = np.diff(np.concatenate([starts, [n]]))
+    levels = u[starts]
+    # Where each run starts from: the end of the previous one (a short scalar recursion per run).
+    x0 = np.empty(len(starts))
     x = float(u[0])
-    for a, b in zip(starts[:-1], starts[1:]):
-        c = float(u[a])
-        sign = np.sign(c - x)
-        out[a:b] = x + sign * moved(abs(c - x), b - a, s)
-        x = x + sign * min(s * (b - a), abs(c - x))
-    return out
+    for j, (c, k) in enumerate(zip(levels.tolist(), lengths.tolist())):
+        x0[j] = x
+        x = x + math.copysign(min(s * k, abs(c - x)), c - x) if c != x else x
+    i = np.arange(n) - np.repeat(starts, lengths)
+    gap = np.repeat(levels - x0, lengths)
+    return np.repeat(x0, lengths) + np.sign(gap) * moved(np.abs(gap), i.astype(float), s)
 
 
 def rate_limit_means(u: np.ndarray, rate: float, fs: float) -> np.ndarray:
@@ -178,11 +182,10 @@ def rate_limit_means(u: np.ndarray, rate: float, fs: float) -> np.ndarray:
     numpy.ndarray
         Sample means [SI], same length as ``u``.
     """
-    def moved(g: float, k: int, s: float) -> np.ndarray:
+    def moved(g: np.ndarray, i: np.ndarray, s: float) -> np.ndarray:
         # Distance moved, averaged over sample [i, i + 1) after the switch: s (i + 1/2) while ramping,
         # g once there, and in the sample where it arrives (at tau = g / s) the two pieces.
-        i = np.arange(k, dtype=float)
-        tau = g / s if s > 0 else np.inf
+        tau = g / s if s > 0 else np.full_like(g, np.inf)
         part = 0.5 * s * (np.minimum(tau, i + 1) ** 2 - np.minimum(tau, i) ** 2) + g * (i + 1 - np.clip(tau, i, i + 1))
         return np.where(i + 1 <= tau, s * (i + 0.5), np.where(i >= tau, g, part))
 
@@ -558,19 +561,27 @@ class _InputTransform(Candidate):
         base = start if start is not None else Candidate.fit(self, train)
         t_i = base.params["T"]
         # Coordinate search: the transform parameter on a grid at the current T, then T refitted
-        # at the best value, twice (a delay biases the baseline T); then the parameter and T
-        # refined together (:meth:`_refine_joint`), T refitted, and the parameter refined to the
-        # data's resolution in a narrow bracket. A slow ship integrates a delay error of a tenth of
+        # at the best value, twice (a delay biases the baseline T); then, unless the least transform
+        # fits best, the parameter and T refined together (:meth:`_refine_joint`), T refitted, and
+        # the parameter refined to the data's resolution in a narrow bracket. A slow ship integrates a delay error of a tenth of
         # a second into a heading error many times its sensor noise, so the search must be precise.
         grid = [self._data_for(v, cache=True) for v in self.grid]
         for _ in range(2):
             sse = np.array([solve_linear(g.rows(train), self.spec, t_i)[1] for g in grid])
             i = int(np.argmin(sse))
             t_i, _, _ = refit_linear(grid[i].rows(train), self.spec, t_i)
-        v, t_i = self._refine_joint(train, float(self.grid[i]), t_i)
-        t_i, _, _ = refit_linear(self._data_for(v).rows(train), self.spec, t_i)
-        width = self._grid_step() / 4
-        v = self._refine(train, *self._bracket(v, width), t_i, v)
+        if i == 0:
+            # The least transform fits best (no effect, or one below a grid step): T does not move,
+            # the value is refined between the first two grid values (as cheap as a transform that
+            # is not there should be).
+            lo, hi = sorted((self.grid[0], self.grid[1]))
+            v = self._refine(train, lo, hi, t_i, float(self.grid[0]))
+            t_i, _, _ = refit_linear(self._data_for(v).rows(train), self.spec, t_i)
+            v = self._refine(train, max(lo, v - (hi - lo) / 8), min(hi, v + (hi - lo) / 8), t_i, v)
+        else:
+            v, t_i = self._refine_joint(train, float(self.grid[i]), t_i)
+            t_i, _, _ = refit_linear(self._data_for(v).rows(train), self.spec, t_i)
+            v = self._refine(train, *self._bracket(v, self._grid_step() / 4), t_i, v)
         d = self._data_for(v).rows(train)
         t, theta, s = refit_linear(d, self.spec, t_i)
         return Fitted({"T": t, **_gain_params(self.spec, theta), **self._param(v)}, self.param_names, s,
