@@ -68,5 +68,8 @@ def test_a_delay_behind_a_rate_limit_is_found_on_the_rate_limited_input(tmp_path
     assert second.candidate == "actuator_delay after actuator_rate_limit[delta]"
     tau = next(p for p in second.params if p.name == "tau_d")
     assert abs(tau.value - 1.5) < 0.6, tau
-    rate = next(p for p in rep.effects[0].params if p.name == "R")
+    # The rate limit alone slows down to stand in for the delay too (test above: by more than 15 %
+    # once its value and T are refined together); fitted with the delay behind it, R is the rudder's.
+    assert next(p for p in rep.effects[0].params if p.name == "R").value < 0.06
+    rate = next(p for p in second.params if p.name == "R")
     assert abs(rate.value - 0.06) < 0.015, rate

@@ -779,6 +779,22 @@ def _moves(y: np.ndarray, w: Window, noise: float) -> bool:
     return bool(np.percentile(np.abs(means), 95) > 6 * noise / np.sqrt(20 if k else 1))
 
 
+def _excursion(x: np.ndarray, windows: list[Window], noise: float, fs: float) -> float:
+    """Largest excursion of ``x`` from its median in any window, in units of the noise of means over
+    half a second or a fiftieth of the window (so that a slow ship logged by a noisy gyro counts)."""
+    peak = 0.0
+    for w in windows:
+        seg = x[w.i0:w.i1]
+        seg = seg[np.isfinite(seg)]
+        k_s = max(int(0.5 * fs), len(seg) // 50, 1)
+        nb = len(seg) // k_s
+        if nb < 2:
+            continue
+        means = seg[:nb * k_s].reshape(nb, k_s).mean(axis=1)
+        peak = max(peak, float(np.max(np.abs(means - np.median(means)))) / (noise / np.sqrt(k_s)))
+    return peak
+
+
 def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
              t_const: float | None, space: ActuatorSpace | None = None) -> DofProblem | None:
     fs = trial.fs
@@ -804,19 +820,15 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
     windows0 = [w for w in base if dof in w.dofs or _moves(y, w, noise)]
     if not windows0:
         return None
-    # Excited: some window moves the response well above the noise, judged on means over half
-    # a second or a fiftieth of the window, so that a slow ship logged by a noisy gyro counts.
-    peak = 0.0
-    for w in windows0:
-        seg = y[w.i0:w.i1]
-        seg = seg[np.isfinite(seg)]
-        k_s = max(int(0.5 * fs), len(seg) // 50, 1)
-        nb = len(seg) // k_s
-        if nb < 2:
-            continue
-        means = seg[:nb * k_s].reshape(nb, k_s).mean(axis=1)
-        peak = max(peak, float(np.max(np.abs(means - np.median(means)))) / (noise / np.sqrt(k_s)))
-    if not peak > 10:
+    # Excited: some window moves the response, or the attitude it integrates to (the heading), well
+    # above its noise: a small ship's turn at high gyro noise hardly leaves the gyro's noise, but
+    # the compass sees its heading change by tens of noise units (randomised seeds 22 and 25: four
+    # Nomoto ships, T = 3-4 s, refused with gyro peaks of 2-10 and compass peaks of 13-43).
+    excited = [(y, noise)]
+    if angle:
+        a = _unwrap_nan(trial.data[angle].to_numpy(float))
+        excited.append((a, max(noise_std(a), 1e-12)))
+    if not max(_excursion(x, windows0, s, fs) for x, s in excited) > 10:
         return None
     raw = {ch: y}
     for c in inputs:
