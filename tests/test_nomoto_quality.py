@@ -432,6 +432,10 @@ def test_zigzag_speed_loss_is_read_against_the_straight_run_before_it():
     # A lead-in with the rudder held over (a turn, not a straight run) is not a straight run.
     turned = lead.assign(delta=amp + lead["delta"])
     assert speed_range_note(rows, lead=turned) == ends
+    # Nor is a lead-in that coasts down to rest (the bundled sample: a zig-zag started from rest after a
+    # coast-down at midships read as a 48.7 % loss against the coast-down's median speed).
+    coasting = lead.assign(u=7.19 * np.exp(-tl / 8.0) + 0.05 * rng.standard_normal(tl.size))
+    assert speed_range_note(rows, lead=coasting) == ends
 
     truth = 0.021795
     k = combine("K_nomoto", "1/s", "m", [Contribution(truth * 0.93, 1e-4, "zigzag")])

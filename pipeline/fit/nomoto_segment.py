@@ -688,6 +688,9 @@ LEAD_SPEED_SECONDS = 120.0
 #: Largest offset of the rudder in that stretch from the zig-zag's centre, as a share of its amplitude,
 #: for the stretch to count as the straight run before it (a rudder held near midships).
 LEAD_RUDDER_SHARE = 0.25
+#: Largest spread of the lead's chunk medians, relative to their median, for a steady straight run [-]
+#: (a coast-down, a throttle change or a start from rest before the manoeuvre is no straight-run speed).
+LEAD_STEADY_SHARE = 0.05
 
 
 def speed_range_note(rows, lead=None) -> str:
@@ -716,8 +719,10 @@ def speed_range_note(rows, lead=None) -> str:
     have a speed and their median rudder lies within ``LEAD_RUDDER_SHARE`` of the manoeuvre's rudder
     amplitude from its centre (the midpoint of its 5th and 95th percentiles: a rudder held near
     midships, the straight run before the manoeuvre; the yaw rate cannot tell, waves of 0.3 deg/s
-    drown a slow ship's turn rate), and the turning speed is the slowest chunk's; otherwise the
-    window's ends are compared as above.
+    drown a slow ship's turn rate) and its chunk medians spread by at most ``LEAD_STEADY_SHARE`` of
+    their median (a steady speed: the bundled sample's zig-zag follows a coast-down to rest and
+    starts from rest, whose lead read as a 48.7 % "loss"), and the turning speed is the slowest
+    chunk's; otherwise the window's ends are compared as above.
 
     Parameters
     ----------
@@ -786,7 +791,12 @@ def lead_speed(lead, rows, ch: str) -> float | None:
     lo, hi = np.percentile(d, [5.0, 95.0])
     if not hi > lo or abs(float(np.median(d_lead[ok])) - 0.5 * (lo + hi)) > LEAD_RUDDER_SHARE * 0.5 * (hi - lo):
         return None
-    return float(np.median(u[ok]))
+    n = min(SPEED_CHUNKS, int(ok.sum()) // SPEED_CHUNK_SAMPLES)
+    chunks = np.array([np.median(c) for c in np.array_split(u[ok], n)])
+    straight = float(np.median(u[ok]))
+    if not straight > 0 or np.ptp(chunks) > LEAD_STEADY_SHARE * straight:
+        return None
+    return straight
 
 
 def slow_noise_note(fit: NomotoFit) -> str:
