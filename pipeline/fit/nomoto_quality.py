@@ -52,7 +52,8 @@ loss of the segments' values against their losses, or, when that line cannot be 
 value is unsure (:func:`straight_run_value`), as it is when one segment (a single zig-zag) lost more than
 ``SPEED_MATERIAL``. K or T is also unsure when rudder steps into a turn and
 steps out of one give different values (:func:`superposition_reason`: a linear ship's step response
-does not depend on where the step starts).
+does not depend on where the step starts), and so is the other of the two when one of them does
+(:func:`superposition_other_reason`: the ship is nonlinear over the range its steps covered).
 A combined first-order K or T is also unsure when it differs materially and beyond its error from
 the first-order fit of all the segments' records with one rudder bias (:func:`shared_bias_reason`, the
 fit by :func:`pipeline.fit.nomoto_structure.shared_bias_note`): the per-segment biases then took up
@@ -189,7 +190,7 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if name == "K_nomoto":
             why += sinusoid_k_reason(est, kinds, t_why)
         why += nonlinear_reason(est, fits, short)
-        why += superposition_reason(est, fits, short)
+        why += superposition_reason(est, fits, short) or superposition_other_reason(est, out, fits, short)
         for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
             if est.success and f" {short} " in part.split(":")[1] + " ":
                 kept = minority_note_kept(fits, part, short)
@@ -411,8 +412,26 @@ def superposition_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     short : str
         ``K`` or ``T``.
     """
-    if not (est.success and math.isfinite(est.value) and est.value != 0) or POOLED_NOTE in est.message:
+    if not est.success:
         return []
+    why = superposition_break(est, fits, short)
+    return [why] if why else []
+
+
+def superposition_break(est: Estimate, fits: Sequence[SegmentFit], short: str) -> str:
+    """The superposition test of :func:`superposition_reason` whatever the estimate's success: the reason, or ''.
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K or T (its value sets the materiality; pooled second-order values are not tested).
+    fits : sequence of SegmentFit
+        The segment fits behind it.
+    short : str
+        ``K`` or ``T``.
+    """
+    if not (math.isfinite(est.value) and est.value != 0) or POOLED_NOTE in est.message:
+        return ""
     groups: dict[bool, list[tuple[float, float]]] = {True: [], False: []}
     for f in fits:
         seg = f.segment
@@ -426,7 +445,7 @@ def superposition_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) 
         if abs(after - before) > 0.5 * step:
             groups[after > before].append((v, s))
     if not groups[True] or not groups[False] or len(groups[True]) + len(groups[False]) < 3:
-        return []
+        return ""
     means = {}
     for into, rows in groups.items():
         x, s = (np.array(c, float) for c in zip(*rows))
@@ -438,12 +457,50 @@ def superposition_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     t = (m_in - m_out) / math.hypot(s_in, s_out)
     rel = abs(m_in - m_out) / abs(est.value)
     if not (abs(t) >= SUPERPOSITION_T and rel > SUPERPOSITION_MATERIAL):
-        return []
-    return [f"unsure: nonlinear: {n_in} rudder steps into a turn give {short} = {m_in:.4g} +- {s_in:.2g} {est.unit}, "
+        return ""
+    return (f"unsure: nonlinear: {n_in} rudder steps into a turn give {short} = {m_in:.4g} +- {s_in:.2g} {est.unit}, "
             f"{n_out} steps out of one {m_out:.4g} +- {s_out:.2g} (difference {rel:.1%} of the value, t = {t:+.2g}): "
             f"a linear ship's step response does not depend on where the step starts, so the ship is nonlinear "
             f"(a cubic yaw-rate term, a speed change in the turns) and the combined {short}, an average of the "
-            f"two, is not its linear value"]
+            f"two, is not its linear value")
+
+
+def superposition_other_reason(est: Estimate, estimates: dict[str, Estimate], fits: Sequence[SegmentFit],
+                               short: str) -> list[str]:
+    """Why K (T) is unsure when the steps into and out of a turn break superposition for T (K).
+
+    Rudder steps of one amplitude into a turn and back out of it reach the same steady turn rate
+    both ways, so a K that is not linear in the rudder (Norrbin's cubic yaw-rate term: the turn rate
+    falls short of ``K delta`` the more, the faster the turn) gives the same value from both groups
+    and passes :func:`superposition_reason`; the transient, which starts from a turn in one group
+    and from straight ahead in the other, shows the nonlinearity in T. A ship shown nonlinear over
+    the range its steps covered by either coefficient has both K and T effective at that amplitude,
+    not its linear (small-rudder) values (measured: PythonVehicleSimulator's frigate at 6 m/s with
+    ``n3 = 150 s^2/rad^2``, measured rudder, equal 10 deg steps, 6 seeds: T into turns 2.1-2.6 %
+    below T out of them, t -9 to -14, unsure; K -2.5 % with a standard error of 0.4-0.9 %, its
+    interval missing on 5 of 6 seeds, was marked success). Empty when this coefficient's own test
+    already fired or the other's did not.
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K or T being judged.
+    estimates : dict[str, Estimate]
+        All combined estimates (the other coefficient's is read).
+    fits : sequence of SegmentFit
+        The segment fits behind them.
+    short : str
+        ``K`` or ``T`` (of ``est``).
+    """
+    other = "T" if short == "K" else "K"
+    other_est = estimates.get(f"{other}_nomoto")
+    if not est.success or other_est is None:
+        return []
+    why = superposition_break(other_est, fits, other)
+    if not why:
+        return []
+    return [f"unsure: nonlinear: {short} is an effective value at the steps' amplitude, not the linear one, because "
+            f"the steps break superposition in {other} ({why.removeprefix('unsure: nonlinear: ')})"]
 
 
 def sinusoid_k_reason(est: Estimate, kinds: Sequence[str], t_reasons: Sequence[str]) -> list[str]:
