@@ -478,11 +478,11 @@ def superposition_groups(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     Parameters
     ----------
     est : Estimate
-        The combined K or T.
+        The combined value (its pooled note chooses how the groups are read; its value scales ``rel``).
     fits : sequence of SegmentFit
-        The segment fits behind it (their ``segment.input_before`` and ``input_after`` are read).
+        Nomoto segment fits; the rudder steps among them are grouped by their levels before and after.
     short : str
-        ``K`` or ``T``.
+        Which coefficient, ``K`` or ``T``.
     """
     if not (math.isfinite(est.value) and est.value != 0):
         return None
