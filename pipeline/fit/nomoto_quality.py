@@ -571,7 +571,7 @@ def superposition_other_reason(est: Estimate, estimates: dict[str, Estimate], fi
     not its linear (small-rudder) values (measured: PythonVehicleSimulator's frigate at 6 m/s with
     ``n3 = 150 s^2/rad^2``, measured rudder, equal 10 deg steps, 6 seeds: T into turns 2.1-2.6 %
     below T out of them, t -9 to -14, unsure; K -2.5 % with a standard error of 0.4-0.9 %, its
-    interval missing on 5 of 6 seeds, was marked success). Empty when this coefficient's own test
+    interval missing on 6 of 6 seeds (|z| 2.9-5.7), was marked success). Empty when this coefficient's own test
     already fired or the other's did not.
 
     Parameters
