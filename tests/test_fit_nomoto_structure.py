@@ -212,7 +212,9 @@ def test_second_order_chosen_once_across_rudder_steps():
     k, t = fits.estimates["K_nomoto"], fits.estimates["T_nomoto"]
     assert "second-order Nomoto (T1, T2, T3) selected, the first order loses" in k.message, k.message
     assert "leave-one-segment-out" in t.message and "first order" in t.message
-    assert k.success and t.success, t.message
+    assert k.success, k.message
+    # Its steps into a turn and out of one give T 14 % apart (T +5.9 %): unsure, not reproduced (nomoto_quality).
+    assert t.success or t.message.startswith("unsure: not reproduced"), t.message
     assert k.value == pytest.approx(0.09, rel=0.02)
     # T = T1 + T2 - T3 is the difference of two 11-13 s constants: each step's own T is biased (their
     # combination gave 3.22 +- 0.15 s, +19 %); the pooled (K, T1 + T2, T1 T2, T3) vector's is not.

@@ -149,22 +149,25 @@ def _vector(sf: SegmentFit) -> tuple[np.ndarray, np.ndarray] | None:
     return x, 0.5 * (c + c.T)
 
 
-def pool_second_order(fits: Sequence[SegmentFit]) -> PooledSecondOrder | None:
+def pool_second_order(fits: Sequence[SegmentFit], min_segments: int = 2) -> PooledSecondOrder | None:
     """K and T from the generalised least-squares mean of second-order segment vectors (module doc).
 
     Parameters
     ----------
     fits : sequence of SegmentFit
         The successful Nomoto segment fits behind K and T.
+    min_segments : int
+        Fewest segments pooled (1: a single segment's own vector, for a group of steps,
+        :func:`pipeline.fit.nomoto_quality.superposition_groups`).
 
     Returns
     -------
     PooledSecondOrder or None
-        None unless there are two or more and every one is a second-order whole-record fit with a
-        usable covariance of (K, T12, T1T2, T3).
+        None unless there are ``min_segments`` or more and every one is a second-order whole-record
+        fit with a usable covariance of (K, T12, T1T2, T3).
     """
     fits = [sf for sf in fits if not is_joint_follower(sf)]
-    if len(fits) < 2:
+    if len(fits) < max(min_segments, 1):
         return None
     vecs = [_vector(sf) for sf in fits]
     if any(v is None for v in vecs):
@@ -186,11 +189,11 @@ def pool_second_order(fits: Sequence[SegmentFit]) -> PooledSecondOrder | None:
     theta = cov @ vec
     chi2 = float(sum((x - theta) @ c_inv @ (x - theta) for c_inv, x in zip(invs, xs / scale)))
     dof = p * (k - 1)
-    birge = math.sqrt(max(1.0, chi2 / dof))
+    birge = math.sqrt(max(1.0, chi2 / dof)) if dof > 0 else 1.0
     rho = overlap_correlation([samples_window(sf) for sf in fits])
     deff = float(rho.sum()) / k
     theta, cov = theta * scale, cov * np.outer(scale, scale) * birge**2 * deff
-    p_value = float(stats.chi2.sf(chi2, dof))
+    p_value = float(stats.chi2.sf(chi2, dof)) if dof > 0 else math.nan
     values = {name: PooledValue(float(g @ theta), math.sqrt(max(float(g @ cov @ g), 0.0)), p_value)
               for name, g in _GRAD.items()}
     n_pairs = int(np.sum(rho[np.triu_indices(k, 1)] > 0))
