@@ -370,7 +370,10 @@ def choose_order(rec: NomotoRecord | Sequence[NomotoRecord], channels: tuple[str
     Several records (sinusoids at different frequencies, :func:`pipeline.fit.nomoto_structure.joint_sinusoids`)
     are fitted jointly (one ship, per-record initial states): the end of each is held out, each
     record's errors scaled by its own spread, and the robustness p-value leaves the most favourable
-    record out.
+    record out. There the second order is also chosen when it passes the rule's p-value and explained
+    error but not its shrink or robustness, if the records' own first-order T differ materially
+    across their frequencies (:func:`frequency_spread`, which says why the shrink and the robustness
+    fail such records by construction).
 
     Parameters
     ----------
