@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.signal
 
 from pipeline.fit.nomoto_oe import NomotoRecord, fit_nomoto
 from pipeline.fit.nomoto_segment import choose_order, frequency_spread
@@ -34,11 +35,8 @@ def _sine_record(order, dyn, omega, periods, seed, name):
     d = math.radians(10.0) * np.sin(omega * fine_t)
     a, b = nomoto_matrices(order, dyn)
     ad, bd = discretise.zoh(a, b, h)
-    x = np.zeros(a.shape[0])
-    xs = np.empty((d.size, a.shape[0]))
-    for k, dk in enumerate(d):
-        xs[k] = x
-        x = ad @ x + bd[:, 0] * dk
+    # The rudder held over each fine step (the zero-order hold the model was discretised with).
+    _, _, xs = scipy.signal.dlsim((ad, bd, np.eye(a.shape[0]), np.zeros((a.shape[0], 1)), h), d)
     rng = np.random.default_rng(seed)
     psi = xs[::sub, 0] + math.radians(0.2) * rng.standard_normal(n)
     r = xs[::sub, 1] + math.radians(0.05) * rng.standard_normal(n)
