@@ -976,7 +976,7 @@ class Waves(Candidate):
         # training rows (:func:`pipeline.diagnose.waves.refine_background`).
         for key in specs:
             noise = d.sigma_angle if key == "angle" else d.sigma_y
-            specs[key] = wave_model.refine_background(resids[key], d.dt, specs[key], noise)
+            specs[key] = wave_model.refine_background(resids[key], d.dt, specs[key], noise, d.m)
         spec = specs[self.key]
         params = {**base.params, "omega0": spec.omega0, "lambda": spec.lam, "sigma_w": spec.sigma}
         return Fitted(params, self.param_names, base.sse, (base, specs))
