@@ -67,3 +67,24 @@ def test_a_clean_fast_ship_gets_no_wave(tmp_path):
     # Before: the waves candidate took 17.2 % of the yaw gap (p = 3e-15) from a clean trial.
     assert all(c.shrink < 2.0 and not c.significant for c in waves), [(c.dof, c.shrink, c.p_value) for c in waves]
     assert rep.effect is None
+
+
+def test_the_smoother_models_the_noise_of_the_grid_s_own_blocks(tmp_path):
+    # The waves of the test above at 20 Hz: the yaw DOF's analysis step (T / 20 = 0.3 s) averages
+    # six samples, whose trapezoidal means have lag-1 correlation 1/22, not the 1/2 of one sample.
+    from pipeline.diagnose import verdict
+    from pipeline.diagnose.candidates import Waves
+    from pipeline.diagnose.gridfit import grid_data
+    from pipeline.diagnose.problem import build_problems
+    from pipeline.diagnose.segments import diagnose_segments
+
+    ship = parse_vessel({"name": "small", "nomoto": {"K": 0.3, "T": 6.0}})
+    eff = Effects(waves=waves_with_sigma(1.5, 0.1, np.radians(3.3)))
+    trial, _ = simulated_trial(ship, sea_trial(ship), eff, tmp_path, "waves20", seed=1, dt=0.05, rate=20.0)
+    segs = diagnose_segments(trial, None)
+    tc = verdict._refine_time_constants(trial, segs, ship)
+    p = next(q for q in build_problems(trial, segs, ship, time_constants=tc) if q.dof == "yaw")
+    d = grid_data(p)
+    assert d.m > 1
+    _, specs = Waves(p, d).fit(np.arange(len(p.windows))).state
+    assert specs["angle"].sigma > 0 and specs["angle"].m == d.m
