@@ -912,7 +912,7 @@ WAVE_RATE_MATCH = 1.5
 class Waves(Candidate):
     """A wave-band disturbance on the outputs (Fossen 2021, sec. 10.2.4): the second-order wave
     spectrum is fitted to the baseline's training residuals, and the held-out wave-frequency
-    motion is separated by the Wiener smoother it implies (wave filtering). What remains is the gap
+    motion is separated by the Kalman smoother it implies (wave filtering). What remains is the gap
     a wave-filtering autopilot would still see. See :mod:`pipeline.diagnose.waves`.
 
     Every scored channel gets its own spectrum: waves move the heading and, as its derivative, the
@@ -959,10 +959,10 @@ class Waves(Candidate):
         base = start if start is not None and start.effect_params == () else Candidate.fit(self, train)
         d = self.data.rows(train)
         pred = Candidate.simulate(self, base, train)
-        specs = {}
+        specs, resids = {}, {}
         for key in self.keys:
-            resid = np.where(d.mask, self._meas(d, key) - pred[key], np.nan)
-            specs[key] = wave_model.fit_residual_spectrum(resid, d.dt, self._band())
+            resids[key] = np.where(d.mask, self._meas(d, key) - pred[key], np.nan)
+            specs[key] = wave_model.fit_residual_spectrum(resids[key], d.dt, self._band())
         spec = specs[self.key]
         if self.key == "angle" and "y" in specs:
             # The rate's wave is the heading's wave differentiated: smoothed only when the heading
@@ -972,6 +972,12 @@ class Waves(Candidate):
                     and abs(np.log(ry.omega0 / spec.omega0)) < np.log(WAVE_RATE_MATCH))
             if not same:
                 specs["y"] = wave_model.fit_residual_spectrum(np.zeros((0, 1)), d.dt, self._band())
+        # The smoother's background (model error and sensor noise) by maximum likelihood on the
+        # training rows (:func:`pipeline.diagnose.waves.refine_background`).
+        for key in specs:
+            noise = d.sigma_angle if key == "angle" else d.sigma_y
+            specs[key] = wave_model.refine_background(resids[key], d.dt, specs[key], noise, d.m)
+        spec = specs[self.key]
         params = {**base.params, "omega0": spec.omega0, "lambda": spec.lam, "sigma_w": spec.sigma}
         return Fitted(params, self.param_names, base.sse, (base, specs))
 
