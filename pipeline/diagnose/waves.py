@@ -21,6 +21,11 @@ smooth colouring, so that a wave is a resolved peak above it and not a broad hum
 noise's own shape.
 
 PSD convention: one-sided per rad/s, ``var = integral_0^inf S(omega) d omega`` [unit^2 s/rad].
+
+The Kalman filter and Rauch-Tung-Striebel smoother are written here rather than taken from a
+library (statsmodels' state-space models, filterpy): the candidate smooths every window of a DOF side
+by side, hundreds of short rows with NaN gaps that share one covariance path, inside a likelihood
+search run for each fold; the libraries filter one series at a time, which was the cost to avoid.
 """
 
 from __future__ import annotations
