@@ -25,7 +25,7 @@ PSD convention: one-sided per rad/s, ``var = integral_0^inf S(omega) d omega`` [
 The Kalman filter and Rauch-Tung-Striebel smoother are written here rather than taken from a
 library (statsmodels' state-space models, filterpy): the candidate smooths every window of a DOF side
 by side, hundreds of short rows with NaN gaps that share one covariance path, inside a likelihood
-search run for each fold; the libraries filter one series at a time, which was the cost to avoid.
+search run for each fold; those libraries filter one series at a time (not timed against them).
 """
 
 from __future__ import annotations
