@@ -51,3 +51,17 @@ def test_gnss_lag_beside_a_yaw_damping_is_the_sensors():
     assert ("nonlinear_damping", "yaw", "nonlinear_damping") in sel, sel
     # Before: ("actuator_delay", "surge", "actuator_delay").
     assert ("sensor_delay", "surge", "sensor_delay[gnss]") in sel, sel
+
+
+@pytest.mark.slow  # 30-50 s: a 50 Hz twin-thruster trial (make test-ci)
+def test_a_delay_on_top_of_a_yaw_damping_counts_its_error_above_the_noise():
+    """Seed 34 r000: a twin's thruster delay (signature 0.61 noise units) beside a quadratic yaw damping.
+    On top of the damping the delay takes r from 1.26 to 1.21 and psi from 1.47 to 1.37 noise units
+    (p = 1e-65): 6.8 % of psi's gap, under the rule's 10 %, but 13 % of its error above the noise."""
+    bench = _bench()
+    out = bench.run_random_case(bench.random_cases(24, 34, ("pair", "clean", "pvs_clean"))[0])
+    assert [e["effect"] for e in out["effects"]] == ["actuator_delay", "nonlinear_damping"]
+    sel = [(s["effect"], s["dof"]) for s in out["selected"]]
+    assert sel[0] == ("nonlinear_damping", "yaw"), sel
+    # Before: the damping alone.
+    assert any(e == "actuator_delay" for e, _ in sel[1:]), sel

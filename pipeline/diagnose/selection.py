@@ -296,12 +296,50 @@ def forward_select(states: dict[str, DofState], rescore: Callable[[DofState], No
         s.selected.append(res.label)
         if len(chosen) >= max_effects:
             break
+        if len(chosen) == 1:
+            for other in states.values():
+                if other is not s:
+                    on_top_scores(other)
         ref = s.result_base.get(res.label, s.base_full if s.base_full is not None else s.base_heldout)
         s.data = corrected(s.data, ref, heldout_or_full(run, s.data.y.shape[0]))
         s.reference = ref
         rescore(s)
+        on_top_scores(s)
         beats_previous(s)
     return chosen
+
+
+def _names(s: DofState) -> dict:
+    return {"y": s.problem.channel, "angle": getattr(s.problem, "angle", None)}
+
+
+def on_top_scores(s: DofState) -> None:
+    """Once an effect is selected in the trial, the candidates of a DOF are judged by the rule's
+    ``on_top`` shrink (:func:`pipeline.diagnose.significance.channel_significant`): the larger of the
+    gap's shrink and the shrink of the model error above the sensor noise. The first effect is
+    chosen by the calibrated rule; the ones after it act on gaps it left near one noise unit.
+    A candidate scored against another reference (``result_base``) and roll or pitch (one candidate,
+    scored by :mod:`pipeline.diagnose.oscillatory`) keep their scores.
+
+    Parameters
+    ----------
+    s : DofState
+        A DOF's state; ``s.results`` is updated in place.
+    """
+    if s.problem is None or not s.results:
+        return
+    out = []
+    for res, run in s.results:
+        if res.label not in s.result_base and not res.significant:
+            try:
+                sc = sig.score(s.data, s.base_heldout, run.heldout, run.candidate.n_extra, _names(s),
+                               folds=run.fold_of, on_top=True)
+            except (AttributeError, KeyError, ValueError):
+                sc = None
+            if sc is not None and sc.significant:
+                res = replace(res, significant=True)
+        out.append((res, run))
+    s.results = out
 
 
 def beats_previous(s: DofState) -> None:
@@ -345,7 +383,7 @@ def beats_previous(s: DofState) -> None:
         if res.significant and res.label not in s.result_base and getattr(run, "heldout", None) is not None:
             try:
                 sc = sig.score(s.data, s.reference, run.heldout, run.candidate.n_extra, names,
-                               folds=getattr(run, "fold_of", None))
+                               folds=getattr(run, "fold_of", None), on_top=True)
             except (KeyError, ValueError):
                 sc = None
             if sc is not None and not sc.significant:
