@@ -26,6 +26,9 @@ of a ship in waves, 24 noise units) an effect that only another channel shows (a
 damping taking the yaw rate's gap from 1.34 to 1.16 noise units, p = 8e-48) shrinks the DOF by
 0.2 % and was never selected (randomised seed 23 r003, seed 22 r015). The ranking of significant
 candidates is unchanged: the shrink of the DOF gap (:data:`pipeline.records.RANKING_RULE`).
+Once the forward selection has selected an effect (:mod:`pipeline.diagnose.selection`), a channel's
+shrink may also be counted on its model error above the sensor noise, ``sqrt(gap^2 - 1)`` noise units
+(``on_top``, :data:`ON_TOP_RULE`): the other conditions stay, and the first effect keeps the rule above.
 Held-out residuals already punish overfitting (an extra parameter fitted to noise makes the held-out
 error larger, so F < 0); the thresholds only guard against chance improvements.
 
