@@ -8,25 +8,14 @@ and sensor suite.
 - A delay is a sensor's when the other DOF driven by the same inputs shows no delay, judged on the
   sharper of that DOF's delay estimates (seed 30 r012: a GNSS lag beside a quadratic yaw damping, named
   ``actuator_delay`` from yaw's first-round delay fitted beside the damping's large error).
+- Once an effect is selected, a candidate's shrink may count on the error above the noise (seed 34
+  r000: a thruster delay on top of a quadratic yaw damping).
 """
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("bench_diagnose_select", ROOT / "benchmarks" / "diagnose.py")
-    bench = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = bench
-    spec.loader.exec_module(bench)
-    return bench
+from test_diagnose_benchmark_thinning import _bench
 
 
 @pytest.mark.slow  # 40-70 s: an AAUSHIP trial of 5 DOFs (make test-ci)
