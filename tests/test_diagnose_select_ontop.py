@@ -54,3 +54,14 @@ def test_a_delay_on_top_of_a_yaw_damping_counts_its_error_above_the_noise():
     assert sel[0] == ("nonlinear_damping", "yaw"), sel
     # Before: the damping alone.
     assert any(e == "actuator_delay" for e, _ in sel[1:]), sel
+
+
+@pytest.mark.slow  # 30-40 s: a Nomoto ship at 17 Hz (make test-ci)
+def test_nothing_on_top_of_waves_where_the_rate_is_at_its_floor():
+    """Seed 34 r006: waves and a small rudder delay. On top of the waves a rudder rate limit took r from
+    1.18 to 1.11 noise units, under r's held-out floor (1.27): not counted on the error above the noise."""
+    bench = _bench()
+    out = bench.run_random_case(bench.random_cases(24, 34, ("pair", "clean", "pvs_clean"))[6])
+    sel = [(s["effect"], s["dof"]) for s in out["selected"]]
+    assert sel[0] == ("waves", "yaw"), sel
+    assert ("actuator_rate_limit", "yaw") not in sel, sel

@@ -47,3 +47,12 @@ def test_score_passes_on_top_through():
     relaxed = score(d, base, cand, 1, {"y": "r"}, folds=folds, on_top=True)
     assert strict.shrink < 10 and not strict.significant
     assert relaxed.significant
+
+
+def test_on_top_a_channel_at_its_floor_keeps_the_gap_shrink():
+    # Seed 34 r006, on top of waves: a rudder rate limit took r from 1.18 to 1.11 noise units, under r's
+    # held-out floor of 1.27 (24 % of the error above the noise, 6 % of the gap).
+    chans = (_chan("r", 1.177, 1.11, 1.3e-12), _chan("psi", 2.859, 2.83, 0.29))
+    rob = (1e-10, 0.5)
+    assert channel_significant(chans, rob, 1.5, on_top=True)
+    assert not channel_significant(chans, rob, 1.5, on_top=True, floors={"r": 1.271, "psi": 1.107})

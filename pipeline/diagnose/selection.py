@@ -333,7 +333,7 @@ def on_top_scores(s: DofState) -> None:
         if res.label not in s.result_base and not res.significant:
             try:
                 sc = sig.score(s.data, s.base_heldout, run.heldout, run.candidate.n_extra, _names(s),
-                               folds=run.fold_of, on_top=True)
+                               folds=run.fold_of, on_top=True, floors=s.channel_floor)
             except (AttributeError, KeyError, ValueError):
                 sc = None
             if sc is not None and sc.significant:
@@ -383,7 +383,8 @@ def beats_previous(s: DofState) -> None:
         if res.significant and res.label not in s.result_base and getattr(run, "heldout", None) is not None:
             try:
                 sc = sig.score(s.data, s.reference, run.heldout, run.candidate.n_extra, names,
-                               folds=getattr(run, "fold_of", None), on_top=True)
+                               folds=getattr(run, "fold_of", None), on_top=True,
+                               floors=s.channel_floor)
             except (KeyError, ValueError):
                 sc = None
             if sc is not None and not sc.significant:

@@ -157,12 +157,12 @@ def excess_shrink(gap_before: float, gap_after: float) -> float:
 #: The rule's shrink once an effect is selected (:func:`channel_significant` with ``on_top``).
 ON_TOP_RULE = (
     f"once an effect is selected, a channel's shrink may also be counted on its model error above the sensor "
-    f"noise, sqrt(gap^2 - 1) noise units (at least {MIN_SHRINK:g} % of it); the p-value, robustness and "
-    f"scale conditions stay")
+    f"noise, sqrt(gap^2 - 1) noise units (at least {MIN_SHRINK:g} % of it), where the channel's gap is above its "
+    f"held-out floor; the p-value, robustness and scale conditions stay")
 
 
 def channel_significant(chans: tuple[ChannelScore, ...], p_robust: tuple[float, ...], dof_shrink: float,
-                        on_top: bool = False) -> bool:
+                        on_top: bool = False, floors: Mapping[str, float] | None = None) -> bool:
     """The per-channel rule (module docstring): one channel passes :func:`is_significant` on its
     own numbers, and the DOF's gap does not grow.
 
@@ -172,7 +172,10 @@ def channel_significant(chans: tuple[ChannelScore, ...], p_robust: tuple[float, 
     error left (randomised seed 34 r000: a twin's thruster delay on top of a quadratic yaw damping,
     r 1.26 -> 1.21 and psi 1.47 -> 1.37 noise units, p = 1e-65: 6.8 % of psi's gap, 13 % of its
     error above the noise). The first effect keeps the gap's shrink, so the null on clean trials,
-    where nothing is selected, is the calibrated rule's.
+    where nothing is selected, is the calibrated rule's. Only a channel whose gap is above its held-out
+    floor (``floors``, the gap a correct model leaves; 1 when missing) counts that way: below it nothing
+    is left that a correct model would not leave (seed 34 r006: on top of waves, a rudder rate limit
+    took r from 1.18 to 1.11 noise units, under r's floor of 1.27, and was selected for a true delay).
 
     Parameters
     ----------
@@ -194,7 +197,7 @@ def channel_significant(chans: tuple[ChannelScore, ...], p_robust: tuple[float, 
         if not (np.isfinite(c.gap_before) and c.gap_before > 0 and np.isfinite(c.p_value)):
             continue
         shrink = 100.0 * (1.0 - c.gap_after / c.gap_before)
-        if on_top:
+        if on_top and c.gap_before > max(float((floors or {}).get(c.channel, 1.0)), 1.0):
             shrink = float(np.nanmax([shrink, excess_shrink(c.gap_before, c.gap_after)]))
         if is_significant(min(c.p_value * k, 1.0), min(pr * k, 1.0) if np.isfinite(pr) else pr, shrink, c.explained):
             return True
@@ -202,7 +205,8 @@ def channel_significant(chans: tuple[ChannelScore, ...], p_robust: tuple[float, 
 
 
 def score(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str, np.ndarray], p: int,
-          names: Mapping[str, str], folds: np.ndarray | None = None, on_top: bool = False) -> Score:
+          names: Mapping[str, str], folds: np.ndarray | None = None, on_top: bool = False,
+          floors: Mapping[str, float] | None = None) -> Score:
     """Score a candidate against the baseline on held-out outputs.
 
     Parameters
@@ -219,6 +223,8 @@ def score(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str, np.
         Fold of each window, for the robustness check (skipped when None).
     on_top : bool
         An effect is already selected (:func:`channel_significant`).
+    floors : Mapping[str, float], optional
+        Held-out floor per channel name [noise units] (with ``on_top``).
 
     Returns
     -------
@@ -257,5 +263,5 @@ def score(data: GridData, base: Mapping[str, np.ndarray], cand: Mapping[str, np.
         worst = int(np.argmax(gains.sum(axis=0)))
         p_rob = _pvalue(tuple(without(worst, k) for k in keys))
         p_rob_ch = tuple(without(int(np.argmax(gains[i])), k).p_value for i, k in enumerate(keys))
-    sig = channel_significant(chans, p_rob_ch, shrink, on_top)
+    sig = channel_significant(chans, p_rob_ch, shrink, on_top, floors)
     return Score(gb, ga, float(shrink), pv, sig, chans, float(np.nansum(g0**2 - g1**2)), explained, p_rob)
