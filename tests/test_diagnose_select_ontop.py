@@ -65,3 +65,14 @@ def test_nothing_on_top_of_waves_where_the_rate_is_at_its_floor():
     sel = [(s["effect"], s["dof"]) for s in out["selected"]]
     assert sel[0] == ("waves", "yaw"), sel
     assert ("actuator_rate_limit", "yaw") not in sel, sel
+
+
+@pytest.mark.slow  # 20-30 s: a Nomoto ship (make test-ci)
+def test_a_true_pair_whose_refit_costs_both_alike_is_kept():
+    """Seed 33 r016: a rudder delay, then the true quadratic yaw damping on top. Against the delay's own
+    residual the damping gains 3 % of the DOF gap (the refit on the corrected data costs both alike); it
+    must not be refused for that (only a pair that predicts worse than the first effect is)."""
+    bench = _bench()
+    out = bench.run_random_case(bench.random_cases(24, 33)[16])
+    sel = [(s["effect"], s["dof"]) for s in out["selected"]]
+    assert sel[:2] == [("actuator_delay", "yaw"), ("nonlinear_damping", "yaw")], sel
