@@ -185,6 +185,10 @@ def channel_significant(chans: tuple[ChannelScore, ...], p_robust: tuple[float, 
         Per channel, the p-value with that channel's most favourable fold left out (NaN: one fold).
     dof_shrink : float
         Held-out shrink of the DOF gap [%].
+    on_top : bool
+        An effect is already selected in the trial: the shrink of the error above the noise counts too.
+    floors : Mapping[str, float], optional
+        Held-out floor per channel name [noise units] (missing: 1).
 
     Returns
     -------
