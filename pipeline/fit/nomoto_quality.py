@@ -98,6 +98,9 @@ SPEED_RANGE = "speed lost in the turns:"
 #: (``SHARED_BIAS <n> records (first order): K = <v> +- <se> 1/s, T = <v> +- <se> s, ...``), written by
 #: :func:`pipeline.fit.nomoto_structure.shared_bias_note`.
 SHARED_BIAS = "fitted with one rudder bias over all"
+#: Words of the model-structure note of K from sinusoids that fix the second order's constants exactly
+#: (:func:`pipeline.fit.nomoto_structure.exact_fit_k_term`; read by :func:`straight_run_value`).
+EXACT_FIT = "sinusoids fix the second order's constants exactly"
 #: Relative difference between the combined and the one-bias K or T that is material [-].
 SHARED_BIAS_MATERIAL = 0.02
 #: |z| of that difference (Hausman's) beyond which the two disagree.
@@ -780,6 +783,10 @@ def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) ->
     PythonVehicleSimulator's tanker at 20 m, losses 0-1 %, K -2.0 to -2.4 % with segments disagreeing
     beyond their errors: extrapolation would have marked a K within 3 % unsure).
 
+    Sinusoids fitted jointly whose second order they fix exactly (:func:`exact_fit`) leave no number to
+    show or rule out a speed dependence either (one joint fit, no residual degree of freedom): their
+    value gets the speed term whatever their loss (:func:`exact_fit_trend`).
+
     One segment (a single zig-zag) whose turns lost more than ``SPEED_MATERIAL`` can neither show nor
     rule out that dependence: its value gets the speed term and is ``unsure`` (measured:
     PythonVehicleSimulator's tanker at 25 m, one 10/10 zig-zag that lost 5.9 % of the straight-run
@@ -814,6 +821,8 @@ def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) ->
             f"Nomoto's K and T scale with the speed, and one segment cannot show how its value depends on it, "
             f"so the straight-run value (the linearisation's) is not known (add manoeuvres with a smaller "
             f"rudder, or rudder steps, which lose less speed)"]
+    if not trend and rel_range > 0 and exact_fit(fits):
+        trend = exact_fit_trend(rel_range)
     if not trend or not rel_range > SPEED_MATERIAL or not (math.isfinite(est.value) and math.isfinite(est.stderr)):
         return add_speed_term(est, rel_range, trend), []
     a, x, s = speed_rows(fits, short)
@@ -844,6 +853,41 @@ def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) ->
     out = add_speed_term(est, rel_range, trend)
     return out, [f"unsure: {short} changes with the speed lost in the turns ({trend}), and the straight-run value "
                  f"(zero speed loss, the linearisation's) cannot be read off the segments: {why}"]
+
+
+def exact_fit(fits: Sequence[SegmentFit]) -> bool:
+    """Whether the fits are sinusoids fitted jointly whose second order they fix exactly (``EXACT_FIT``
+    in a model-structure note of their messages, :func:`pipeline.fit.nomoto_structure.exact_fit_k_term`).
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Nomoto segment fits.
+    """
+    return any(part.startswith(STRUCTURE_TERM) and EXACT_FIT in part
+               for f in fits for part in f.message.split("; "))
+
+
+def exact_fit_trend(rel_range: float) -> str:
+    """Why jointly fitted sinusoids that fix the second order exactly get the speed term of
+    :func:`add_speed_term` although their value shows no trend with the speed (the ``trend`` it is given).
+
+    A trend is shown by segments' values against their speed losses; sinusoids fitted jointly are one
+    value, and with ``2 n`` numbers for the ``2 n`` constants their fit leaves no residual degree of
+    freedom in which a speed change could show: "no trend" is then no evidence that the ship's K does
+    not change with the speed, and the straight-run value may lie anywhere across the loss, as for one
+    segment (:func:`straight_run_value`). Measured: PythonVehicleSimulator's tanker at 20 m, measured-rudder
+    sinusoids without waves, seeds 0-12: K -0.1 to -1.2 % (the noise-free best linear fit -0.9 %, a bias
+    common to every seed) with errors of 0.4-0.7 % (its model-structure term included), 95 % coverage 7 of 13;
+    losses noted 0-1.0 %.
+
+    Parameters
+    ----------
+    rel_range : float
+        Largest relative speed loss in the turns of the records [-].
+    """
+    return (f"sinusoids fitted jointly fix the second order's constants exactly, so their one fit can neither "
+            f"show nor rule out a dependence on the {rel_range:.1%} of the speed their turns lost")
 
 
 @dataclass(frozen=True)

@@ -67,7 +67,7 @@ from ..parallel import ordered_map
 from ..records import Segment, SegmentFit, Trial
 from .combine import CONSISTENCY_ALPHA
 from ..model.waves import WaveParams
-from .nomoto_quality import SHARED_BIAS, STRUCTURE_TERM, STRUCTURE_UNDECIDED, weighted_slope_t
+from .nomoto_quality import EXACT_FIT, SHARED_BIAS, STRUCTURE_TERM, STRUCTURE_UNDECIDED, weighted_slope_t
 from .data import segment_label
 from .heldout_test import ALPHA, ALPHA_ROBUST, MIN_EXPLAINED, MIN_SHRINK, channel_score, is_significant
 from .nomoto import whole_record_window
@@ -379,7 +379,9 @@ def exact_fit_k_term(fit: NomotoFit, n_records: int) -> str:
     (:func:`pipeline.fit.nomoto_oe.correlated_residual_errors`) is the spread that residual pattern
     would give K as noise, the same projection of the misfit; added in quadrature by
     :func:`pipeline.fit.nomoto_quality.add_structure_term` (a ``STRUCTURE_TERM_PREFIX`` note; the
-    larger of it and any other term counts). Measured: PythonVehicleSimulator's Clarke83 ship,
+    larger of it and any other term counts); the speed the turns lost adds its own term
+    (:func:`pipeline.fit.nomoto_quality.exact_fit_trend`: one exact fit cannot rule out a speed
+    dependence). Measured: PythonVehicleSimulator's Clarke83 ship,
     measured-rudder sinusoids at 10 deg without waves, seeds 0-11: K +0.06 to +0.40 % (the
     noise-free best linear fit +0.2 %), 95 % coverage 7 of 10 seeds marked success with the error
     alone, 9 of 10 with the term.
@@ -396,7 +398,7 @@ def exact_fit_k_term(fit: NomotoFit, n_records: int) -> str:
         # Coloured residuals: the Newey-West error is the one reported (segment_fit_of).
         se = float(fit.robust_stderr[list(fit.names).index("K")])
     return (f"{STRUCTURE_TERM_PREFIX} K: +-{se:.6g} 1/s added in quadrature to its standard error: "
-            f"{n_records} sinusoids fix the second order's constants exactly, so a response that is not exactly a "
+            f"{n_records} {EXACT_FIT}, so a response that is not exactly a "
             f"linear second order goes into K as a bias common to every repetition, taken as the size of K's own "
             f"error (the spread that misfit would give K were it noise)")
 
