@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+import scipy.signal
 
 from pipeline.model import discretise
 from pipeline.model.nomoto import ORDER2_SUM_PRODUCT, nomoto_matrices, servo_response
@@ -35,11 +36,8 @@ def _log(h, tau, seed, hold=90.0, levels=(0, 10, 0, -10, 0, 5, 0), mid=False):
     d = servo_response(fine, h / sub, tau, math.inf) if tau > 0 else fine
     a, b = nomoto_matrices(ORDER2_SUM_PRODUCT, SHIP2)
     ad, bd = discretise.zoh(a, b, h / sub)
-    x = np.zeros(3)
-    xs = np.empty((fine.size, 3))
-    for k, dk in enumerate(d):
-        xs[k] = x
-        x = ad @ x + bd[:, 0] * dk
+    # States at the fine sample times, the rudder held over each fine step (exact).
+    _, xs, _ = scipy.signal.dlsim((ad, bd, np.eye(3), np.zeros((3, 1)), h / sub), d, x0=np.zeros(3))
     rng = np.random.default_rng(seed)
     n = cmd.size
     psi = xs[::sub, 0] + math.radians(0.1) * rng.standard_normal(n)
