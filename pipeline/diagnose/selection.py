@@ -370,7 +370,7 @@ def beats_previous(s: DofState) -> None:
     """
     if s.reference is None or s.problem is None:
         return
-    names = {"y": s.problem.channel, "angle": getattr(s.problem, "angle", None)}
+    names = _names(s)
     try:
         own = sig.score(s.data, s.reference, s.reference, 1, names)
     except (KeyError, ValueError):
@@ -510,7 +510,7 @@ def excess_gap(s: DofState) -> bool:
         The DOF's current state.
     """
     units = sig.noise_units(s.data)
-    names = {"y": s.problem.channel, "angle": getattr(s.problem, "angle", None)}
+    names = _names(s)
     return any(gap_above_floor(s, key, ch, units) is not None for key, ch in names.items())
 
 
