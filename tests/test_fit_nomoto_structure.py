@@ -213,8 +213,10 @@ def test_second_order_chosen_once_across_rudder_steps():
     assert "second-order Nomoto (T1, T2, T3) selected, the first order loses" in k.message, k.message
     assert "leave-one-segment-out" in t.message and "first order" in t.message
     assert k.success, k.message
-    # Its steps into a turn and out of one give T 14 % apart (T +5.9 %): unsure, not reproduced (nomoto_quality).
-    assert t.success or t.message.startswith("unsure: not reproduced"), t.message
+    # T comes out +5.9 % (this rudder jumps exactly at the samples, read half a sample late:
+    # tests/test_nomoto_segment_held_rudder.py), and its steps into a turn and out of one give T 14 %
+    # apart: a value that far off must not be success; it is unsure, not reproduced (nomoto_quality).
+    assert not t.success and t.message.startswith("unsure: not reproduced"), t.message
     assert k.value == pytest.approx(0.09, rel=0.02)
     # T = T1 + T2 - T3 is the difference of two 11-13 s constants: each step's own T is biased (their
     # combination gave 3.22 +- 0.15 s, +19 %); the pooled (K, T1 + T2, T1 T2, T3) vector's is not.

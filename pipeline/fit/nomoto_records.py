@@ -135,6 +135,18 @@ class NomotoFit:
         """
         return float(self.stderr[self.names.index(name)])
 
+    def reported_error(self, name: str) -> float:
+        """Standard error of one parameter as reported [SI]: the Newey-West one where the residuals
+        are coloured (``robust_stderr``, never smaller than the white-noise one), else :meth:`error`.
+
+        Parameters
+        ----------
+        name : str
+            One of ``names``.
+        """
+        se = self.robust_stderr if self.robust_stderr is not None else self.stderr
+        return float(se[self.names.index(name)])
+
     @property
     def K(self) -> float:
         """Nomoto gain [1/s]."""

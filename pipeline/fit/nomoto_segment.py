@@ -543,9 +543,7 @@ def frequency_spread(parts: Sequence[NomotoRecord], channels: tuple[str, ...], s
             fit = fit_nomoto(part, order=1, noise="white", channels=channels, servo=servo)
         except FitError:
             return FrequencySpread(False, "")
-        se = fit.error("T")
-        if fit.robust_stderr is not None:
-            se = max(se, float(fit.robust_stderr[fit.names.index("T")]))
+        se = fit.reported_error("T")
         if not (_usable(fit) and math.isfinite(se) and se > 0):
             return FrequencySpread(False, "")
         values.append(fit.T)

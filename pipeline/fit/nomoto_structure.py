@@ -255,8 +255,7 @@ def shared_bias_note(cands: Sequence[_Candidate]) -> str:
         return ""
     if not _usable(fit):
         return ""
-    se = fit.robust_stderr if fit.robust_stderr is not None else fit.stderr
-    sk, st = (float(se[fit.names.index(n)]) for n in ("K", "T"))
+    sk, st = fit.reported_error("K"), fit.reported_error("T")
     if not (math.isfinite(sk) and math.isfinite(st)):
         return ""
     bs = np.degrees([f.b for f in firsts])
@@ -393,10 +392,7 @@ def exact_fit_k_term(fit: NomotoFit, n_records: int) -> str:
     n_records : int
         Sinusoid records fitted jointly.
     """
-    se = fit.error("K")
-    if fit.robust_stderr is not None:
-        # Coloured residuals: the Newey-West error is the one reported (segment_fit_of).
-        se = float(fit.robust_stderr[list(fit.names).index("K")])
+    se = fit.reported_error("K")
     return (f"{STRUCTURE_TERM_PREFIX} K: +-{se:.6g} 1/s added in quadrature to its standard error: "
             f"{n_records} {EXACT_FIT}, so a response that is not exactly a "
             f"linear second order goes into K as a bias common to every repetition, taken as the size of K's own "
