@@ -585,15 +585,17 @@ STRUCTURE_MATERIAL = 0.10
 
 
 def first_order_start_values(first: NomotoFit) -> dict[str, float]:
-    """Start values for a second-order fit from a first-order one: K, T, b and the servo.
+    """Start values for a second-order fit from a first-order one: K, T, b, the servo and the initial
+    heading and yaw rate of every record (the second order's first start then reproduces the first-order
+    fit, :func:`pipeline.fit.nomoto_oe.fit_nomoto`).
 
     Parameters
     ----------
     first : NomotoFit
-        First-order fit of the same record.
+        First-order fit of the same record(s).
     """
     return {n: float(v) for n, v in zip(first.names, first.values)
-            if n in ("K", "T", "b") + SERVO_PARAMS and math.isfinite(v)}
+            if (n in ("K", "T", "b") + SERVO_PARAMS or n.split("[")[0] in ("psi0", "r0")) and math.isfinite(v)}
 
 
 def structure_ambiguity(first: NomotoFit, second: NomotoFit) -> str:
