@@ -67,15 +67,20 @@ def _loss(message: str) -> float:
     return float(part[len(SPEED_RANGE):].split()[0])
 
 
-@pytest.mark.slow
-def test_sinusoid_speed_loss_read_against_the_straight_run_before_it():
+def _fitted(seed: int):
+    """The trial's fits (sinusoids detected as two segments)."""
     from pipeline.fit import fit_trial
     from pipeline.vessel import parse_vessel
 
-    trial = _sine_pair_log(seed=3)
+    trial = _sine_pair_log(seed)
     segs = detect_segments(trial)
-    assert len(segs.of("sinusoid")) == 2
-    fits = fit_trial(trial, segs, parse_vessel({"name": "ship2"}), extend=False)
+    assert [s.kind for s in segs.items if s.dof == "yaw"] == ["sinusoid", "sinusoid"]
+    return fit_trial(trial, segs, parse_vessel({"name": "ship2"}), extend=False)
+
+
+@pytest.mark.slow
+def test_sinusoid_speed_loss_read_against_the_straight_run_before_it():
+    fits = _fitted(seed=3)
     sines = [sf for sf in fits.segment_fits if sf.segment.kind == "sinusoid"]
     assert len(sines) == 2
     # The window's two ends both ran at the lower speed: comparing them noted well under LOSS.

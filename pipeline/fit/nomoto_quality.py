@@ -742,9 +742,9 @@ def rudder_timing_term(fits: Sequence[SegmentFit], short: str) -> float:
     Parameters
     ----------
     fits : sequence of SegmentFit
-        Nomoto segment fits.
+        Nomoto segment fits (their ``RUDDER_TIMING`` notes are read).
     short : str
-        ``K`` or ``T``.
+        The coefficient, ``K`` or ``T``.
     """
     return largest_noted(fits, f"{RUDDER_TIMING} +-") if short == "T" else 0.0
 
