@@ -736,24 +736,28 @@ def rudder_jumps(rec: NomotoRecord) -> bool:
 
 
 def with_rudder_timing_note(sf: SegmentFit, win: NomotoWindow) -> SegmentFit:
-    """``sf`` with a rudder-timing term for T in its message where its rudder jumps within a sample interval
-    and no servo lag was fitted (``sf`` unchanged otherwise).
+    """``sf`` with a rudder-timing term for T in its message where its rudder, logged as a measured angle,
+    jumps within a sample interval (``sf`` unchanged otherwise).
 
-    A rudder that jumps between two samples (a held rudder logged at a low rate, or a logged command)
-    jumped at a moment the log does not show: anywhere in that interval of ``h`` seconds. The fit drives
-    the model with a measured angle's interval mean (the jump half-way through the interval) or a
-    command held from its sample (the jump at the sample): a jump at any other moment in the interval
-    is a delay of the rudder of up to ``h / 2`` either way, or of up to ``h`` (a command logged at the
-    next sample), and a delay of the rudder moves the first-order equivalent T one for one (K not at
-    all). The term is the standard deviation of a moment uniform over the interval, ``h / sqrt(12)``,
-    common to every jump of a log (a logger's convention does not average out over the jumps); it is
-    added in quadrature to T's combined error by :func:`pipeline.fit.nomoto_quality.judge_nomoto`
-    (``RUDDER_TIMING`` notes; the largest counts). Measured on the project's linear second-order ship
-    (T = 2.7 s), measured rudder held from each sample on, six steps, seeds 0-5: T +18.6 to +20.4 % at
-    1 Hz with errors of 1.9-3.4 %, marked success, and +2.6 to +5.1 % at 5 Hz. With a servo lag fitted
-    (a logged command) the lag takes up the delay: the same ship behind a 1 s servo, its command
-    switching half a sample before the logged one at 5 Hz, T moved by 0.017 s (+0.6 %) against the 0.1 s
-    delay; no term then.
+    A measured rudder that jumps between two samples (a rudder held by a fast servo, logged at a low
+    rate) jumped at a moment the log does not show: anywhere in that interval of ``h`` seconds. The fit
+    drives the model with the angle's interval mean, the jump half-way through the interval: a jump at
+    any other moment is a delay of the rudder of up to ``h / 2`` either way, and a delay of the rudder
+    moves the first-order equivalent T one for one (K not at all). The term is the standard deviation of
+    a moment uniform over the interval, ``h / sqrt(12)``, common to every jump of a log (a logger's
+    convention does not average out over the jumps); it is added in quadrature to T's combined error by
+    :func:`pipeline.fit.nomoto_quality.judge_nomoto` (``RUDDER_TIMING`` notes; the largest counts).
+    Measured on the project's linear second-order ship (T = 2.7 s), measured rudder held from each
+    sample on, six steps, seeds 0-5: T +18.3 to +20.4 % at 1 Hz with errors of 1.9-3.4 %, and +2.6 to
+    +5.1 % at 5 Hz with 0.9-1.9 %, marked success, the interval missing the truth on all 12.
+
+    A logged command gets no term: it is the actuator's input as applied at its sample (a digital
+    autopilot's, the project's simulator's and the independent benchmark's), held from there, and a
+    servo lag fitted with it takes up what delay there is (the same ship behind a 1 s servo, its command
+    switching half a sample before the logged one at 5 Hz: T moved by 0.017 s, +0.6 %, the lag by -0.1 s,
+    against the 0.1 s delay). The project's own simulator, whose command drives the ship from each
+    sample without a servo, gave T = 4.21 +- 0.0014 s (z 0.42 on seed 1); a term there would have
+    widened it 40 times.
 
     Parameters
     ----------
@@ -762,7 +766,8 @@ def with_rudder_timing_note(sf: SegmentFit, win: NomotoWindow) -> SegmentFit:
     win : NomotoWindow
         Its prepared window (the rudder as it drives the model, the sample times).
     """
-    if not sf.success or "t_servo" in sf.params or "T" not in sf.params or not rudder_jumps(win.rec):
+    measured = any(n.startswith("rudder logged as a measured angle") for n in win.notes)
+    if not (measured and sf.success and "T" in sf.params and "t_servo" not in sf.params and rudder_jumps(win.rec)):
         return sf
     t = np.asarray(win.rec.t, float)
     if t.size < 2:
