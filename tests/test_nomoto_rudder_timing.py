@@ -3,7 +3,7 @@
 The fit drives the model with a measured angle's interval mean, which puts a jump half-way through its
 interval; a rudder held from each sample on (tests/test_nomoto_segment_held_rudder.py's log, ``mid=False``)
 jumped half an interval earlier, and T, which moves one for one with the rudder's timing, comes out about
-h / 2 high (the project's second-order ship, T = 2.7 s: +18.3 to +20.4 % at 1 Hz, +2.6 to +5.1 % at 5 Hz over
+h / 2 high (the project's second-order ship, T = 2.7 s: +18.3 to +20.3 % at 1 Hz, +2.6 to +5.1 % at 5 Hz over
 seeds 0-5, marked success, the interval missing the truth on every seed). pipeline/fit/nomoto_structure.py
 ``with_rudder_timing_note`` gives T a term of h / sqrt(12) (a moment uniform over the interval), added by
 pipeline/fit/nomoto_quality.py ``judge_nomoto``, which marks T unsure where h / 2 exceeds 10 % of it.

@@ -705,7 +705,7 @@ def rudder_timing_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     logs). The rule reads the whole half-interval against the value, not the term's standard deviation
     against it: that would let the value the delay inflated pass where the right one fails (measured: the
     project's linear second-order ship, T = 2.7 s, measured rudder jumping within the samples at 1 Hz, six
-    steps, seeds 0-5: held from each sample on, T +18.3 to +20.4 % with a relative error of 9.0-9.4 % of its
+    steps, seeds 0-5: held from each sample on, T +18.3 to +20.3 % with a relative error of 9.0-9.4 % of its
     value; jumping mid-interval, T -1.5 to +0.6 % with 10.8-11.4 %).
 
     Parameters

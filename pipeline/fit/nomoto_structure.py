@@ -748,7 +748,7 @@ def with_rudder_timing_note(sf: SegmentFit, win: NomotoWindow) -> SegmentFit:
     convention does not average out over the jumps); it is added in quadrature to T's combined error by
     :func:`pipeline.fit.nomoto_quality.judge_nomoto` (``RUDDER_TIMING`` notes; the largest counts).
     Measured on the project's linear second-order ship (T = 2.7 s), measured rudder held from each
-    sample on, six steps, seeds 0-5: T +18.3 to +20.4 % at 1 Hz with errors of 1.9-3.4 %, and +2.6 to
+    sample on, six steps, seeds 0-5: T +18.3 to +20.3 % at 1 Hz with errors of 1.9-3.4 %, and +2.6 to
     +5.1 % at 5 Hz with 0.9-1.9 %, marked success, the interval missing the truth on all 12.
 
     A logged command gets no term: it is the actuator's input as applied at its sample (a digital
