@@ -42,8 +42,9 @@ messages: the difference between the first- and second-order values where the st
 decided clearly or the two disagree) is added in quadrature to the combined standard error and the
 95 % interval is widened to match (:func:`add_structure_term`): a structure bias is common to all
 segments, so it is added after combining, never averaged down. T gets a rudder-timing term the same way
-where the rudder jumps within a sample interval and no servo lag was fitted (:func:`rudder_timing_term`,
-``h / sqrt(12)``: the jumps' moments are known only to within the interval). A speed term follows
+where a measured rudder angle jumps within a sample interval (:func:`rudder_timing_term`, ``h / sqrt(12)``:
+the jumps' moments are known only to within the interval), and is unsure where half that interval exceeds
+``UNSURE_RELATIVE_STDERR`` of it (:func:`rudder_timing_reason`). A speed term follows
 (:func:`add_speed_term`): half the largest relative speed loss in the turns of the records behind K or T
 (``SPEED_RANGE`` notes of :func:`pipeline.fit.nomoto_segment.speed_range_note`) times the value,
 because Nomoto's K and T scale with the speed and a ship slows in its turns; it is added only where the
