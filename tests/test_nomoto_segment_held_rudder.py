@@ -57,7 +57,8 @@ def test_measured_rudder_jumping_inside_the_interval_gives_unbiased_t(h, seed):
     fits = fit_trial(trial, detect_segments(trial), parse_vessel({"name": "ship2"}), extend=False)
     k, t = fits.estimates["K_nomoto"], fits.estimates["T_nomoto"]
     assert any("mean over each sample interval" in sf.message for sf in fits.segment_fits)
-    assert k.success and t.success, (k.message, t.message)
+    # At 1 Hz half a sample, 0.5 s, is 19 % of T: the jumps' unknown moments alone leave T unsure (ident25).
+    assert k.success and (t.success or (h >= 1.0 and "jumps within its sample interval" in t.message)), t.message
     assert k.value == pytest.approx(SHIP2[0], rel=0.01)
     assert abs(t.value - T_EQ) < 2.5 * t.stderr, (t.value, t.stderr, t.message)
     assert t.value == pytest.approx(T_EQ, rel=0.03)

@@ -41,7 +41,10 @@ Before these rules, a model-structure term (``STRUCTURE_TERM`` notes in the segm
 messages: the difference between the first- and second-order values where the structure was not
 decided clearly or the two disagree) is added in quadrature to the combined standard error and the
 95 % interval is widened to match (:func:`add_structure_term`): a structure bias is common to all
-segments, so it is added after combining, never averaged down. A speed term follows
+segments, so it is added after combining, never averaged down. T gets a rudder-timing term the same way
+where a measured rudder angle jumps within a sample interval (:func:`rudder_timing_term`, ``h / sqrt(12)``:
+the jumps' moments are known only to within the interval), and is unsure where half that interval exceeds
+``UNSURE_RELATIVE_STDERR`` of it (:func:`rudder_timing_reason`). A speed term follows
 (:func:`add_speed_term`): half the largest relative speed loss in the turns of the records behind K or T
 (``SPEED_RANGE`` notes of :func:`pipeline.fit.nomoto_segment.speed_range_note`) times the value,
 because Nomoto's K and T scale with the speed and a ship slows in its turns; it is added only where the
@@ -101,6 +104,9 @@ SHARED_BIAS = "fitted with one rudder bias over all"
 #: Words of the model-structure note of K from sinusoids that fix the second order's constants exactly
 #: (:func:`pipeline.fit.nomoto_structure.exact_fit_k_term`; read by :func:`straight_run_value`).
 EXACT_FIT = "sinusoids fix the second order's constants exactly"
+#: Start of the note with the rudder-timing term of T (``RUDDER_TIMING +-<value> s ...``), written by
+#: :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note` where the rudder jumps within a sample interval.
+RUDDER_TIMING = "rudder-timing term for T:"
 #: Relative difference between the combined and the one-bias K or T that is material [-].
 SHARED_BIAS_MATERIAL = 0.02
 #: |z| of that difference (Hausman's) beyond which the two disagree.
@@ -189,11 +195,13 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         bias_why = shared_bias_reason(est, fits, short)
         est, speed_why = straight_run_value(est, fits, short)
         est = add_structure_term(est, structure_term(fits, short))
+        est = add_structure_term(est, rudder_timing_term(fits, short), "rudder-timing term")
         out[name] = est
         why = bias_why + speed_why + unsure_reasons(est, kinds)
         if name == "K_nomoto":
             why += sinusoid_k_reason(est, kinds, t_why)
         why += nonlinear_reason(est, fits, short)
+        why += rudder_timing_reason(est, fits, short)
         why += superposition_reason(est, fits, short) or superposition_other_reason(est, out, fits, short)
         for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
             if est.success and f" {short} " in part.split(":")[1] + " ":
@@ -667,7 +675,7 @@ def largest_noted(fits: Sequence[SegmentFit], head: str) -> float:
     return out
 
 
-def add_structure_term(est: Estimate, term: float) -> Estimate:
+def add_structure_term(est: Estimate, term: float, what: str = "model-structure term") -> Estimate:
     """``est`` with ``term`` added in quadrature to its standard error and its 95 % interval widened.
 
     Parameters
@@ -676,14 +684,70 @@ def add_structure_term(est: Estimate, term: float) -> Estimate:
         A combined Nomoto K or T.
     term : float
         Model-structure term [unit of the estimate]; 0 leaves ``est`` unchanged.
+    what : str
+        The term's name in the note.
     """
     if not (term > 0 and math.isfinite(est.value) and math.isfinite(est.stderr)):
         return est
     se = math.hypot(est.stderr, term)
     return replace(est, stderr=se, ci95=confidence_interval(est.value, se, math.inf),
                    message="; ".join([f"standard error {est.stderr:.4g} -> {se:.4g} {est.unit} with the "
-                                      f"model-structure term {term:.4g} {est.unit}"]
+                                      f"{what} {term:.4g} {est.unit}"]
                                      + ([est.message] if est.message else [])))
+
+
+def rudder_timing_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) -> list[str]:
+    """Why T is unsure when the moment of the rudder's jumps alone may shift it by more than
+    ``UNSURE_RELATIVE_STDERR`` of its value (empty otherwise, and for K).
+
+    A jump within a sample interval ``h`` (:func:`rudder_timing_term`, whose term is ``h / sqrt(12)``)
+    happened up to ``h / 2`` before or after the moment the fit gives it, and T moves one for one with it:
+    a shift the data do not show (a data-driven choice between the two timings chose wrongly on 4 of 6
+    logs). The rule reads the whole half-interval against the value, not the term's standard deviation
+    against it: that would let the value the delay inflated pass where the right one fails (measured: the
+    project's linear second-order ship, T = 2.7 s, measured rudder jumping within the samples at 1 Hz, six
+    steps, seeds 0-5: held from each sample on, T +18.3 to +20.3 % with a relative error of 9.0-9.4 % of its
+    value; jumping mid-interval, T -1.5 to +0.6 % with 10.8-11.4 %).
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K or T (after its terms).
+    fits : sequence of SegmentFit
+        The segment fits behind it.
+    short : str
+        ``K`` or ``T``.
+    """
+    term = rudder_timing_term(fits, short)
+    if not (est.success and term > 0 and math.isfinite(est.value) and est.value != 0):
+        return []
+    h = term * math.sqrt(12.0)
+    shift = 0.5 * h / abs(est.value)
+    if not shift > UNSURE_RELATIVE_STDERR:
+        return []
+    return [f"unsure: the rudder jumps within its sample interval of {h:.3g} s, so each jump's moment is known only "
+            f"to within it, and T moves one for one with the rudder's timing: up to h / 2 = {0.5 * h:.3g} s, "
+            f"{shift:.0%} of T (> {UNSURE_RELATIVE_STDERR:.0%}), which the data cannot show (log the rudder faster, "
+            f"or its servo's ramp)"]
+
+
+def rudder_timing_term(fits: Sequence[SegmentFit], short: str) -> float:
+    """The largest rudder-timing term of T in the fits' messages (``RUDDER_TIMING`` notes of
+    :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note`) [s]; 0 for K, which a delay of the
+    rudder does not move, and when none.
+
+    A rudder that jumps within a sample interval jumped at a moment known only to within it, and a
+    delay of the rudder moves the first-order equivalent T one for one; the term is common to every
+    jump of the log (a logger's convention), so it is added after combining, never averaged down.
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Nomoto segment fits (their ``RUDDER_TIMING`` notes are read).
+    short : str
+        The coefficient, ``K`` or ``T``.
+    """
+    return largest_noted(fits, f"{RUDDER_TIMING} +-") if short == "T" else 0.0
 
 
 def speed_range(fits: Sequence[SegmentFit]) -> float:
