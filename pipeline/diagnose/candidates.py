@@ -24,6 +24,7 @@ delay of each actuator is offered beside the delay of every input; their labels 
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
@@ -32,7 +33,7 @@ import numpy as np
 import scipy.optimize
 
 from ..model.first_order_blocks import effective_forcing
-from .gridfit import (GridData, LinearSpec, fit_linear, grid_data, initial_states, outputs_from_response,
+from .gridfit import (GridData, LinearSpec, carry, fit_linear, grid_data, initial_states, outputs_from_response,
                      predict_linear, refine_initial_states, refit_linear,
                      simulate_quadratic, solve_linear, weighted_residuals)
 from ..vessel import Actuator
@@ -241,6 +242,19 @@ class Carried:
     forcing: Mapping[str, np.ndarray] = field(default_factory=dict)
     offsets: Mapping[str, np.ndarray] = field(default_factory=dict)
     derived: Mapping[str, tuple] = field(default_factory=dict)
+    transform: tuple = ()
+
+    def apply(self, data: GridData) -> GridData:
+        """``data`` with this effect in every model of it.
+
+        Parameters
+        ----------
+        data : GridData
+            The DOF's current data (built on the same problem as the effect's candidate).
+        """
+        if self.transform:
+            return carry_transform(data, *self.transform)
+        return carry(data, self.spec, self.forcing, self.offsets, self.derived)
 
 
 @dataclass(frozen=True)
@@ -271,6 +285,34 @@ class InputPart:
         if self.part == "share":
             return self.actuator.contribution(self.channel, x)
         return self.actuator.gains[self.channel][1] * np.minimum(x, 0.0)
+
+
+def _pre_sources(p: DofProblem, data: GridData) -> dict[str, np.ndarray]:
+    """A problem's trial-rate inputs and actuator signals through the input transforms ``data`` carries
+    (``GridData.pre``)."""
+    raw = _sources(p)
+    for cand, value in data.pre:
+        raw = cand.apply_to(raw, value)
+    return raw
+
+
+def carry_transform(data: GridData, cand: "_InputTransform", value: float) -> GridData:
+    """``data`` whose every model takes its inputs through a selected input transform at ``value`` (its
+    fit on every window): the input regressors, and carried ones made from the inputs, are remade.
+
+    Parameters
+    ----------
+    data : GridData
+        The DOF's current data.
+    cand : _InputTransform
+        The selected delay or rate limit.
+    value : float
+        Its value.
+    """
+    light = copy.copy(cand)
+    light._cache = {}   # its grid of transformed data is not needed to transform again
+    new = replace(data, pre=data.pre + ((light, float(value)),))
+    return _input_forcing(cand.problem, new, _pre_sources(cand.problem, new))
 
 
 def _input_forcing(p: DofProblem, data: GridData, raw: Mapping[str, np.ndarray]) -> GridData:
@@ -581,7 +623,7 @@ class _InputTransform(Candidate):
         raise NotImplementedError
 
     def _transformed(self, value: float) -> dict[str, np.ndarray]:
-        return self.apply_to(_sources(self.problem), value)
+        return self.apply_to(_pre_sources(self.problem, self.data), value)
 
     def _data_for(self, value: float, cache: bool = False) -> GridData:
         key = float(value)
@@ -707,6 +749,12 @@ class _InputTransform(Candidate):
 
     def _param(self, v: float) -> dict[str, float]:
         raise NotImplementedError
+
+    def carried(self, fitted: Fitted) -> Carried:
+        """See :meth:`Candidate.carried`: every model of the next step takes its inputs through this
+        transform at its value fitted on every window (the value stays; T and the gains are refitted
+        with each candidate)."""
+        return Carried(LinearSpec(()), transform=(self, float(fitted.state[0])))
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Open-loop outputs on windows ``idx``; see :meth:`Candidate.simulate`.
@@ -855,16 +903,17 @@ class ThrustAsymmetry(Candidate):
     def __init__(self, problem: DofProblem, data: GridData, channel: str, actuator: Actuator | None = None) -> None:
         super().__init__(problem, data)
         self.actuator = actuator
+        raw = {**problem.raw, **_pre_sources(problem, data)}
         if actuator is not None:
             # One input of this DOF only (one generalised force per DOF): the split is linear in it.
             channel = next(iter(actuator.gains))
-            x = problem.raw[actuator_key(actuator.name)]
+            x = raw[actuator_key(actuator.name)]
             ahead, astern = actuator.gains[channel]
-            pos = problem.raw[channel] - actuator.contribution(channel, x) + ahead * np.maximum(x, 0.0)
+            pos = raw[channel] - actuator.contribution(channel, x) + ahead * np.maximum(x, 0.0)
             neg = astern * np.minimum(x, 0.0)
             self.channel = actuator.name
         else:
-            u = problem.raw[channel]
+            u = raw[channel]
             pos, neg = np.maximum(u, 0.0), np.minimum(u, 0.0)
             self.channel = channel
         self.input = channel
@@ -873,7 +922,7 @@ class ThrustAsymmetry(Candidate):
         self.aspec = LinearSpec(forcing, self.spec.offsets, self.spec.sensor_offsets)
         if actuator is not None:
             # The actuator itself must work both ahead and astern.
-            u = problem.raw[actuator_key(actuator.name)]
+            u = raw[actuator_key(actuator.name)]
         amp = np.max(np.abs(u)) if len(u) else 0.0
         big = np.abs(u) > 0.1 * amp
         self.both_signs = bool(amp > 0 and np.sum(big & (u > 0)) > 10 and np.sum(big & (u < 0)) > 10
@@ -951,8 +1000,9 @@ class ThrustImbalance(Candidate):
         self.channel = f"{actuator.name}/{other}" if other else actuator.name
         self.input = channel
         self.separable = False
-        share = actuator.contribution(self.input, problem.raw[actuator_key(actuator.name)])
-        rest = problem.raw[self.input] - share
+        raw = {**problem.raw, **_pre_sources(problem, data)}
+        share = actuator.contribution(self.input, raw[actuator_key(actuator.name)])
+        rest = raw[self.input] - share
         if np.std(share) > 0 and np.std(rest) > 0:
             self.separable = bool(abs(np.corrcoef(share, rest)[0, 1]) < IMBALANCE_MAX_CORR)
         self.data = data.with_forcing(__share=_forcing(problem, self.input, share))
@@ -1215,6 +1265,12 @@ def candidates_for(problem: DofProblem, data: GridData) -> list[Candidate]:
         elif len(on) > 2:
             out += [ThrustImbalance(problem, data, a, c) for a in on]
     out += [Waves(problem, data), Coupling(problem, data), SensorBias(problem, data)]
+    if data.pre:
+        # On top of a selected delay or rate limit, no other input transform is offered: each would
+        # act behind it (composed), and a rate limit behind a delay bends a first-order baseline
+        # toward its missing dynamics (:func:`composed_candidates`); a delay behind a selected rate
+        # limit is composed there, on the original measurements.
+        out = [c for c in out if not isinstance(c, _InputTransform)]
     return [c for c in out if c.applicable()]
 
 
@@ -1335,6 +1391,11 @@ class ComposedTransform(_InputTransform):
 
     def _param(self, v: float) -> dict[str, float]:
         return self._which()._param(v)
+
+    def carried(self, fitted: Fitted) -> None:
+        """See :meth:`Candidate.carried`: none (scored against the first transform alone, its
+        correction is taken off the measurements)."""
+        return None
 
     def _pair_data(self, v1: float, v2: float) -> GridData:
         self.searching, self.v1 = "second", v1

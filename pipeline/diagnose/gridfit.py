@@ -84,6 +84,10 @@ class GridData:
         Carried forcing regressors made from the inputs (a thrust's astern part): name -> (the input
         whose moments it takes, a function of the trial-rate inputs and actuator signals), so that a
         model that transforms the inputs (a delay) makes them again from its own inputs.
+    pre : tuple
+        Input transforms already selected in this DOF, ``(candidate, value)`` in order: the inputs
+        of every model of these data went through them (their regressors in ``forcing`` are the
+        transformed inputs'; :func:`pipeline.diagnose.candidates.carry_transform`).
     """
 
     dt: float
@@ -101,6 +105,7 @@ class GridData:
     sigma_angle: float = float("nan")
     carried: "LinearSpec | None" = None
     derived: Mapping[str, tuple] = field(default_factory=dict)
+    pre: tuple = ()
 
     @cached_property
     def angle_mask(self) -> np.ndarray:
@@ -133,7 +138,7 @@ class GridData:
             forcing={k: (v[:, idx] if v.ndim == 3 else v[idx]) for k, v in self.forcing.items()},
             offsets={k: b[idx] for k, b in self.offsets.items()}, m=self.m, y0_sigma=self.y0_sigma,
             w_y=self.w_y, w_angle=self.w_angle, sigma_y=self.sigma_y, sigma_angle=self.sigma_angle,
-            carried=self.carried, derived=self.derived)
+            carried=self.carried, derived=self.derived, pre=self.pre)
 
     def with_forcing(self, **arrays: np.ndarray) -> "GridData":
         """A copy with forcing regressors added or replaced.
