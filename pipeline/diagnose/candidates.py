@@ -24,6 +24,7 @@ delay of each actuator is offered beside the delay of every input; their labels 
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
@@ -32,7 +33,7 @@ import numpy as np
 import scipy.optimize
 
 from ..model.first_order_blocks import effective_forcing
-from .gridfit import (GridData, LinearSpec, fit_linear, grid_data, initial_states, outputs_from_response,
+from .gridfit import (GridData, LinearSpec, carry, fit_linear, grid_data, initial_states, outputs_from_response,
                      predict_linear, refine_initial_states, refit_linear,
                      simulate_quadratic, solve_linear, weighted_residuals)
 from ..vessel import Actuator
@@ -200,12 +201,125 @@ def _forcing(p: DofProblem, name: str, raw: np.ndarray, state: bool = False) -> 
     return input_moments(raw, p.windows, p.m, p.n)
 
 
-def _baseline_spec(p: DofProblem) -> LinearSpec:
-    return LinearSpec(tuple(p.inputs))
+def _baseline_spec(p: DofProblem, data: GridData | None = None) -> LinearSpec:
+    """The inputs, and the regressors of the effects already selected that ``data`` carries
+    (``GridData.carried``)."""
+    c = getattr(data, "carried", None)
+    if c is None:
+        return LinearSpec(tuple(p.inputs))
+    return LinearSpec(tuple(p.inputs) + c.forcing, c.offsets, c.sensor_offsets)
+
+
+def _extend(spec: LinearSpec, forcing: tuple[str, ...] = (), offsets: tuple[str, ...] = (),
+            sensor_offsets: tuple[str, ...] = ()) -> LinearSpec:
+    """``spec`` with regressors added (each after those of its kind)."""
+    return LinearSpec(spec.forcing + forcing, spec.offsets + offsets, spec.sensor_offsets + sensor_offsets)
+
+
+def _named(spec: LinearSpec, theta: np.ndarray) -> dict[str, float]:
+    """Linear parameters by regressor name."""
+    return {n: float(v) for n, v in zip(spec.names, theta)}
 
 
 def _gain_params(spec: LinearSpec, theta: np.ndarray) -> dict[str, float]:
     return {f"k_{n}": float(v) for n, v in zip(spec.names, theta)}
+
+
+@dataclass(frozen=True)
+class Carried:
+    """A selected effect's regressors, which the next selection step's models carry beside the inputs
+    (:meth:`Candidate.carried`; :func:`pipeline.diagnose.gridfit.carry`).
+
+    Attributes
+    ----------
+    spec : LinearSpec
+        Their names (forcing, output offsets, sensor offsets).
+    forcing, offsets : Mapping[str, numpy.ndarray]
+        Their arrays on the analysis grid.
+    """
+
+    spec: LinearSpec
+    forcing: Mapping[str, np.ndarray] = field(default_factory=dict)
+    offsets: Mapping[str, np.ndarray] = field(default_factory=dict)
+    derived: Mapping[str, tuple] = field(default_factory=dict)
+    transform: tuple = ()
+
+    def apply(self, data: GridData) -> GridData:
+        """``data`` with this effect in every model of it.
+
+        Parameters
+        ----------
+        data : GridData
+            The DOF's current data (built on the same problem as the effect's candidate).
+        """
+        if self.transform:
+            return carry_transform(data, *self.transform)
+        return carry(data, self.spec, self.forcing, self.offsets, self.derived)
+
+
+@dataclass(frozen=True)
+class InputPart:
+    """A forcing regressor made from the inputs (``GridData.derived``): the astern part of a force input
+    or of one actuator's share of it (a thrust asymmetry), or one actuator's share (a thrust imbalance).
+
+    Attributes
+    ----------
+    channel : str
+        The input it is part of.
+    actuator : Actuator or None
+        The actuator whose signal it is made from (None: the input itself).
+    part : str
+        ``"astern"`` (the negative part, times the actuator's astern gain) or ``"share"`` (the
+        actuator's contribution to ``channel``).
+    """
+
+    channel: str
+    actuator: Actuator | None = None
+    part: str = "astern"
+
+    def __call__(self, raw: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The part from trial-rate inputs and actuator signals ``raw`` [unit of the input]."""
+        if self.actuator is None:
+            return np.minimum(raw[self.channel], 0.0)
+        x = raw[actuator_key(self.actuator.name)]
+        if self.part == "share":
+            return self.actuator.contribution(self.channel, x)
+        return self.actuator.gains[self.channel][1] * np.minimum(x, 0.0)
+
+
+def _pre_sources(p: DofProblem, data: GridData) -> dict[str, np.ndarray]:
+    """A problem's trial-rate inputs and actuator signals through the input transforms ``data`` carries
+    (``GridData.pre``)."""
+    raw = _sources(p)
+    for cand, value in data.pre:
+        raw = cand.apply_to(raw, value)
+    return raw
+
+
+def carry_transform(data: GridData, cand: "_InputTransform", value: float) -> GridData:
+    """``data`` whose every model takes its inputs through a selected input transform at ``value`` (its
+    fit on every window): the input regressors, and carried ones made from the inputs, are remade.
+
+    Parameters
+    ----------
+    data : GridData
+        The DOF's current data.
+    cand : _InputTransform
+        The selected delay or rate limit.
+    value : float
+        Its value.
+    """
+    light = copy.copy(cand)
+    light._cache = {}   # its grid of transformed data is not needed to transform again
+    new = replace(data, pre=data.pre + ((light, float(value)),))
+    return _input_forcing(cand.problem, new, _pre_sources(cand.problem, new))
+
+
+def _input_forcing(p: DofProblem, data: GridData, raw: Mapping[str, np.ndarray]) -> GridData:
+    """``data`` with the input regressors, and the carried ones made from the inputs, from ``raw``."""
+    made = {c: _forcing(p, c, raw[c]) for c in p.inputs}
+    made.update({name: _forcing(p, part.channel, part(raw)) for name, part in data.derived.items()})
+    return data.with_forcing(**made)
 
 
 class Candidate:
@@ -226,7 +340,7 @@ class Candidate:
     def __init__(self, problem: DofProblem, data: GridData) -> None:
         self.problem = problem
         self.data = data
-        self.spec = _baseline_spec(problem)
+        self.spec = _baseline_spec(problem, data)
 
     @property
     def dof(self) -> str:
@@ -270,6 +384,21 @@ class Candidate:
         t, theta, sse = fit_linear(d, self.spec, self._t_guess())
         return Fitted({"T": t, **_gain_params(self.spec, theta)}, (), sse, (self.spec, theta))
 
+    def carried(self, fitted: Fitted) -> Carried | None:
+        """The regressors that make this effect, fitted as ``fitted``, a part of the baseline's linear
+        model (a constant moment, a current's offsets, a thrust's astern part, an actuator's share,
+        another DOF's velocity, a sensor bias): the next
+        selection step fits every candidate with them, jointly, on the original measurements. None
+        for an effect that is no set of linear regressors (a quadratic damping, an input transform,
+        waves): its correction is taken off the measurements instead (backfitting).
+
+        Parameters
+        ----------
+        fitted : Fitted
+            The candidate fitted on every window.
+        """
+        return None
+
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Open-loop outputs on windows ``idx`` (``"y"``, and ``"angle"`` for yaw).
 
@@ -300,7 +429,7 @@ class NonlinearDamping(Candidate):
         super().__init__(problem, data)
         y = np.nan_to_num(data.y)
         self.q = np.abs(y) * y
-        self.init_spec = LinearSpec(self.spec.forcing + ("__q",))
+        self.init_spec = _extend(self.spec, forcing=("__q",))
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
         """Refit on windows ``train``; see :meth:`Candidate.fit`.
@@ -324,7 +453,8 @@ class NonlinearDamping(Candidate):
         # score uses).
         best, best_sse = fitted, self._simulation_sse(fitted, train)
         for _ in range(REGRESSOR_ROUNDS):
-            y_sim = self.simulate(fitted, train)["y"]
+            # The state's |y| y: without the offsets a carried current or sensor bias adds to what is seen.
+            y_sim = self.simulate(fitted, train)["y"] - self._seen(fitted.state, self.data.rows(train))
             q_sim = np.where(np.isfinite(y_sim), np.abs(np.nan_to_num(y_sim)) * np.nan_to_num(y_sim), 0.0)
             fitted = self._fit_with(train, q_sim, start)
             sse = self._simulation_sse(fitted, train)
@@ -337,10 +467,25 @@ class NonlinearDamping(Candidate):
         d = self.data.rows(train).with_forcing(__q=q)
         t, theta, sse = self._fit(d, self.init_spec, start)
         y_max = max(float(np.nanmax(np.abs(d.y))) if np.isfinite(d.y).any() else 0.0, 1e-12)
-        d2 = float(np.clip(-theta[-1], -0.5 / y_max, D2_MAX / y_max))
-        x = np.concatenate([[np.log(t), d2], theta[:-1]])
-        params = {"T": float(t), **_gain_params(self.spec, theta[:-1]), "d2": d2}
+        iq = len(self.spec.forcing)
+        d2 = float(np.clip(-theta[iq], -0.5 / y_max, D2_MAX / y_max))
+        rest = np.delete(theta, iq)
+        x = np.concatenate([[np.log(t), d2], rest])
+        params = {"T": float(t), **_gain_params(self.spec, rest), "d2": d2}
         return Fitted(params, ("d2",), sse, x)
+
+    def _seen(self, x: np.ndarray, d: GridData) -> np.ndarray | float:
+        """What carried output offsets (a current seen by GNSS) and sensor offsets (a gyro bias) add to
+        the simulated response (W, n), 0 without them; ``x`` is the fitted state vector."""
+        nf, no = len(self.spec.forcing), len(self.spec.offsets)
+        if not (self.spec.offsets or self.spec.sensor_offsets):
+            return 0.0
+        out = np.zeros_like(d.y)
+        for j, name in enumerate(self.spec.offsets):
+            out += x[2 + nf + j] * np.nan_to_num(d.offsets[name])
+        for j in range(len(self.spec.sensor_offsets)):
+            out += x[2 + nf + no + j] * d.mask
+        return out
 
     def _simulation_sse(self, fitted: Fitted, train: np.ndarray) -> float:
         """Weighted SSE of the open-loop simulation on the training windows."""
@@ -371,10 +516,15 @@ class NonlinearDamping(Candidate):
         # Initial states: the separable fit's (measured |y| y as regressor), then refined on the
         # nonlinear simulation itself, window by window.
         dq = d.with_forcing(__q=self.q[idx])
-        start = initial_states(dq, self.init_spec, t_const, np.concatenate([x[2:], [-x[1]]]))
-        y0 = refine_initial_states(d, lambda v: simulate_quadratic(d, t_const, f, float(x[1]), fm, v), start)
-        yhat, within = simulate_quadratic(d, t_const, f, float(x[1]), fm, y0, with_within=True)
-        return outputs_from_response(d, yhat, within)
+        start = initial_states(dq, self.init_spec, t_const, np.insert(x[2:], len(self.spec.forcing), -x[1]))
+        seen = self._seen(x, d)
+        # The state runs on the response without carried offsets; they are added to what is seen.
+        ds = d if np.isscalar(seen) else replace(d, y=d.y - seen, y0=d.y0 - seen[:, 0])
+        y0 = refine_initial_states(ds, lambda v: simulate_quadratic(ds, t_const, f, float(x[1]), fm, v), start)
+        yhat, within = simulate_quadratic(ds, t_const, f, float(x[1]), fm, y0, with_within=True)
+        out = outputs_from_response(ds, yhat, within)
+        out["y"] = out["y"] + seen
+        return out
 
 
 class Current(Candidate):
@@ -400,14 +550,14 @@ class Current(Candidate):
             self.mode = "rotating"
             self.param_names = ("V_n", "V_e")
             self.n_extra = 2
-            self.data = data.__class__(**{**data.__dict__, "offsets": {**data.offsets, **self.offsets}})
-            self.cspec = LinearSpec(self.spec.forcing, ("V_n", "V_e"))
+            self.data = replace(data, offsets={**data.offsets, **self.offsets})
+            self.cspec = _extend(self.spec, offsets=("V_n", "V_e"))
         else:
             self.mode = "bias"
             self.param_names = ("b",) if "delta" in p.inputs else ("bias",)
             self.n_extra = 1
             self.data = data.with_forcing(__one=np.where(data.mask, 1.0, 0.0))
-            self.cspec = LinearSpec(self.spec.forcing + ("__one",))
+            self.cspec = _extend(self.spec, forcing=("__one",))
 
     def fit(self, train: np.ndarray, start: Fitted | None = None) -> Fitted:
         """Refit on windows ``train``; see :meth:`Candidate.fit`.
@@ -421,16 +571,23 @@ class Current(Candidate):
         """
         d = self.data.rows(train)
         t, theta, sse = self._fit(d, self.cspec, start)
-        params = {"T": t, **_gain_params(self.spec, theta[:len(self.spec.forcing)])}
+        v = _named(self.cspec, theta)
+        params = {"T": t, **{f"k_{n}": v[n] for n in self.spec.names}}
         if self.mode == "rotating":
-            params.update(V_n=float(theta[-2]), V_e=float(theta[-1]))
+            params.update(V_n=v["V_n"], V_e=v["V_e"])
         elif self.param_names == ("b",):
             k_delta = params.get("k_delta", np.nan)
             # T r_dot = -r + K delta + c  =>  b = -c / K.
-            params["b"] = float(-theta[-1] / k_delta) if k_delta else float("nan")
+            params["b"] = float(-v["__one"] / k_delta) if k_delta else float("nan")
         else:
-            params["bias"] = float(theta[-1])
+            params["bias"] = v["__one"]
         return Fitted(params, self.param_names, sse, (self.cspec, theta))
+
+    def carried(self, fitted: Fitted) -> Carried:
+        """See :meth:`Candidate.carried`: the constant moment, or the current's two offsets."""
+        if self.mode == "rotating":
+            return Carried(LinearSpec((), ("V_n", "V_e")), offsets=self.offsets)
+        return Carried(LinearSpec(("__one",)), forcing={"__one": self.data.forcing["__one"]})
 
 
 class _InputTransform(Candidate):
@@ -466,7 +623,7 @@ class _InputTransform(Candidate):
         raise NotImplementedError
 
     def _transformed(self, value: float) -> dict[str, np.ndarray]:
-        return self.apply_to(_sources(self.problem), value)
+        return self.apply_to(_pre_sources(self.problem, self.data), value)
 
     def _data_for(self, value: float, cache: bool = False) -> GridData:
         key = float(value)
@@ -474,7 +631,7 @@ class _InputTransform(Candidate):
             return self._cache[key]
         p = self.problem
         raw = self._transformed(key)
-        d = self.data.with_forcing(**{c: _forcing(p, c, raw[c]) for c in p.inputs})
+        d = _input_forcing(p, self.data, raw)
         if cache:
             # Only grid values are kept (every fold searches the same grid); refinement values
             # differ from fold to fold and would only fill memory on a long trial.
@@ -592,6 +749,12 @@ class _InputTransform(Candidate):
 
     def _param(self, v: float) -> dict[str, float]:
         raise NotImplementedError
+
+    def carried(self, fitted: Fitted) -> Carried:
+        """See :meth:`Candidate.carried`: every model of the next step takes its inputs through this
+        transform at its value fitted on every window (the value stays; T and the gains are refitted
+        with each candidate)."""
+        return Carried(LinearSpec(()), transform=(self, float(fitted.state[0])))
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Open-loop outputs on windows ``idx``; see :meth:`Candidate.simulate`.
@@ -740,25 +903,26 @@ class ThrustAsymmetry(Candidate):
     def __init__(self, problem: DofProblem, data: GridData, channel: str, actuator: Actuator | None = None) -> None:
         super().__init__(problem, data)
         self.actuator = actuator
+        raw = {**problem.raw, **_pre_sources(problem, data)}
         if actuator is not None:
             # One input of this DOF only (one generalised force per DOF): the split is linear in it.
             channel = next(iter(actuator.gains))
-            x = problem.raw[actuator_key(actuator.name)]
+            x = raw[actuator_key(actuator.name)]
             ahead, astern = actuator.gains[channel]
-            pos = problem.raw[channel] - actuator.contribution(channel, x) + ahead * np.maximum(x, 0.0)
+            pos = raw[channel] - actuator.contribution(channel, x) + ahead * np.maximum(x, 0.0)
             neg = astern * np.minimum(x, 0.0)
             self.channel = actuator.name
         else:
-            u = problem.raw[channel]
+            u = raw[channel]
             pos, neg = np.maximum(u, 0.0), np.minimum(u, 0.0)
             self.channel = channel
         self.input = channel
         self.data = data.with_forcing(__pos=_forcing(problem, channel, pos), __neg=_forcing(problem, channel, neg))
         forcing = tuple(f for f in self.spec.forcing if f != channel) + ("__pos", "__neg")
-        self.aspec = LinearSpec(forcing)
+        self.aspec = LinearSpec(forcing, self.spec.offsets, self.spec.sensor_offsets)
         if actuator is not None:
             # The actuator itself must work both ahead and astern.
-            u = problem.raw[actuator_key(actuator.name)]
+            u = raw[actuator_key(actuator.name)]
         amp = np.max(np.abs(u)) if len(u) else 0.0
         big = np.abs(u) > 0.1 * amp
         self.both_signs = bool(amp > 0 and np.sum(big & (u > 0)) > 10 and np.sum(big & (u < 0)) > 10
@@ -780,11 +944,19 @@ class ThrustAsymmetry(Candidate):
         """
         d = self.data.rows(train)
         t, theta, sse = self._fit(d, self.aspec, start)
-        params = {"T": t, **{f"k_{n}": float(v) for n, v in zip(self.aspec.names[:-2], theta[:-2])}}
-        k_f, k_r = float(theta[-2]), float(theta[-1])
+        v = _named(self.aspec, theta)
+        params = {"T": t, **{f"k_{n}": x for n, x in v.items() if n not in ("__pos", "__neg")}}
+        k_f, k_r = v["__pos"], v["__neg"]
         params.update({f"k_{self.input}": k_f, "k_fwd": k_f, "k_rev": k_r,
                        "ratio": k_r / k_f if k_f else float("nan")})
         return Fitted(params, self.param_names, sse, (self.aspec, theta))
+
+    def carried(self, fitted: Fitted) -> Carried:
+        """See :meth:`Candidate.carried`: the input's astern part beside the input (the two gains span
+        the same model as separate ahead and astern gains), remade by a later input transform."""
+        name = f"__astern_{self.channel}"   # another input's or actuator's asymmetry may follow
+        part = InputPart(self.input, self.actuator, "astern")
+        return Carried(LinearSpec((name,)), forcing={name: self.data.forcing["__neg"]}, derived={name: part})
 
 
 #: Largest correlation between one actuator's share of an input and the rest of that input for a
@@ -828,12 +1000,13 @@ class ThrustImbalance(Candidate):
         self.channel = f"{actuator.name}/{other}" if other else actuator.name
         self.input = channel
         self.separable = False
-        share = actuator.contribution(self.input, problem.raw[actuator_key(actuator.name)])
-        rest = problem.raw[self.input] - share
+        raw = {**problem.raw, **_pre_sources(problem, data)}
+        share = actuator.contribution(self.input, raw[actuator_key(actuator.name)])
+        rest = raw[self.input] - share
         if np.std(share) > 0 and np.std(rest) > 0:
             self.separable = bool(abs(np.corrcoef(share, rest)[0, 1]) < IMBALANCE_MAX_CORR)
         self.data = data.with_forcing(__share=_forcing(problem, self.input, share))
-        self.ispec = LinearSpec(self.spec.forcing + ("__share",))
+        self.ispec = _extend(self.spec, forcing=("__share",))
 
     def applicable(self) -> bool:
         """See :meth:`Candidate.applicable`."""
@@ -843,10 +1016,17 @@ class ThrustImbalance(Candidate):
         """Refit on windows ``train``, the input's gain and the share's together (:meth:`Candidate.fit`)."""
         d = self.data.rows(train)
         t, theta, sse = self._fit(d, self.ispec, start)
-        params = {"T": t, **_gain_params(self.spec, theta[:-1]), "c": float(theta[-1])}
+        v = _named(self.ispec, theta)
+        params = {"T": t, **{f"k_{n}": v[n] for n in self.spec.names}, "c": v["__share"]}
         k = params.get(f"k_{self.input}", float("nan"))
         params["ratio"] = (k + params["c"]) / k if k else float("nan")
         return Fitted(params, self.param_names, sse, (self.ispec, theta))
+
+    def carried(self, fitted: Fitted) -> Carried:
+        """See :meth:`Candidate.carried`: the actuator's share, remade by a later input transform."""
+        name = f"__share_{self.channel}"
+        part = InputPart(self.input, self.actuator, "share")
+        return Carried(LinearSpec((name,)), forcing={name: self.data.forcing["__share"]}, derived={name: part})
 
 
 class Coupling(Candidate):
@@ -883,13 +1063,19 @@ class Coupling(Candidate):
         d = self.data.rows(train)
         best = None
         for c in self.problem.regressors:
-            spec = LinearSpec(self.spec.forcing + (f"__x_{c}",))
+            spec = _extend(self.spec, forcing=(f"__x_{c}",))
             t, theta, sse = self._fit(d, spec, start)
             if best is None or sse < best[3]:
                 best = (c, spec, t, sse, theta)
         c, spec, t, sse, theta = best
-        params = {"T": t, **_gain_params(self.spec, theta[:-1]), "c": float(theta[-1])}
+        v = _named(spec, theta)
+        params = {"T": t, **{f"k_{n}": v[n] for n in self.spec.names}, "c": v[f"__x_{c}"]}
         return Fitted(params, ("c",), sse, (spec, theta, c))
+
+    def carried(self, fitted: Fitted) -> Carried:
+        """See :meth:`Candidate.carried`: the velocity of the other DOF chosen by the fit."""
+        name = f"__x_{fitted.state[2]}"
+        return Carried(LinearSpec((name,)), forcing={name: self.data.forcing[name]})
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Open-loop outputs on windows ``idx``; see :meth:`Candidate.simulate`.
@@ -1019,7 +1205,7 @@ class SensorBias(Candidate):
 
     def __init__(self, problem: DofProblem, data: GridData) -> None:
         super().__init__(problem, data)
-        self.bspec = LinearSpec(self.spec.forcing, self.spec.offsets, ("__bias",))
+        self.bspec = _extend(self.spec, sensor_offsets=("__bias",))
 
     def applicable(self) -> bool:
         """See :meth:`Candidate.applicable`: the heading must be scored beside the rate."""
@@ -1037,8 +1223,13 @@ class SensorBias(Candidate):
         """
         d = self.data.rows(train)
         t, theta, sse = self._fit(d, self.bspec, start)
-        params = {"T": t, **_gain_params(self.spec, theta[:len(self.spec.names)]), "b_sensor": float(theta[-1])}
+        v = _named(self.bspec, theta)
+        params = {"T": t, **{f"k_{n}": v[n] for n in self.spec.names}, "b_sensor": v["__bias"]}
         return Fitted(params, self.param_names, sse, (self.bspec, theta))
+
+    def carried(self, fitted: Fitted) -> Carried:
+        """See :meth:`Candidate.carried`: the response sensor's constant offset."""
+        return Carried(LinearSpec((), (), ("__bias",)))
 
 
 def candidates_for(problem: DofProblem, data: GridData) -> list[Candidate]:
@@ -1074,6 +1265,12 @@ def candidates_for(problem: DofProblem, data: GridData) -> list[Candidate]:
         elif len(on) > 2:
             out += [ThrustImbalance(problem, data, a, c) for a in on]
     out += [Waves(problem, data), Coupling(problem, data), SensorBias(problem, data)]
+    if data.pre:
+        # On top of a selected delay or rate limit, no other input transform is offered: each would
+        # act behind it (composed), and a rate limit behind a delay bends a first-order baseline
+        # toward its missing dynamics (:func:`composed_candidates`); a delay behind a selected rate
+        # limit is composed there, on the original measurements.
+        out = [c for c in out if not isinstance(c, _InputTransform)]
     return [c for c in out if c.applicable()]
 
 
@@ -1175,7 +1372,7 @@ class ComposedTransform(_InputTransform):
         if key in self._cache:
             return self._cache[key]
         raw = self._transformed(value)
-        d = self.data.with_forcing(**{c: _forcing(self.problem, c, raw[c]) for c in self.problem.inputs})
+        d = _input_forcing(self.problem, self.data, raw)
         if cache:
             self._cache[key] = d
         return d
@@ -1194,6 +1391,11 @@ class ComposedTransform(_InputTransform):
 
     def _param(self, v: float) -> dict[str, float]:
         return self._which()._param(v)
+
+    def carried(self, fitted: Fitted) -> None:
+        """See :meth:`Candidate.carried`: none (scored against the first transform alone, its
+        correction is taken off the measurements)."""
+        return None
 
     def _pair_data(self, v1: float, v2: float) -> GridData:
         self.searching, self.v1 = "second", v1

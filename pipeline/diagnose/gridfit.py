@@ -76,6 +76,18 @@ class GridData:
     sigma_y, sigma_angle : float
         White-noise standard deviation of a block mean of the response and of the heading [SI]:
         the floor no model can get under.
+    carried : LinearSpec or None
+        Regressors of effects already selected in this DOF (their arrays in ``forcing`` and
+        ``offsets``) that every model of these data carries beside its inputs (:func:`carry`); None:
+        none.
+    derived : Mapping[str, tuple[str, Callable]]
+        Carried forcing regressors made from the inputs (a thrust's astern part): name -> (the input
+        whose moments it takes, a function of the trial-rate inputs and actuator signals), so that a
+        model that transforms the inputs (a delay) makes them again from its own inputs.
+    pre : tuple
+        Input transforms already selected in this DOF, ``(candidate, value)`` in order: the inputs
+        of every model of these data went through them (their regressors in ``forcing`` are the
+        transformed inputs'; :func:`pipeline.diagnose.candidates.carry_transform`).
     """
 
     dt: float
@@ -91,6 +103,9 @@ class GridData:
     w_angle: float = 1.0
     sigma_y: float = float("nan")
     sigma_angle: float = float("nan")
+    carried: "LinearSpec | None" = None
+    derived: Mapping[str, tuple] = field(default_factory=dict)
+    pre: tuple = ()
 
     @cached_property
     def angle_mask(self) -> np.ndarray:
@@ -122,7 +137,8 @@ class GridData:
             angle=None if self.angle is None else self.angle[idx], mask=self.mask[idx],
             forcing={k: (v[:, idx] if v.ndim == 3 else v[idx]) for k, v in self.forcing.items()},
             offsets={k: b[idx] for k, b in self.offsets.items()}, m=self.m, y0_sigma=self.y0_sigma,
-            w_y=self.w_y, w_angle=self.w_angle, sigma_y=self.sigma_y, sigma_angle=self.sigma_angle)
+            w_y=self.w_y, w_angle=self.w_angle, sigma_y=self.sigma_y, sigma_angle=self.sigma_angle,
+            carried=self.carried, derived=self.derived, pre=self.pre)
 
     def with_forcing(self, **arrays: np.ndarray) -> "GridData":
         """A copy with forcing regressors added or replaced.
@@ -234,6 +250,29 @@ class LinearSpec:
     def names(self) -> tuple[str, ...]:
         """Linear parameter names, in solve order."""
         return self.forcing + self.offsets + self.sensor_offsets
+
+
+def carry(d: GridData, spec: LinearSpec, forcing: Mapping[str, np.ndarray] | None = None,
+          offsets: Mapping[str, np.ndarray] | None = None, derived: Mapping[str, tuple] | None = None) -> GridData:
+    """``d`` with the regressors of ``spec`` carried by every model of it (``GridData.carried``).
+
+    Parameters
+    ----------
+    d : GridData
+        Windows.
+    spec : LinearSpec
+        Regressors to carry (forcing, output offsets, sensor offsets), after those already carried.
+    forcing, offsets : Mapping[str, numpy.ndarray], optional
+        Their arrays on the analysis grid (forcing (W, n) or (3, W, n), offsets (W, n)).
+    derived : Mapping[str, tuple], optional
+        Of the forcing, those made from the inputs (``GridData.derived``).
+    """
+    old = d.carried or LinearSpec(())
+    new = LinearSpec(old.forcing + tuple(f for f in spec.forcing if f not in old.forcing),
+                     old.offsets + tuple(f for f in spec.offsets if f not in old.offsets),
+                     old.sensor_offsets + tuple(f for f in spec.sensor_offsets if f not in old.sensor_offsets))
+    return replace(d, forcing={**d.forcing, **(forcing or {})}, offsets={**d.offsets, **(offsets or {})},
+                   carried=new, derived={**d.derived, **(derived or {})})
 
 
 def _columns(d: GridData, spec: LinearSpec, t_const: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
