@@ -56,7 +56,7 @@ which holds the rule so that model-structure selection in the fit stage uses the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping
 
 import numpy as np
@@ -163,16 +163,10 @@ def channel_test(name: str, e0: np.ndarray, e1: np.ndarray, p: int, n_windows: i
 
     Parameters
     ----------
-    name : str
-        Channel name.
-    e0, e1 : numpy.ndarray
-        Scale-weighted residual rows (W, n) of the baseline and of the candidate, NaN off-window.
-    p : int
-        Parameters the candidate adds.
-    n_windows : int
-        Windows (the least number of independent samples).
-    noise : float
-        Noise level in the residuals' units (NaN: gaps stay scale-normalised).
+    name, e0, e1, p, n_windows, noise
+        As for :func:`pipeline.fit.heldout_test.channel_score`: the channel, the baseline's and the
+        candidate's scale-weighted residual rows (W, n, NaN off-window), the parameters the candidate
+        adds, the number of windows (the least effective sample count) and the noise unit.
 
     Returns
     -------
@@ -182,16 +176,14 @@ def channel_test(name: str, e0: np.ndarray, e1: np.ndarray, p: int, n_windows: i
     ok = np.isfinite(e0) & np.isfinite(e1)
     if cs.n == 0 or not np.any(e0[ok] != e1[ok]):
         return cs
-    sse0 = float(np.sum(e0[ok] ** 2))
-    sse1 = float(np.sum(e1[ok] ** 2))
     rho = float(np.clip(loss_difference_lag1(e0, e1), 0.0, 0.999))
-    n = cs.n
-    n_eff = float(np.clip(n * (1 - rho) / (1 + rho), max(n_windows, p + 2), n))
-    if sse1 <= 0 or n_eff <= p + 1:
-        return ChannelScore(name, n, cs.gap_before, cs.gap_after, cs.explained, rho, n_eff, np.nan, np.nan)
-    f = ((sse0 - sse1) / p) / (sse1 / (n_eff - p))
+    n_eff = float(np.clip(cs.n * (1 - rho) / (1 + rho), max(n_windows, p + 2), cs.n))
+    if not cs.gap_after > 0 or n_eff <= p + 1:
+        return replace(cs, rho=rho, n_eff=n_eff, f_stat=float("nan"), p_value=float("nan"))
+    # SSE0 / SSE1 is the squared ratio of the two gaps (one noise unit): F = (SSE0/SSE1 - 1) (n_eff - p) / p.
+    f = ((cs.gap_before / cs.gap_after) ** 2 - 1.0) * (n_eff - p) / p
     pv = float(scipy.stats.f.sf(f, p, n_eff - p)) if f > 0 else 1.0
-    return ChannelScore(name, n, cs.gap_before, cs.gap_after, cs.explained, rho, n_eff, float(f), pv)
+    return replace(cs, rho=rho, n_eff=n_eff, f_stat=float(f), p_value=pv)
 
 
 def _pvalue(chans: tuple[ChannelScore, ...]) -> float:
