@@ -362,13 +362,6 @@ def _robust_sd(c: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(c - np.median(c))))
 
 
-def _third_difference_level(x: np.ndarray, windows: tuple[Window, ...], q: int) -> float:
-    """White noise per sample that would give the third differences of ``q``-sample means
-    (:func:`_third_differences`), ``sd sqrt(q / 20)`` [unit of x]; NaN with fewer than 16."""
-    c = _third_differences(x, windows, q)
-    return _robust_sd(c) * np.sqrt(q / 20.0) if len(c) >= 16 else float("nan")
-
-
 #: Ratio of the per-sample-equivalent noise at quarter size ``2q`` to that at ``q`` below which the
 #: noise counts as white at that scale (white noise: 1; noise correlated over ``L`` samples rises
 #: steeply until ``q`` is about ``L``; a smooth signal leaking in rises by about 2^2.5 per doubling).
@@ -406,7 +399,8 @@ def noise_scale(x: np.ndarray, windows: tuple[Window, ...]) -> tuple[float, int]
         plateau is found (a noise-free signal).
     """
     def s_of(q: int) -> float:
-        return _third_difference_level(x, windows, q)
+        c = _third_differences(x, windows, q)
+        return _robust_sd(c) * np.sqrt(q / 20.0) if len(c) >= 16 else float("nan")
 
     s1, s2 = s_of(1), s_of(2)
     if not (np.isfinite(s1) and np.isfinite(s2)) or (s1 > 0 and s2 <= WHITE_RATIO * s1):
@@ -458,22 +452,6 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: b
         at 1-3 Hz) counts as noise there (a 1.3 deg heading wave at 1.1 Hz raised a 0.002 rad
         compass to a floor of 0.026 rad). A sensor better than stated keeps its measured floor;
         a noise correlated over several samples keeps its measured long-run level.
-
-    Notes
-    -----
-    Without a stated noise, a wave whose period is near the contrast's span (``4 q`` samples:
-    8 at one sample per step) is counted as noise there too (randomised seed 26 r014, a heading
-    logged at 1.4 Hz in waves: 0.0239 rad per sample against a compass of 0.006 rad). Where the
-    noise is white at the trial rate (the third differences of 2-sample means give the same level
-    as those of single samples within ``WHITE_RATIO``, the first test of :func:`noise_scale`), the
-    white part is therefore also capped at ``WHITE_RATIO`` times the level of the single samples' third
-    differences (:func:`_third_differences` with ``q = 1``: they cancel any quadratic over four
-    samples, so they pass a wave of ``P`` samples' period by ``(2 sin(pi / P))^6 / 20`` of its
-    variance, 1 % at ``P = 8``, and white noise whole), scaled to ``m`` samples as white noise.
-    White noise gives the two estimates alike, and the cap does not bind; ``WHITE_RATIO`` is the
-    margin by which :func:`noise_scale` calls a noise correlated. A wave that is rough at the
-    sample scale (a shaping filter of relative degree one) still raises that level (seed 26 r014:
-    0.0081 rad, 1.4 times the compass): the cap lowers such an inflation, it does not remove it.
     """
     mb = max(m, 8)
     q = mb // 4
@@ -488,10 +466,6 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: b
     if told:
         own = stated / np.sqrt(m)
         white = min(white, float(own * np.sqrt((m - 0.5) / m) if trapezoid else own))
-    s1, s2 = _third_difference_level(x, windows, 1), _third_difference_level(x, windows, 2)
-    if np.isfinite(s1) and np.isfinite(s2) and 0 < s1 and s2 <= WHITE_RATIO * s1:
-        cap = WHITE_RATIO * s1 / np.sqrt(m)
-        white = min(white, float(cap * np.sqrt((m - 0.5) / m) if trapezoid else cap))
     s_inf, q_star = noise_scale(x, windows)
     if np.isfinite(s_inf):
         if told:
