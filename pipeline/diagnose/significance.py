@@ -11,11 +11,12 @@ samples corrected for the lag-1 autocorrelation ``rho`` (Bartlett 1946)::
 ``d_t = e0_t^2 - e1_t^2`` about its mean (:func:`channel_test`; the loss difference of Diebold and
 Mariano 1995), pooled within windows, not that of the candidate's residual ``e1``. A slow model
 error that both models leave alike (a heading drift of the baseline's fitted gain) makes ``e1``
-correlated over a whole window but largely cancels in ``d``; counted on ``e1`` it left 32 effective
+correlated over a whole window but largely cancels in ``d``; counted on ``e1`` it left 27 effective
 samples of 1731 and a wave that took the heading's gap from 2.26 to 1.71 noise units was not
-significant (randomised seed 26 r014, p = 0.0074; on ``d``, ``rho`` 0.85 and p = 1e-13). Where the
-candidate's gain is itself slow (a corrected gain), ``d`` is as correlated as the drift and the test
-stays as strict as before. The floor ``n_eff >= `` the number of held-out windows stays.
+significant (randomised seed 26 r014, p = 0.0074 over its two channels; on ``d``, ``rho`` 0.85,
+128 samples and p = 7e-15). Where the candidate's gain is itself slow (a corrected gain), ``d`` is
+as correlated as the drift and the test stays as strict as before. The floor ``n_eff >= W`` (the
+held-out windows) stays.
 
 Rule, per channel (:func:`channel_significant`): the candidate is significant when in at least one
 channel of its DOF (a DOF with one channel: that channel, the rule of :mod:`pipeline.fit.heldout_test`)
@@ -194,8 +195,8 @@ def _pvalue(chans: tuple[ChannelScore, ...]) -> float:
 #: The rule in words, written into the report's JSON (``ranking_rule``) and its HTML.
 SIGNIFICANCE_RULE = (
     f"a candidate is significant when in at least one channel of its DOF the held-out F test (effective "
-    f"sample size corrected for the lag-1 autocorrelation of the held-out loss difference e0^2 - e1^2) gives a p-value that, times the number of "
-    f"channels, is below {ALPHA:g}, and below {ALPHA_ROBUST:g} with that channel's most favourable fold left out; the channel's "
+    f"sample size corrected for the lag-1 autocorrelation of the held-out loss difference e0^2 - e1^2) "
+    f"gives a p-value that, times the number of channels, is below {ALPHA:g}, and below {ALPHA_ROBUST:g} with that channel's most favourable fold left out; the channel's "
     f"held-out gap shrinks by at least {MIN_SHRINK:g} % and the error explained there is at least "
     f"{100 * MIN_EXPLAINED:g} % of the channel's scale; and the DOF's gap (RMS over its channels) does not grow")
 
