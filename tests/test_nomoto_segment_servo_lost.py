@@ -21,7 +21,7 @@ import scipy.signal
 from pipeline.fit.nomoto_oe import fit_nomoto
 from pipeline.fit.nomoto_quality import STRUCTURE_UNDECIDED
 from pipeline.fit.nomoto_records import NomotoRecord
-from pipeline.fit.nomoto_segment import NomotoWindow, fit_window, servo_lost_note
+from pipeline.fit.nomoto_segment import NomotoWindow, fit_window
 from pipeline.model.nomoto import ORDER2_SUM_PRODUCT
 from pipeline.records import Segment
 
@@ -75,6 +75,8 @@ def test_second_order_without_the_commands_servo_marks_t_unsure():
 
 
 def test_no_note_when_the_servo_is_kept_or_not_logged_or_first_order():
+    from pipeline.fit.nomoto_segment import servo_lost_note
+
     rec = _record(1)
     win = _window(rec)
     with_servo = fit_nomoto(rec, order=ORDER2_SUM_PRODUCT, noise="white", channels=("psi",), servo=("t_servo",))
