@@ -6,7 +6,9 @@ Clarke83 ship (linear 3-DOF sway-yaw model: second-order Nomoto with complex pol
 1 s rudder lag), and the tanker (nonlinear, shallow water, rudder rate limit 5 deg/s; 20 and
 25 m depth). Manoeuvres: rudder steps (hold, +a, hold, -a, ...), a closed-loop a/a zig-zag and
 sinusoids at two frequencies (one log: 3 periods at 2/T, a 10 T hold, 3 periods at 0.5/T). Each is run once per ship with the simulator's own ``dynamics`` at
-20 Hz (its forward Euler) and logged at 5 Hz as a canonical CSV: heading (wrapped), yaw rate,
+20 Hz (its forward Euler; a finer step where 20 Hz is no multiple of the log rate) and logged at
+5 Hz (``--rate``, 1-100 Hz; the command is updated at the log rate and held) as a canonical CSV, one
+file or ``--split N`` consecutive run files: heading (wrapped), yaw rate,
 speed and the rudder, logged either as the servo's measured angle (``measured``: noisy, ramps) or
 as the command (``commanded``: clean steps). Each seed then adds its own sensor noise (compass
 0.2 deg, gyro 0.05 deg/s, rudder sensor 0.1 deg) and, with ``waves``, a narrow-band wave-induced
