@@ -6,7 +6,9 @@ Clarke83 ship (linear 3-DOF sway-yaw model: second-order Nomoto with complex pol
 1 s rudder lag), and the tanker (nonlinear, shallow water, rudder rate limit 5 deg/s; 20 and
 25 m depth). Manoeuvres: rudder steps (hold, +a, hold, -a, ...), a closed-loop a/a zig-zag and
 sinusoids at two frequencies (one log: 3 periods at 2/T, a 10 T hold, 3 periods at 0.5/T). Each is run once per ship with the simulator's own ``dynamics`` at
-20 Hz (its forward Euler) and logged at 5 Hz as a canonical CSV: heading (wrapped), yaw rate,
+20 Hz (its forward Euler; a finer step where 20 Hz is no multiple of the log rate) and logged at
+5 Hz (``--rate``, 1-100 Hz; the command is updated at the log rate and held) as a canonical CSV, one
+file or ``--split N`` consecutive run files: heading (wrapped), yaw rate,
 speed and the rudder, logged either as the servo's measured angle (``measured``: noisy, ramps) or
 as the command (``commanded``: clean steps). Each seed then adds its own sensor noise (compass
 0.2 deg, gyro 0.05 deg/s, rudder sensor 0.1 deg) and, with ``waves``, a narrow-band wave-induced
@@ -66,7 +68,7 @@ from pipeline.vessel import parse_vessel  # noqa: E402
 
 D2R = math.pi / 180.0
 H_SIM = 0.05          # integration step [s] (the simulator's Euler)
-FS_LOG = 5.0          # log rate [Hz]
+FS_LOG = 5.0          # default log rate [Hz] (``--rate``)
 SECTION = "## Independent simulator (PythonVehicleSimulator, Nomoto)"
 NOISE = {"psi": 0.2 * D2R, "r": 0.05 * D2R, "delta": 0.1 * D2R}
 WAVE_STD, WAVE_OMEGA = 0.5 * D2R, 0.6
@@ -103,6 +105,20 @@ def ships(v) -> dict[str, Ship]:
 
 
 # --------------------------------------------------------------------------- simulation
+def sim_step(fs: float) -> tuple[float, int]:
+    """Integration step [s] and samples per log sample for the log rate ``fs`` [Hz].
+
+    ``H_SIM`` (the simulator's 20 Hz Euler) where the log rate divides it (1, 2, 4, 5, 10, 20 Hz:
+    every default figure unchanged), else the largest step below it that puts a whole number of
+    steps in one log interval (50 Hz: 0.02 s, 100 Hz: 0.01 s).
+    """
+    if not (math.isfinite(fs) and fs > 0):
+        raise ValueError(f"error: log rate must be a positive number of Hz, found {fs!r}")
+    every = max(1, math.ceil(1.0 / (fs * H_SIM) - 1e-9))
+    h = 1.0 / (fs * every)
+    return (H_SIM if abs(h - H_SIM) < 1e-12 else h), every
+
+
 def settle(vehicle, seconds: float = 3000.0) -> np.ndarray:
     """Straight-line steady state of the simulator at zero rudder."""
     nu = np.array(vehicle.nu, float)
@@ -210,8 +226,8 @@ def time_scale(truth: dict) -> float:
     return abs(truth["T"]) if truth["order"] == 1 else abs(truth["T1pT2"])
 
 
-def simulate(ship: Ship, kind: str, truth: dict) -> dict[str, np.ndarray]:
-    """Noise-free log at FS_LOG: t, psi (unwrapped), r, u, delta_c, delta (servo)."""
+def simulate(ship: Ship, kind: str, truth: dict, fs: float = FS_LOG) -> dict[str, np.ndarray]:
+    """Noise-free log at ``fs`` [Hz]: t, psi (unwrapped), r, u, delta_c, delta (servo)."""
     vehicle = ship.make()
     nu = settle(vehicle)
     prog, duration = rudder_program(kind, ship, time_scale(truth), truth["K"])
@@ -219,22 +235,22 @@ def simulate(ship: Ship, kind: str, truth: dict) -> dict[str, np.ndarray]:
     eta = np.zeros(6)
     psi = 0.0
     st: dict = {}
-    every = int(round(1 / (FS_LOG * H_SIM)))
+    h_sim, every = sim_step(fs)
     rows = []
-    n = int(duration / H_SIM)
+    n = int(duration / h_sim)
     dc = 0.0
     for k in range(n + 1):
-        t = k * H_SIM
+        t = k * h_sim
         if k % every == 0:
             dc = prog(t, psi, st)       # a digital command, updated at the log rate and held
             rows.append((t, psi, nu[5], nu[0], dc, ua[0]))
         r_before = nu[5]
-        nu, ua = vehicle.dynamics(eta, nu, ua, np.array([dc]), H_SIM)
+        nu, ua = vehicle.dynamics(eta, nu, ua, np.array([dc]), h_sim)
         # The heading is the integral of the simulator's own yaw rate, piecewise linear between its
         # Euler steps: the trapezoid. (psi += h r_new, PVS's own attitude update, makes the heading lead
         # the yaw rate by h/2 = 0.025 s: T shifted by -0.13 to -0.16 % on the frigate's slow sinusoid,
         # seeds 0-2, 2-4 of its standard errors.)
-        psi += 0.5 * H_SIM * (r_before + nu[5])
+        psi += 0.5 * h_sim * (r_before + nu[5])
     arr = np.array(rows)
     return dict(zip(("t", "psi", "r", "u", "delta_c", "delta"), arr.T))
 
@@ -271,14 +287,31 @@ def write_csv(log: dict, path: Path) -> None:
                fmt="%.9g")
 
 
+def write_split(log: dict, workdir: Path, tag: str, split: int) -> list[Path]:
+    """The log as ``split`` consecutive CSV files of (nearly) equal length, as a trial day's run
+    files: each keeps the logger's clock (``t`` continues), no sample is repeated or dropped."""
+    if split < 1:
+        raise ValueError(f"error: --split must be at least 1, found {split}")
+    if split == 1:
+        path = workdir / f"{tag}.csv"
+        write_csv(log, path)
+        return [path]
+    bounds = np.linspace(0, log["t"].size, split + 1).round().astype(int)
+    paths = []
+    for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])):
+        path = workdir / f"{tag}_part{i + 1}.csv"
+        write_csv({k: v[lo:hi] for k, v in log.items()}, path)
+        paths.append(path)
+    return paths
+
+
 # --------------------------------------------------------------------------- estimators
-def vesselid_fit(log: dict, workdir: Path, tag: str) -> dict:
-    """The user's path: CSV -> load_trial -> detect_segments -> fit_trial (name-only vessel)."""
-    path = workdir / f"{tag}.csv"
-    write_csv(log, path)
+def vesselid_fit(log: dict, workdir: Path, tag: str, split: int = 1) -> dict:
+    """The user's path: CSV file(s) -> load_trial -> detect_segments -> fit_trial (name-only vessel)."""
+    paths = write_split(log, workdir, tag, split)
     vessel = parse_vessel({"name": "pvs_ship"})
     try:
-        trial = load_trial([path])
+        trial = load_trial(paths)
         segs = detect_segments(trial)
         fits = fit_trial(trial, segs, vessel, extend=False)
     except VesselidError as exc:
@@ -367,21 +400,21 @@ def coastdown_truth(v) -> dict:
     return {"X_u": -float(N[0, 0]), "m_eff": float(M[0, 0]), "config": cfg}
 
 
-def simulate_coastdown(v, cut_s: float = 60.0, coast_s: float = 200.0) -> dict[str, np.ndarray]:
+def simulate_coastdown(v, cut_s: float = 60.0, coast_s: float = 200.0, fs: float = FS_LOG) -> dict[str, np.ndarray]:
     """Clarke83 at its steady speed under the default thrust, thrust cut at ``cut_s``; rudder amidships."""
     ship = v.shipClarke83()
     nu = settle(ship, 10 * ship.L)      # surge time constant T_surge = L [s]: 10 of them
     ua, eta, psi = np.zeros(1), np.zeros(6), 0.0
-    every = int(round(1 / (FS_LOG * H_SIM)))
+    h_sim, every = sim_step(fs)
     rows = []
     thrust = ship.tau_X
-    for k in range(int((cut_s + coast_s) / H_SIM) + 1):
-        t = k * H_SIM
+    for k in range(int((cut_s + coast_s) / h_sim) + 1):
+        t = k * h_sim
         ship.tau_X = thrust if t < cut_s else 0.0
         if k % every == 0:
             rows.append((t, psi, nu[5], nu[0]))
-        nu, ua = ship.dynamics(eta, nu, ua, np.zeros(1), H_SIM)
-        psi += H_SIM * nu[5]
+        nu, ua = ship.dynamics(eta, nu, ua, np.zeros(1), h_sim)
+        psi += h_sim * nu[5]
     arr = np.array(rows)
     return dict(zip(("t", "psi", "r", "u"), arr.T)) | {"cut": cut_s}
 
@@ -420,10 +453,10 @@ def coastdown_one(task) -> dict:
     return out
 
 
-def coastdown_table(v, seeds: int) -> str:
-    """Coast-down rows: X_u of Clarke83 over ``seeds`` seeds (markdown)."""
+def coastdown_table(v, seeds: int, fs: float = FS_LOG) -> str:
+    """Coast-down rows: X_u of Clarke83 over ``seeds`` seeds (markdown), logged at ``fs`` [Hz]."""
     truth = coastdown_truth(v)
-    sim = simulate_coastdown(v)
+    sim = simulate_coastdown(v, fs=fs)
     res = [coastdown_one((sim, truth, s)) for s in range(seeds)]
     x0 = truth["X_u"]
     errs, cover, ok, peer, wrong = [], [], 0, [], 0
@@ -440,7 +473,7 @@ def coastdown_table(v, seeds: int) -> str:
     errs_a = np.abs(np.array(errs)) if errs else np.array([math.nan])
     fails = [r.get("error") or (r.get("X_u") or {}).get("message", "no X_u estimate") for r in res
              if not (r.get("X_u") or {}).get("success")]
-    lines = [f"Coast-downs (Clarke83, thrust cut from its steady {sim['u'][0]:.2f} m/s, 200 s logged at {FS_LOG:g} Hz, "
+    lines = [f"Coast-downs (Clarke83, thrust cut from its steady {sim['u'][0]:.2f} m/s, 200 s logged at {fs:g} Hz, "
              f"speed noise {U_NOISE} m/s; config from the simulator's own mass and added mass; truth X_u = {x0:.6g} "
              f"kg/s, m - X_udot = {truth['m_eff']:.6g} kg):", "",
              "| ship | manoeuvre | X_u marked success | X_u err % (median signed / median abs / worst) | 95% CI coverage % "
@@ -461,14 +494,15 @@ def rel(v, truth):
 
 def run_one(task) -> dict:
     """One seed of one row: noisy log(s) -> vesselid and the peers."""
-    ship_name, kinds, sims, rudder, waves, seed, truth = task
+    ship_name, kinds, sims, rudder, waves, seed, truth = task[:7]
+    split = task[7] if len(task) > 7 else 1
     rng = np.random.default_rng(1000 * seed + 17)
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
         for kind in kinds:
             log = noisy_log(sims[kind], rudder, waves == "yes", rng)
             run = {"kind": kind, "seed": seed}
-            run["vesselid"] = vesselid_fit(log, Path(tmp), f"{ship_name}_{kind}_{seed}")
+            run["vesselid"] = vesselid_fit(log, Path(tmp), f"{ship_name}_{kind}_{seed}", split)
             try:
                 run["oe"] = scipy_oe(log)
             except (ValueError, np.linalg.LinAlgError):
@@ -494,6 +528,10 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", default="",
                     help="only these rows, comma-separated ship:manoeuvre:rudder:waves (instead of the product)")
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--rate", type=float, default=FS_LOG,
+                    help=f"log rate [Hz] (default {FS_LOG:g}); the command is updated at this rate and held")
+    ap.add_argument("--split", type=int, default=1,
+                    help="write each trial as N consecutive run files (default 1: one file)")
     ap.add_argument("--no-write", action="store_true", help="print only; do not touch RESULTS.md")
     ap.add_argument("--json", default="", help="also write every task's raw result to this JSON-lines file")
     ap.add_argument("--deadline-min", type=float, default=0.0,
@@ -505,13 +543,17 @@ def main(argv=None) -> int:
                     help="only summarise the tasks recorded in these JSON-lines files (comma-separated, from --json) "
                          "and write them")
     args = ap.parse_args(argv)
+    if not (math.isfinite(args.rate) and args.rate > 0):
+        ap.error(f"--rate: expected a positive log rate in Hz, found {args.rate!r}")
+    if args.split < 1:
+        ap.error(f"--split: expected at least 1 file, found {args.split}")
     if args.from_jsonl:
         return summarise_jsonl(args)
     if args.coastdowns:
         v = load_pvs()
         if v is None:
             return 0
-        print(coastdown_table(v, args.coastdowns))
+        print(coastdown_table(v, args.coastdowns, args.rate))
         return 0
     v = load_pvs()
     if v is None:
@@ -532,7 +574,7 @@ def main(argv=None) -> int:
             if wanted and not any(w[:2] == (ship.name, man) for w in wanted):
                 continue
             kinds = [man]
-            sims = {kind: simulate(ship, kind, truth) for kind in kinds}
+            sims = {kind: simulate(ship, kind, truth, args.rate) for kind in kinds}
             best = [attainable(sims[kind], truth) for kind in kinds]
             truth = dict(truth, attainable=[[rel(k, truth["K"]), rel(tt, truth["T"])] for k, tt in best])
             for rudder in args.rudder.split(","):
@@ -540,7 +582,7 @@ def main(argv=None) -> int:
                     if wanted and (ship.name, man, rudder, waves) not in wanted:
                         continue
                     rows_spec.append((ship.name, man, rudder, waves, truth,
-                                      [(ship.name, kinds, sims, rudder, waves, seed, truth)
+                                      [(ship.name, kinds, sims, rudder, waves, seed, truth, args.split)
                                        for seed in range(args.seed_start, args.seed_start + args.seeds)]))
     # Seed-major order: a run stopped at its deadline still has every row, with fewer seeds.
     order = [(r, args.seed_start + k) for k in range(args.seeds) for r in range(len(rows_spec))]
@@ -555,7 +597,8 @@ def main(argv=None) -> int:
         if jsonl is not None:
             spec = rows_spec[r]
             jsonl.write(json.dumps({"ship": spec[0], "man": spec[1], "rudder": spec[2], "waves": spec[3],
-                                    "truth": spec[4], "seed": order[i][1], "runs": res}, default=float) + "\n")
+                                    "truth": spec[4], "seed": order[i][1], "rate": args.rate, "split": args.split,
+                                    "runs": res}, default=float) + "\n")
             jsonl.flush()
         print(f"task {i + 1}/{len(tasks)} done ({time.time() - t0:.0f} s)", flush=True)
 
@@ -722,6 +765,8 @@ def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
     cmd = (f"benchmarks/independent.py --seeds {args.seeds}"
            + (f" --seed-start {args.seed_start}" if args.seed_start else "")
            + f" {rows_given} --workers {args.workers}"
+           + (f" --rate {args.rate:g}" if getattr(args, "rate", FS_LOG) != FS_LOG else "")
+           + (f" --split {args.split}" if getattr(args, "split", 1) != 1 else "")
            + (f" --deadline-min {args.deadline_min:g}" if args.deadline_min > 0 else ""))
     truth_lines = []
     for name, tr in truths.items():

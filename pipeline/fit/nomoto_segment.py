@@ -272,7 +272,39 @@ def fit_window(win: NomotoWindow, order: int, order_note: str, unsure: str = "",
             unsure = ("unsure: the held-out data call for the second-order structure, whose fit of the whole "
                       "record failed; the first-order K and T kept are biased by the missing pole-zero pair")
             fit = first
+    lost = servo_lost_note(win, fit)
+    if lost:
+        notes.append(lost)
     return segment_fit_of(win.segment, fit, win.rec, win.channels, win.t_rel, notes, unsure)
+
+
+def servo_lost_note(win: NomotoWindow, fit: NomotoFit) -> str:
+    """Why T is unsure when a logged command's servo was dropped from a second-order fit ('' otherwise).
+
+    A commanded rudder has a servo behind it (:func:`_choose_servo`). When its lag leaves the range
+    with the second-order structure (it runs to zero) the fit is made without it, but the lag does
+    not go away: to first order in ``s`` a lag ``tau`` turns the zero ``T3 s + 1`` into
+    ``(T3 - tau) s + 1``, so the pole-zero pair takes it up and ``T = T1 + T2 - T3`` holds the ship's
+    T plus the servo lag, with an error that does not show it (measured: PythonVehicleSimulator's
+    Clarke83, 1 s servo lag, commanded steps logged at 2 Hz, seed 0: five steps kept their lag,
+    0.65-1.2 s, T 2.4-3.3 s; the sixth's ran to zero, T 3.64 +- 0.19 s against the linearisation's
+    2.66 s, and pulled the pooled T to +25.9 % marked success). The note starts with
+    ``STRUCTURE_UNDECIDED`` and names T only (the lag leaves the gain alone); K is kept.
+    :func:`pipeline.fit.nomoto_quality.judge_nomoto` marks the combined T unsure unless the
+    segments carrying it are a minority that agrees with the others.
+
+    Parameters
+    ----------
+    win : NomotoWindow
+        The prepared record (``servo`` non-empty for a logged command).
+    fit : NomotoFit
+        The fit kept for the segment.
+    """
+    if not win.servo or fit.order == 1 or any(n in SERVO_PARAMS for n in fit.names):
+        return ""
+    return (f"{STRUCTURE_UNDECIDED} T: the rudder is logged as a command but its servo lag left the range with "
+            f"the second-order structure and was dropped: a lag tau moves the zero T3 to T3 - tau, so T = T1 + T2 "
+            f"- T3 = {fit.T:.4g} s holds the ship's T and the servo lag, which this segment cannot tell apart")
 
 
 def _choose_channels(rec: NomotoRecord, channels: tuple[str, ...], servo: tuple[str, ...]) -> tuple[tuple[str, ...], str]:
