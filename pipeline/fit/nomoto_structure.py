@@ -14,7 +14,7 @@ ship choose differently. Here the choice is made once:
    ``j``; only ``j``'s nuisances are re-estimated on it (initial heading, yaw rate and yaw
    acceleration, the rudder bias, and the gain K, which a nonlinear ship shifts with the rudder
    amplitude: the structure is the shape of the response, its time constants), with ``j``'s own first-order
-   noise filter and servo for both structures (the same whitening for both). The transients of
+   noise filter for both structures (the same whitening for both) and each structure's own servo fit. The transients of
    every segment are held out, not only the records' ends.
 3. The held-out errors of all segments (each channel scaled by its spread in that segment) are
    compared by the project's shared rule (:func:`pipeline.fit.heldout_test.is_significant`):
@@ -912,9 +912,13 @@ def heldout_errors(c: _Candidate, order: int, dyn: np.ndarray) -> dict[str, np.n
     """Errors of the dynamics ``dyn`` (pooled from the other segments) on segment ``c`` [channel units].
 
     The segment's own first-order fit gives the nuisances shared by both structures (its wave
-    innovations filter and compass noise, its servo); the rudder bias and the initial states are
-    re-estimated on the segment by Gauss-Newton (the residual is linear in them), and so is the
-    gain K (the time constants are what is held out).
+    innovations filter and compass noise); the servo (lag, rate limit) is the segment's own fit of
+    the structure scored (the first order's when the segment has no usable second-order fit): a
+    first-order lag soaks up the second order's pole-zero pair (3-6 s against the second order's
+    own 0.9-1.6 s, PythonVehicleSimulator's tanker at 20 m, commanded steps), and the comparison is
+    of the two models as fitted. The rudder bias and the initial states are re-estimated on the
+    segment by Gauss-Newton (the residual is linear in them), and so is the gain K (the time
+    constants are what is held out).
 
     Parameters
     ----------
@@ -934,8 +938,10 @@ def heldout_errors(c: _Candidate, order: int, dyn: np.ndarray) -> dict[str, np.n
                    waves, var if waves is not None else None, servo)
     theta = np.zeros(len(prob.names))
     theta[: prob.n_dyn] = dyn
+    servo_fit = c.second if order != 1 and c.second is not None else own
     for j, nm in enumerate(prob.names[prob.n_dyn:], start=prob.n_dyn):
-        theta[j] = own.value(nm) if nm in own.names else 0.0
+        src = servo_fit if nm in SERVO_PARAMS and nm in servo_fit.names else own
+        theta[j] = src.value(nm) if nm in src.names else 0.0
     for ch in prob.channels:
         v = own.innovation_var.get(ch, math.nan)
         prob.weights[ch] = 1.0 / math.sqrt(v) if math.isfinite(v) and v > 0 else 1.0
