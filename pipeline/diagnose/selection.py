@@ -337,9 +337,20 @@ def forward_select(states: dict[str, DofState], rescore: Callable[[DofState], No
         The selected candidates in order, each with the trial gap after it.
     """
     chosen: list[tuple[CandidateResult, object, float]] = []
+    first_on_top_tried = False
     while len(chosen) < max_effects:
         pool = [(res, run, s) for s in states.values() for res, run in s.results
                 if res.significant and res.label not in s.selected]
+        if not pool and not chosen and not first_on_top_tried:
+            # No candidate passes the calibrated rule: judge the first effect by the on-top shrink
+            # too, where the gap is above its floor. Randomised seed 40 r014 (a twin's quadratic yaw
+            # damping, 4.5 Hz, high noise): p = 1e-37 but a shrink of 5.3 / 7.7 % of the gaps, under
+            # 10 %; found this way. Null on clean unchanged: 83/83 (seeds 43, 36, 28 clean sets; the
+            # clean trials of seeds 40, 45, 26), right first 25/25 on seeds 40, 45, 26.
+            first_on_top_tried = True
+            for st in states.values():
+                on_top_scores(st)
+            continue
         if not pool:
             if len(chosen) + 2 <= max_effects and pair_step(states, rescore, chosen):
                 continue

@@ -38,7 +38,8 @@ damping taking the yaw rate's gap from 1.34 to 1.16 noise units, p = 8e-48) shri
 candidates is unchanged: the shrink of the DOF gap (:data:`pipeline.records.RANKING_RULE`).
 Once the forward selection has selected an effect (:mod:`pipeline.diagnose.selection`), a channel's
 shrink may also be counted on its model error above the sensor noise, ``sqrt(gap^2 - 1)`` noise units
-(``on_top``, :data:`ON_TOP_RULE`): the other conditions stay, and the first effect keeps the rule above.
+(``on_top``, :data:`ON_TOP_RULE`): the other conditions stay, and the first effect keeps the rule above unless
+no candidate of the trial passes it (:func:`pipeline.diagnose.selection.forward_select`).
 Held-out residuals already punish overfitting (an extra parameter fitted to noise makes the held-out
 error larger, so F < 0); the thresholds only guard against chance improvements.
 
@@ -219,7 +220,8 @@ def excess_shrink(gap_before: float, gap_after: float) -> float:
 
 #: The rule's shrink once an effect is selected (:func:`channel_significant` with ``on_top``).
 ON_TOP_RULE = (
-    f"once an effect is selected, a channel's shrink may also be counted on its model error above the sensor "
+    f"once an effect is selected (or when no candidate passes the rule above), a channel's shrink may also be "
+    f"counted on its model error above the sensor "
     f"noise, sqrt(gap^2 - 1) noise units (at least {MIN_SHRINK:g} % of it), where the channel's gap is above its "
     f"held-out floor; the p-value, robustness and scale conditions stay")
 
