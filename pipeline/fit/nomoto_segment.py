@@ -186,7 +186,7 @@ def prepare_window(trial: Trial, segment: Segment, t0: float, t1: float) -> Nomo
                      "with K and T")
         drive = delta
     else:
-        notes.append("rudder logged as a measured angle: used directly (mean over each sample interval)")
+        notes.append(f"{MEASURED_RUDDER}: used directly (mean over each sample interval)")
         drive = np.concatenate([0.5 * (delta[:-1] + delta[1:]), delta[-1:]])
     rec = NomotoRecord(t=t, delta=drive, psi=rows["psi"].to_numpy(dtype=float) if "psi" in channels else None,
                        r=rows["r"].to_numpy(dtype=float) if "r" in channels else None, name=where)
@@ -614,6 +614,9 @@ def stack_rows(rows: list[np.ndarray]) -> np.ndarray:
 ORDER2_EXTRA_PARAMS = 3
 #: Relative difference of K or T between the structures that makes a near-tie matter [-].
 STRUCTURE_MATERIAL = 0.10
+#: Start of the window note of a rudder logged as a measured angle (read by
+#: :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note`).
+MEASURED_RUDDER = "rudder logged as a measured angle"
 
 
 def first_order_start_values(first: NomotoFit) -> dict[str, float]:

@@ -77,8 +77,8 @@ from .nomoto_problem import SERVO_PARAMS, Problem, prepare
 from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_oe import fit_nomoto
 from .nomoto_pool import JOINT_FOLLOWER
-from .nomoto_segment import (LEAD_SPEED_SECONDS, ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order, equivalent_t_stderr,
-                             fit_nomoto_window, fit_window, fit_window_order, first_order_start_values, prepare_window,
+from .nomoto_segment import (LEAD_SPEED_SECONDS, MEASURED_RUDDER, ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order,
+                             equivalent_t_stderr, fit_nomoto_window, fit_window, fit_window_order, first_order_start_values, prepare_window,
                              rec_channel, segment_fit_of, slow_noise_note, speed_range_note, stack_rows,
                              structure_ambiguity)
 from .nomoto_segment import structure_note as per_segment_structure_note
@@ -766,7 +766,7 @@ def with_rudder_timing_note(sf: SegmentFit, win: NomotoWindow) -> SegmentFit:
     win : NomotoWindow
         Its prepared window (the rudder as it drives the model, the sample times).
     """
-    measured = any(n.startswith("rudder logged as a measured angle") for n in win.notes)
+    measured = any(n.startswith(MEASURED_RUDDER) for n in win.notes)
     if not (measured and sf.success and "T" in sf.params and "t_servo" not in sf.params and rudder_jumps(win.rec)):
         return sf
     t = np.asarray(win.rec.t, float)
