@@ -319,6 +319,12 @@ def vesselid_fit(log: dict, workdir: Path, tag: str, split: int = 1) -> dict:
     except Exception as exc:  # noqa: BLE001 - a crash is a result of the benchmark, recorded per run
         return {"error": f"crash: {type(exc).__name__}: {exc}"}
     out = {"kinds": [s.kind for s in segs.items if s.dof == "yaw"],
+           # Every file counted: the runs found (files that continue one clock are one run), each
+           # run's segments, and what the detector dropped at a file boundary (Segments.notes).
+           "runs": [{"files": [Path(f).name for f in run.sources],
+                     "segments": sum(trial.run_index(s.t_start) == k for s in segs.items)}
+                    for k, run in enumerate(trial.run_list())],
+           "segment_notes": list(segs.notes),
            "segments": [{"kind": sf.segment.kind, "model": sf.model, "success": sf.success,
                          "params": {n: sf.params[n] for n in SEG_PARAMS if n in sf.params},
                          "stderr": {n: sf.stderr[n] for n in SEG_PARAMS if n in sf.stderr},
