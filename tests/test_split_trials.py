@@ -149,3 +149,14 @@ def test_a_gap_longer_than_a_dropout_keeps_files_apart(table, tmp_path):
     groups = group_runs(apart)
     assert [g.sources for g in groups] == [(apart[0].source,), (apart[1].source,)]
     assert not any(g.continued for g in groups)
+
+
+def test_stated_runs_of_rotated_files_with_utc_times_are_joined(table, tmp_path):
+    """A manifest stating the three files of one rotated UTC log as one run: before, refused as files
+    of one run that do not overlap in absolute time; now one recording, as the unsplit file."""
+    parts = _pieces(table, [20.05, 90.0], tmp_path / "parts", iso=True)
+    trial = load_trial(parts, runs=[parts], run_names=["day"])
+    assert [r.name for r in trial.runs] == ["day"] and trial.runs[0].sources == tuple(str(p) for p in parts)
+    one = load_trial([_write(table, tmp_path / "day.csv", True)])
+    assert len(trial.t) == len(one.t)
+    np.testing.assert_allclose(trial.data["r"].to_numpy(), one.data["r"].to_numpy(), rtol=0, atol=1e-6)

@@ -234,34 +234,49 @@ def _clock_start(a: RawLog, b: RawLog) -> float | None:
     return 0.0
 
 
-def _continuation(a: RawLog, b: RawLog) -> str | None:
-    """Why ``b`` continues ``a``'s recording (None when it does not).
+@dataclass(frozen=True)
+class _Ends:
+    """What tells whether one log continues another: per channel its first and last sample time [s,
+    own clock] and, for measured channels, the median sample interval [s]."""
+
+    names: frozenset[str]
+    first: Mapping[str, float]
+    last: Mapping[str, float]
+    interval: Mapping[str, float]
+
+
+def _ends(log: RawLog) -> _Ends:
+    chans = {n: c for n, c in log.channels.items() if len(c.t)}
+    return _Ends(frozenset(chans), {n: float(c.t[0]) for n, c in chans.items()},
+                 {n: float(c.t[-1]) for n, c in chans.items()},
+                 {n: float(np.median(np.diff(c.t))) if len(c.t) > 1 else math.inf
+                  for n, c in chans.items() if n.split("@")[0] not in INPUT_UNITS})
+
+
+def _continuation(a: RawLog, b: RawLog, ea: _Ends, eb: _Ends) -> str | None:
+    """Why ``b`` continues ``a``'s recording (None when it does not); ``ea``, ``eb`` their :func:`_ends`.
 
     The same channels; every measured channel's first sample in ``b`` after its last in ``a`` by
     no more than a dropout (:func:`pipeline.align.resample.dropout_limit` of its sample interval);
     no input of ``b`` before ``a``'s last sample of it.
     """
-    names_a = {n for n, c in a.channels.items() if len(c.t)}
-    names_b = {n for n, c in b.channels.items() if len(c.t)}
+    if ea.names != eb.names or not ea.interval:
+        return None
     shift = _clock_start(a, b)
-    if names_a != names_b or shift is None:
+    if shift is None:
         return None
     spacing = []
-    for n in sorted(names_a):
-        ca, cb = a.channels[n], b.channels[n]
-        gap = float(cb.t[0]) + shift - float(ca.t[-1])
+    for n in ea.names:
+        gap = eb.first[n] + shift - ea.last[n]
         if not gap > 0:
             return None
-        if n.split("@")[0] in INPUT_UNITS:
+        if n not in ea.interval:
             continue
-        steps = np.concatenate([np.diff(ca.t), np.diff(cb.t)])
-        interval = float(np.median(steps)) if steps.size else math.inf
-        if not gap <= dropout_limit(interval):
+        interval = min(ea.interval[n], eb.interval[n])
+        if not (math.isfinite(interval) and gap <= dropout_limit(interval)):
             return None
         spacing.append(gap / interval)
-    if not spacing:
-        return None
-    return f"{max(spacing):.2g} sample interval(s) after it"
+    return f"{max(spacing):.2g} sample interval(s) after"
 
 
 def _join_rotated(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | None
@@ -284,11 +299,12 @@ def _join_rotated(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | No
     run_of = {s: k for k, run in enumerate(explicit or ()) for s in run}
     after: dict[str, list[tuple[str, str]]] = {l.source: [] for l in logs}
     before: dict[str, list[str]] = {l.source: [] for l in logs}
+    ends = {l.source: _ends(l) for l in logs}
     for a in logs:
         for b in logs:
             if a is b or run_of.get(a.source, -1) != run_of.get(b.source, -1):
                 continue
-            why = _continuation(a, b)
+            why = _continuation(a, b, ends[a.source], ends[b.source])
             if why is not None:
                 after[a.source].append((b.source, why))
                 before[b.source].append(a.source)
