@@ -115,6 +115,9 @@ def test_files_with_a_real_gap_are_runs_of_their_own_and_a_cut_manoeuvre_is_drop
     assert "yaw zigzag" in dropped[1] and "the end of run 1 'part2'" in dropped[1]
     assert "yaw zigzag" in dropped[2] and "the start of run 2 'part3'" in dropped[2]
     assert not any(s.kind == "zigzag" for s in segs.items)
+    # part2 begins with the rudder still at +10 deg: the rest of the step cut at the end of part1.
+    (cut,) = [n for n in segs.notes if n.startswith("cut: ")]
+    assert cut.startswith("cut: run 1 'part2' starts with delta up to 0.174 rad"), cut
     # Each run is segmented on its own: the rudder manoeuvres kept are those its file alone gives, minus
     # the cut ones. (Coast-downs found in the speed may move by a sample next to a run boundary.)
     for k, p in enumerate(parts):
@@ -160,3 +163,14 @@ def test_stated_runs_of_rotated_files_with_utc_times_are_joined(table, tmp_path)
     one = load_trial([_write(table, tmp_path / "day.csv", True)])
     assert len(trial.t) == len(one.t)
     np.testing.assert_allclose(trial.data["r"].to_numpy(), one.data["r"].to_numpy(), rtol=0, atol=1e-6)
+
+
+def test_a_step_back_to_rest_cut_by_a_gap_is_kept_and_said(table, tmp_path):
+    """Cut at 40 s, inside the rudder step back to zero (28-48 s): its input is at rest when part1 ends,
+    so it is kept as its file alone gives it (12 s of the return to zero), with a note."""
+    parts = _pieces(table, [40.05], tmp_path / "parts", gap_s=100.0)
+    segs = detect_segments(load_trial(parts))
+    kept = [n for n in segs.notes if n.startswith("kept: ")]
+    assert len(kept) == 1 and "yaw rudder_step at t = 28.00-40.00 s" in kept[0] and "12.0 s logged" in kept[0], segs.notes
+    assert any(s.kind == "rudder_step" and s.t_start == pytest.approx(28.0) for s in segs.items)
+    assert not any(n.startswith(("dropped: ", "cut: ")) for n in segs.notes), segs.notes

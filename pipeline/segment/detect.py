@@ -344,22 +344,47 @@ def _under_way(s: Segment) -> bool:
     return abs(s.input_after) > 0.05 * max(abs(s.input_before), abs(s.input_after))
 
 
+#: An input within this fraction of its largest magnitude in the trial (or within 3 noise sigma) is at rest.
+REST_FRACTION = 0.05
+#: Stretch [s] at a run's end or start over which an input must stay at rest for no manoeuvre to be under way.
+BOUNDARY_S = 2.0
+
+
+def _inputs_under_way(trial: Trial, t0: float, t1: float) -> list[str]:
+    """The inputs not at rest (``REST_FRACTION``) somewhere in ``t0 .. t1`` [s], as ``'delta up to 0.17 rad'``."""
+    out = []
+    window = trial.window(t0, t1)
+    for ch in trial.data.columns:
+        if ch.split("@")[0] not in INPUT_UNITS or not trial.has(ch):
+            continue
+        u = trial.data[ch].to_numpy()
+        w = np.abs(window[ch].to_numpy())
+        w = w[np.isfinite(w)]
+        if w.size and float(np.max(w)) > max(REST_FRACTION * float(np.nanmax(np.abs(u))), 3 * noise_std(u)):
+            out.append(f"{ch} up to {float(np.max(w)):.3g} {INPUT_UNITS[ch.split('@')[0]]}")
+    return out
+
+
 def _file_boundaries(trial: Trial, segs: list[Segment]) -> tuple[list[Segment], list[str]]:
-    """Drop the segments a boundary between two runs cuts, and count every run's segments.
+    """Drop the segments a boundary between two runs cuts, say what else it cuts, count every run's segments.
 
     Runs are recordings with a real gap between them (files that continue one clock are one run,
     :func:`pipeline.align.runs.group_runs`). An input-driven segment whose window reaches the last
     sample of a run that another run follows while its manoeuvre is under way (:func:`_under_way`),
     or starts at the first sample of a run that follows another, belongs to a manoeuvre that went
-    on while nothing was logged: it is dropped, with a note naming it.
+    on while nothing was logged: it is dropped, with a note naming it. A segment that reaches such
+    a boundary with its input back at rest is kept, with a note that the boundary ended its window;
+    an input under way at a boundary (``BOUNDARY_S``) that no dropped segment accounts for (a
+    stretch too short to be a segment) gets a note too, so nothing a boundary cuts goes unsaid.
 
     Returns
     -------
     kept : list[Segment]
         The segments no boundary cuts.
     notes : list[str]
-        One per dropped segment, then the count of each run's segments (with its files); empty for a
-        trial of one file.
+        One per dropped segment, per segment kept with its window ended by a boundary, per input
+        under way at a boundary otherwise unaccounted for, then the count of each run's segments
+        (with its files); empty for a trial of one file.
     """
     runs = trial.run_list()
     if len(runs) < 2 and all(len(r.sources) < 2 for r in runs):
@@ -368,19 +393,38 @@ def _file_boundaries(trial: Trial, segs: list[Segment]) -> tuple[list[Segment], 
     kept: list[Segment] = []
     notes: list[str] = []
     dropped = [0] * len(runs)
+    said: set[tuple[int, str]] = set()
     for s in segs:
         k = trial.run_index(s.t_start)
         run = runs[k]
-        at_end = k < len(runs) - 1 and s.t_end >= run.t_end - step and _under_way(s)
+        reaches_end = k < len(runs) - 1 and s.t_end >= run.t_end - step
+        at_end = reaches_end and _under_way(s)
         at_start = k > 0 and s.t_start <= run.t_start + step and s.input_channel is not None
         if not (at_end or at_start):
             kept.append(s)
+            if reaches_end and s.input_channel is not None:
+                said.add((k, "end"))
+                notes.append(f"kept: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s: the end of run {k} "
+                             f"{run.name!r} (a file boundary, a gap to the next run) ends its window with its input "
+                             f"back at rest; fitted on the {s.t_end - s.t_start:.1f} s logged")
             continue
         dropped[k] += 1
+        said.add((k, "end" if at_end else "start"))
         where = (f"the end of run {k} {run.name!r} (the next run starts after a gap)" if at_end else
                  f"the start of run {k} {run.name!r} (a gap after the run before it)")
         notes.append(f"dropped: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s cut by {where}: the "
                      f"manoeuvre went on while nothing was logged, so neither file holds it whole")
+    for k, run in enumerate(runs):
+        sides = ([("end", run.t_end - BOUNDARY_S, run.t_end)] if k < len(runs) - 1 else []) + \
+                ([("start", run.t_start, run.t_start + BOUNDARY_S)] if k > 0 else [])
+        for side, t0, t1 in sides:
+            busy = _inputs_under_way(trial, t0, t1) if (k, side) not in said else []
+            if busy:
+                notes.append(f"cut: run {k} {run.name!r} {'ends' if side == 'end' else 'starts'} with "
+                             f"{', '.join(busy)} (a manoeuvre under way at a file boundary, a gap "
+                             f"{'to the next run' if side == 'end' else 'after the run before it'}): its part "
+                             f"{'after the last' if side == 'end' else 'before the first'} segment of this run is "
+                             f"not fitted")
     counts = []
     for k, run in enumerate(runs):
         mine = [s for s in kept if trial.run_index(s.t_start) == k]
