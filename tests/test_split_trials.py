@@ -174,3 +174,20 @@ def test_a_step_back_to_rest_cut_by_a_gap_is_kept_and_said(table, tmp_path):
     assert len(kept) == 1 and "yaw rudder_step at t = 28.00-40.00 s" in kept[0] and "12.0 s logged" in kept[0], segs.notes
     assert any(s.kind == "rudder_step" and s.t_start == pytest.approx(28.0) for s in segs.items)
     assert not any(n.startswith(("dropped: ", "cut: ")) for n in segs.notes), segs.notes
+
+
+def test_a_rotated_file_that_gains_a_channel_continues_the_recording(table, tmp_path):
+    """The speed appears only from the second file on (a GNSS that found its fix): still one recording,
+    the speed NaN before its first sample and equal to the unsplit file's after it."""
+    folder = tmp_path / "parts"
+    folder.mkdir()
+    first = _write(table[table["t"] < 60.0].drop(columns="u"), folder / "part1.csv", False)
+    second = _write(table[table["t"] >= 60.0], folder / "part2.csv", False)
+    trial = load_trial([first, second])
+    one = load_trial([_write(table, tmp_path / "day.csv", False)])
+    assert len(trial.runs) == 1 and trial.runs[0].sources == (str(first), str(second))
+    u, t = trial.data["u"].to_numpy(), trial.t
+    assert np.isnan(u[t < 59.95]).all()
+    # (The grid rate comes from the fastest channel's median interval: equal to 1e-11 here.)
+    np.testing.assert_allclose(u[t >= 60.0], one.data["u"].to_numpy()[t >= 60.0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(trial.data["r"].to_numpy(), one.data["r"].to_numpy(), rtol=0, atol=1e-9)

@@ -292,9 +292,18 @@ def run_channels(logs: Sequence[RawLog], group: RunGroup, input_kinds: Mapping[s
             for ch in log.channels.values():
                 if not len(ch.t):
                     continue
-                old = chans[prev[ch.name]]
-                chans[old.name] = replace(old, t=np.concatenate([old.t, ch.t + off]),
-                                          values=np.concatenate([old.values, ch.values]))
+                if ch.name in prev:
+                    old = chans[prev[ch.name]]
+                    chans[old.name] = replace(old, t=np.concatenate([old.t, ch.t + off]),
+                                              values=np.concatenate([old.values, ch.values]))
+                    continue
+                # A channel the file before did not have (a GNSS that found its fix): it starts here.
+                key = ch.name if ch.name not in chans else f"{ch.name}@{Path(log.source).stem}"
+                while key in chans:
+                    key += "_"
+                kind = input_kinds.get(key, input_kinds.get(ch.name.split("@")[0], ch.input_kind))
+                chans[key] = Channel(key, ch.t + off, ch.values, ch.source, kind)
+                prev[ch.name] = key
             continue
         keys_of[log.source] = {}
         if off:

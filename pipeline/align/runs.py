@@ -256,17 +256,20 @@ def _ends(log: RawLog) -> _Ends:
 def _continuation(a: RawLog, b: RawLog, ea: _Ends, eb: _Ends) -> str | None:
     """Why ``b`` continues ``a``'s recording (None when it does not); ``ea``, ``eb`` their :func:`_ends`.
 
-    The same channels; every measured channel's first sample in ``b`` after its last in ``a`` by
-    no more than a dropout (:func:`pipeline.align.resample.dropout_limit` of its sample interval);
-    no input of ``b`` before ``a``'s last sample of it.
+    The channels of one are all in the other (a file may gain a channel, a GNSS that found its fix,
+    or lose one), at least one measured channel in both; every shared measured channel's first
+    sample in ``b`` after its last in ``a`` by no more than a dropout
+    (:func:`pipeline.align.resample.dropout_limit` of its sample interval); no shared input of ``b``
+    before ``a``'s last sample of it.
     """
-    if ea.names != eb.names or not ea.interval:
+    shared = ea.names & eb.names
+    if not (ea.names <= eb.names or eb.names <= ea.names) or not any(n in ea.interval for n in shared):
         return None
     shift = _clock_start(a, b)
     if shift is None:
         return None
     spacing = []
-    for n in ea.names:
+    for n in sorted(shared):
         gap = eb.first[n] + shift - ea.last[n]
         if not gap > 0:
             return None
@@ -327,7 +330,7 @@ def _join_rotated(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | No
         for s in chain[1:]:
             shift = _clock_start(head, by_source[s])
             for n, c in by_source[s].channels.items():
-                parts[n].append(replace(c, t=np.asarray(c.t, float) + shift))
+                parts.setdefault(n, []).append(replace(c, t=np.asarray(c.t, float) + shift))
         chans = {n: Channel(n, np.concatenate([c.t for c in cs]), np.concatenate([c.values for c in cs]),
                             cs[0].source, cs[0].input_kind) for n, cs in parts.items()}
         joined.append(replace(head, channels=chans))
