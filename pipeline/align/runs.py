@@ -18,10 +18,10 @@ alone cannot tell them apart; a redundant second logger of one recording is ther
 run of its own unless the manifest states the runs. A log that
 can be placed nowhere becomes a run of its own.
 
-One exception comes first: a log that continues another one's clock (the same channels, its first
-samples within a sample interval of the other's last ones, on the absolute clock when both have
-one, else on the logged time itself) is the same recording, written by a logger that rotates its
-file. Such files are one run and their channels are joined end to end (:attr:`RunGroup.continued`),
+One exception comes first: a log that continues another one's clock (the channels of one all in
+the other, the first samples of the shared ones after the other's last ones by no more than a
+dropout, on the absolute clock when both have one, else on the logged time itself) is the same
+recording, written by a logger that rotates its file. Such files are one run and their channels are joined end to end (:attr:`RunGroup.continued`),
 so they give the segments of one file; files with a real gap between them (more than a dropout,
 :func:`pipeline.align.resample.dropout_limit`) stay separate runs. A manifest can state the runs instead
 (``explicit``); their clocks are still estimated, and a stated run whose files do not overlap in

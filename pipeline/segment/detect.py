@@ -330,6 +330,12 @@ def _has_input_for(trial: Trial, dof: str) -> bool:
                for c in trial.data.columns)
 
 
+#: An input within this fraction of its largest magnitude in the trial (or within 3 noise sigma) is at rest.
+REST_FRACTION = 0.05
+#: Stretch [s] at a run's end or start over which an input must stay at rest for no manoeuvre to be under way.
+BOUNDARY_S = 2.0
+
+
 def _under_way(s: Segment) -> bool:
     """Whether the manoeuvre of an input-driven segment was still going at the segment's end.
 
@@ -341,13 +347,7 @@ def _under_way(s: Segment) -> bool:
         return False
     if s.kind in ("zigzag", "sinusoid"):
         return True
-    return abs(s.input_after) > 0.05 * max(abs(s.input_before), abs(s.input_after))
-
-
-#: An input within this fraction of its largest magnitude in the trial (or within 3 noise sigma) is at rest.
-REST_FRACTION = 0.05
-#: Stretch [s] at a run's end or start over which an input must stay at rest for no manoeuvre to be under way.
-BOUNDARY_S = 2.0
+    return abs(s.input_after) > REST_FRACTION * max(abs(s.input_before), abs(s.input_after))
 
 
 def _inputs_under_way(trial: Trial, t0: float, t1: float) -> list[str]:
