@@ -8,7 +8,8 @@ Clarke83 ship (linear 3-DOF sway-yaw model: second-order Nomoto with complex pol
 sinusoids at two frequencies (one log: 3 periods at 2/T, a 10 T hold, 3 periods at 0.5/T). Each is run once per ship with the simulator's own ``dynamics`` at
 20 Hz (its forward Euler; a finer step where 20 Hz is no multiple of the log rate) and logged at
 5 Hz (``--rate``, 1-100 Hz; the command is updated at the log rate and held) as a canonical CSV, one
-file or ``--split N`` consecutive run files: heading (wrapped), yaw rate,
+file or ``--split N`` consecutive run files (``--split-gap S``: each later file's clock S s on, a
+logger switched off between files): heading (wrapped), yaw rate,
 speed and the rudder, logged either as the servo's measured angle (``measured``: noisy, ramps) or
 as the command (``commanded``: clean steps). Each seed then adds its own sensor noise (compass
 0.2 deg, gyro 0.05 deg/s, rudder sensor 0.1 deg) and, with ``waves``, a narrow-band wave-induced
@@ -287,11 +288,15 @@ def write_csv(log: dict, path: Path) -> None:
                fmt="%.9g")
 
 
-def write_split(log: dict, workdir: Path, tag: str, split: int) -> list[Path]:
+def write_split(log: dict, workdir: Path, tag: str, split: int, gap_s: float = 0.0) -> list[Path]:
     """The log as ``split`` consecutive CSV files of (nearly) equal length, as a trial day's run
-    files: each keeps the logger's clock (``t`` continues), no sample is repeated or dropped."""
+    files: each keeps the logger's clock (``t`` continues), no sample is repeated or dropped. With
+    ``gap_s`` [s] > 0 file k's clock is ``k * gap_s`` later (a logger switched off between files:
+    separate runs, and a manoeuvre a boundary cuts is dropped with a note)."""
     if split < 1:
         raise ValueError(f"error: --split must be at least 1, found {split}")
+    if not gap_s >= 0:
+        raise ValueError(f"error: --split-gap must be at least 0 s, found {gap_s}")
     if split == 1:
         path = workdir / f"{tag}.csv"
         write_csv(log, path)
@@ -300,15 +305,16 @@ def write_split(log: dict, workdir: Path, tag: str, split: int) -> list[Path]:
     paths = []
     for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])):
         path = workdir / f"{tag}_part{i + 1}.csv"
-        write_csv({k: v[lo:hi] for k, v in log.items()}, path)
+        part = {k: v[lo:hi] for k, v in log.items()}
+        write_csv(dict(part, t=part["t"] + i * gap_s), path)
         paths.append(path)
     return paths
 
 
 # --------------------------------------------------------------------------- estimators
-def vesselid_fit(log: dict, workdir: Path, tag: str, split: int = 1) -> dict:
+def vesselid_fit(log: dict, workdir: Path, tag: str, split: int = 1, gap_s: float = 0.0) -> dict:
     """The user's path: CSV file(s) -> load_trial -> detect_segments -> fit_trial (name-only vessel)."""
-    paths = write_split(log, workdir, tag, split)
+    paths = write_split(log, workdir, tag, split, gap_s)
     vessel = parse_vessel({"name": "pvs_ship"})
     try:
         trial = load_trial(paths)
@@ -319,6 +325,12 @@ def vesselid_fit(log: dict, workdir: Path, tag: str, split: int = 1) -> dict:
     except Exception as exc:  # noqa: BLE001 - a crash is a result of the benchmark, recorded per run
         return {"error": f"crash: {type(exc).__name__}: {exc}"}
     out = {"kinds": [s.kind for s in segs.items if s.dof == "yaw"],
+           # Every file counted: the runs found (files that continue one clock are one run), each
+           # run's segments, and what the detector dropped at a file boundary (Segments.notes).
+           "runs": [{"files": [Path(f).name for f in run.sources],
+                     "segments": sum(trial.run_index(s.t_start) == k for s in segs.items)}
+                    for k, run in enumerate(trial.run_list())],
+           "segment_notes": list(segs.notes),
            "segments": [{"kind": sf.segment.kind, "model": sf.model, "success": sf.success,
                          "params": {n: sf.params[n] for n in SEG_PARAMS if n in sf.params},
                          "stderr": {n: sf.stderr[n] for n in SEG_PARAMS if n in sf.stderr},
@@ -496,13 +508,14 @@ def run_one(task) -> dict:
     """One seed of one row: noisy log(s) -> vesselid and the peers."""
     ship_name, kinds, sims, rudder, waves, seed, truth = task[:7]
     split = task[7] if len(task) > 7 else 1
+    gap_s = task[8] if len(task) > 8 else 0.0
     rng = np.random.default_rng(1000 * seed + 17)
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
         for kind in kinds:
             log = noisy_log(sims[kind], rudder, waves == "yes", rng)
             run = {"kind": kind, "seed": seed}
-            run["vesselid"] = vesselid_fit(log, Path(tmp), f"{ship_name}_{kind}_{seed}", split)
+            run["vesselid"] = vesselid_fit(log, Path(tmp), f"{ship_name}_{kind}_{seed}", split, gap_s)
             try:
                 run["oe"] = scipy_oe(log)
             except (ValueError, np.linalg.LinAlgError):
@@ -532,6 +545,9 @@ def main(argv=None) -> int:
                     help=f"log rate [Hz] (default {FS_LOG:g}); the command is updated at this rate and held")
     ap.add_argument("--split", type=int, default=1,
                     help="write each trial as N consecutive run files (default 1: one file)")
+    ap.add_argument("--split-gap", type=float, default=0.0,
+                    help="with --split: each later file's clock this many seconds on (default 0: the files "
+                         "continue one clock, a logger that rotates its file)")
     ap.add_argument("--no-write", action="store_true", help="print only; do not touch RESULTS.md")
     ap.add_argument("--json", default="", help="also write every task's raw result to this JSON-lines file")
     ap.add_argument("--deadline-min", type=float, default=0.0,
@@ -547,6 +563,8 @@ def main(argv=None) -> int:
         ap.error(f"--rate: expected a positive log rate in Hz, found {args.rate!r}")
     if args.split < 1:
         ap.error(f"--split: expected at least 1 file, found {args.split}")
+    if not (math.isfinite(args.split_gap) and args.split_gap >= 0):
+        ap.error(f"--split-gap: expected a gap of at least 0 s, found {args.split_gap!r}")
     if args.from_jsonl:
         return summarise_jsonl(args)
     if args.coastdowns:
@@ -582,7 +600,7 @@ def main(argv=None) -> int:
                     if wanted and (ship.name, man, rudder, waves) not in wanted:
                         continue
                     rows_spec.append((ship.name, man, rudder, waves, truth,
-                                      [(ship.name, kinds, sims, rudder, waves, seed, truth, args.split)
+                                      [(ship.name, kinds, sims, rudder, waves, seed, truth, args.split, args.split_gap)
                                        for seed in range(args.seed_start, args.seed_start + args.seeds)]))
     # Seed-major order: a run stopped at its deadline still has every row, with fewer seeds.
     order = [(r, args.seed_start + k) for k in range(args.seeds) for r in range(len(rows_spec))]
@@ -598,6 +616,7 @@ def main(argv=None) -> int:
             spec = rows_spec[r]
             jsonl.write(json.dumps({"ship": spec[0], "man": spec[1], "rudder": spec[2], "waves": spec[3],
                                     "truth": spec[4], "seed": order[i][1], "rate": args.rate, "split": args.split,
+                                    "split_gap": args.split_gap,
                                     "runs": res}, default=float) + "\n")
             jsonl.flush()
         print(f"task {i + 1}/{len(tasks)} done ({time.time() - t0:.0f} s)", flush=True)
@@ -767,6 +786,7 @@ def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
            + f" {rows_given} --workers {args.workers}"
            + (f" --rate {args.rate:g}" if getattr(args, "rate", FS_LOG) != FS_LOG else "")
            + (f" --split {args.split}" if getattr(args, "split", 1) != 1 else "")
+           + (f" --split-gap {args.split_gap:g}" if getattr(args, "split_gap", 0.0) else "")
            + (f" --deadline-min {args.deadline_min:g}" if args.deadline_min > 0 else ""))
     truth_lines = []
     for name, tr in truths.items():

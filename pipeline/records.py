@@ -442,10 +442,11 @@ class Segment:
 
 @dataclass(frozen=True)
 class Segments:
-    """The segments of one trial, in time order."""
+    """The segments of one trial, in time order, and what the detector left out and why (``notes``)."""
 
     trial: str
     items: tuple[Segment, ...]
+    notes: tuple[str, ...] = ()
 
     def of(self, kind: str | None = None, dof: str | None = None) -> tuple[Segment, ...]:
         """Segments of one kind and/or DOF.

@@ -126,16 +126,17 @@ def align(logs: Sequence[RawLog], name: str = "trial", fs: float | None = None,
         groups = [RunGroup(name, tuple(l.source for l in logs),
                            {l.source: given.get(l.source, ClockOffset(0.0, 0.0, "given")) for l in logs},
                            "one run: clock offsets given by the caller")]
-    if len(groups) > 1 or runs is not None:
+    if len(groups) > 1 or runs is not None or any(g.continued for g in groups):
         notes.append(f"runs: {len(groups)} - " + " | ".join(
             f"{g.name} ({', '.join(Path(s).name for s in g.sources)}): {g.reason}" for g in groups))
     for g in groups:
         # Before choosing a rate: a single epoch has none, and its error should say so.
         check_duration([c for l in logs if l.source in g.sources for c in l.channels.values()])
     if fs is None:
-        rates = [_native_rate(c) for l in logs for k, c in l.channels.items()
-                 if k.split("@")[0] not in INPUT_UNITS and len(c.t) > 1]
-        rates = rates or [_native_rate(c) for l in logs for c in l.channels.values() if len(c.t) > 1]
+        # Per run, with rotated files joined: the rate of a recording, not of its pieces.
+        run_chans = [c for g in groups for c in run_channels([by_source[s] for s in g.sources], g, {})[0].values()]
+        rates = [_native_rate(c) for c in run_chans if c.name.split("@")[0] not in INPUT_UNITS and len(c.t) > 1]
+        rates = rates or [_native_rate(c) for c in run_chans if len(c.t) > 1]
         fs = min(max(rates), MAX_DEFAULT_RATE) if rates else 0.0
     if not fs > 0:
         raise AlignError(f"align: expected a positive sample rate [Hz], found {fs}")
@@ -254,20 +255,57 @@ def _run_tod(logs: Sequence[RawLog], group: RunGroup, t_first: float) -> float:
     return math.nan
 
 
-def _align_run(logs: Sequence[RawLog], group: RunGroup, fs: float, gap_threshold: float | None,
-               vessel: Vessel | None, input_kinds: Mapping[str, str]
-               ) -> tuple[pd.DataFrame, list[Gap], list[str], dict[str, str], float, dict[str, np.ndarray]]:
-    """One run on its own uniform grid from its first sample: frame, gaps, notes, input kinds, t0, and the
-    real sample times [s from the run's start] of the channels measured slower than the grid
-    (:func:`slow_sample_times`)."""
+def run_channels(logs: Sequence[RawLog], group: RunGroup, input_kinds: Mapping[str, str]
+                 ) -> tuple[dict[str, Channel], list[str]]:
+    """The channels of one run on its clock, before resampling.
+
+    Each log's times are shifted by its offset; a channel that two sensor logs share is kept twice
+    (the second as ``name@<file stem>``); a file that continues the one before it
+    (``RunGroup.continued``, a logger that rotates its file) has its samples appended to that file's
+    channels.
+
+    Parameters
+    ----------
+    logs : Sequence[RawLog]
+        The run's logs, in the order of ``group.sources``.
+    group : RunGroup
+        Their grouping (offsets, continued files).
+    input_kinds : Mapping[str, str]
+        Input channel -> ``command`` or ``measured`` (overrides the reader's).
+
+    Returns
+    -------
+    chans : dict[str, Channel]
+        Channel key -> channel on the run clock [s]; channels without samples are left out.
+    notes : list[str]
+        Offsets applied and channels renamed.
+    """
     notes: list[str] = []
-    if len(logs) > 1:
-        for src in group.sources:
-            est = group.offsets[src]
-            notes.append(f"clock: {src} offset {est.offset_s:+.6f} s +- {est.stderr_s:.3g} s ({est.method})")
     chans: dict[str, Channel] = {}
-    for log in logs:
+    keys_of: dict[str, dict[str, str]] = {}
+    for i, log in enumerate(logs):
         off = float(group.offsets[log.source].offset_s)
+        if log.source in group.continued:
+            # The next file of one logger: its samples go on after the file before it, channel by channel.
+            prev = keys_of[logs[i - 1].source]
+            keys_of[log.source] = prev
+            for ch in log.channels.values():
+                if not len(ch.t):
+                    continue
+                if ch.name in prev:
+                    old = chans[prev[ch.name]]
+                    chans[old.name] = replace(old, t=np.concatenate([old.t, ch.t + off]),
+                                              values=np.concatenate([old.values, ch.values]))
+                    continue
+                # A channel the file before did not have (a GNSS that found its fix): it starts here.
+                key = ch.name if ch.name not in chans else f"{ch.name}@{Path(log.source).stem}"
+                while key in chans:
+                    key += "_"
+                kind = input_kinds.get(key, input_kinds.get(ch.name.split("@")[0], ch.input_kind))
+                chans[key] = Channel(key, ch.t + off, ch.values, ch.source, kind)
+                prev[ch.name] = key
+            continue
+        keys_of[log.source] = {}
         if off:
             notes.append(f"{log.source}: clock offset {off:+.3f} s applied")
         for ch in log.channels.values():
@@ -280,7 +318,23 @@ def _align_run(logs: Sequence[RawLog], group: RunGroup, fs: float, gap_threshold
                 notes.append(f"{log.source}: channel {ch.name} also in another log; kept as {key}")
             kind = input_kinds.get(key, input_kinds.get(ch.name.split("@")[0], ch.input_kind))
             chans[key] = Channel(key, ch.t + off, ch.values, ch.source, kind)
-    chans = {k: c for k, c in chans.items() if len(c.t)}
+            keys_of[log.source][ch.name] = key
+    return {k: c for k, c in chans.items() if len(c.t)}, notes
+
+
+def _align_run(logs: Sequence[RawLog], group: RunGroup, fs: float, gap_threshold: float | None,
+               vessel: Vessel | None, input_kinds: Mapping[str, str]
+               ) -> tuple[pd.DataFrame, list[Gap], list[str], dict[str, str], float, dict[str, np.ndarray]]:
+    """One run on its own uniform grid from its first sample: frame, gaps, notes, input kinds, t0, and the
+    real sample times [s from the run's start] of the channels measured slower than the grid
+    (:func:`slow_sample_times`)."""
+    notes: list[str] = []
+    if len(logs) > 1:
+        for src in group.sources:
+            est = group.offsets[src]
+            notes.append(f"clock: {src} offset {est.offset_s:+.6f} s +- {est.stderr_s:.3g} s ({est.method})")
+    chans, chan_notes = run_channels(logs, group, input_kinds)
+    notes += chan_notes
     if not chans:
         raise AlignError(f"align: expected channels with samples, found none in {[l.source for l in logs]}")
     t0 = min(float(c.t[0]) for c in chans.values())

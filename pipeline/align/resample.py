@@ -11,6 +11,21 @@ def _base(name: str) -> str:
     return name.split("@", 1)[0]
 
 
+def dropout_limit(interval: float) -> float:
+    """Largest sample spacing [s] that is not a dropout, for a channel sampled every ``interval`` [s].
+
+    Five nominal sample intervals or 0.5 s, whichever is larger: jitter is not a gap, a lost
+    second of GPS is. The same rule tells whether two files of one logger continue each other
+    (:func:`pipeline.align.runs.group_runs`).
+
+    Parameters
+    ----------
+    interval : float
+        The channel's median sample interval [s].
+    """
+    return max(5 * interval, 0.5)
+
+
 def find_gaps(channel: Channel, threshold: float | None = None) -> tuple[Gap, ...]:
     """Dropouts in a channel: intervals longer than ``threshold`` [s].
 
@@ -33,7 +48,7 @@ def find_gaps(channel: Channel, threshold: float | None = None) -> tuple[Gap, ..
     dt = np.diff(channel.t)
     if len(dt) == 0:
         return ()
-    limit = threshold if threshold is not None else max(5 * float(np.median(dt)), 0.5)
+    limit = threshold if threshold is not None else dropout_limit(float(np.median(dt)))
     idx = np.flatnonzero(dt > limit)
     return tuple(Gap(channel.name, float(channel.t[i]), float(channel.t[i + 1])) for i in idx)
 

@@ -16,7 +16,14 @@ another recording of the same sensors and is not correlated against it. Two surg
 one boat on different days correlate as well as two sensors of one coast-down, so a correlation
 alone cannot tell them apart; a redundant second logger of one recording is therefore kept as a
 run of its own unless the manifest states the runs. A log that
-can be placed nowhere becomes a run of its own. A manifest can state the runs instead
+can be placed nowhere becomes a run of its own.
+
+One exception comes first: a log that continues another one's clock (the channels of one all in
+the other, the first samples of the shared ones after the other's last ones by no more than a
+dropout, on the absolute clock when both have one, else on the logged time itself) is the same
+recording, written by a logger that rotates its file. Such files are one run and their channels are joined end to end (:attr:`RunGroup.continued`),
+so they give the segments of one file; files with a real gap between them (more than a dropout,
+:func:`pipeline.align.resample.dropout_limit`) stay separate runs. A manifest can state the runs instead
 (``explicit``); their clocks are still estimated, and a stated run whose files do not overlap in
 absolute time is refused.
 """
@@ -31,8 +38,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import AlignError
-from ..records import INPUT_UNITS, RawLog
+from ..records import INPUT_UNITS, Channel, RawLog
 from .clock import ClockOffset, estimate_offsets
+from .resample import dropout_limit
 
 #: Two absolute spans count as overlapping only when they share more than this [s]; two files
 #: written back to back by one logger may touch at a sample.
@@ -53,12 +61,17 @@ class RunGroup:
         Offset of each log onto the run's clock.
     reason : str
         Why these logs form one run and why it is separate from the others.
+    continued : tuple[str, ...]
+        Sources that continue the clock of the source before them in ``sources`` (files of one
+        logger that rotates its file): their channels are appended to that file's channels,
+        not kept as a second sensor.
     """
 
     name: str
     sources: tuple[str, ...]
     offsets: Mapping[str, ClockOffset] = field(default_factory=dict)
     reason: str = ""
+    continued: tuple[str, ...] = ()
 
 
 def _span(log: RawLog) -> tuple[float, float]:
@@ -207,6 +220,150 @@ def _unique_names(stems: Sequence[str]) -> list[str]:
     return out
 
 
+def _clock_start(a: RawLog, b: RawLog) -> float | None:
+    """Where ``b``'s time zero lies on ``a``'s clock [s]; None when the two clocks cannot be compared.
+
+    Both with UTC: the difference of their start times; both with only the time of day: of those;
+    neither: 0 (a logger that keeps its clock across files writes times that continue).
+    """
+    if math.isfinite(a.start_time) or math.isfinite(b.start_time):
+        return b.start_time - a.start_time if math.isfinite(a.start_time) and math.isfinite(b.start_time) else None
+    if math.isfinite(a.time_of_day) or math.isfinite(b.time_of_day):
+        return (b.time_of_day - a.time_of_day if math.isfinite(a.time_of_day) and math.isfinite(b.time_of_day)
+                else None)
+    return 0.0
+
+
+@dataclass(frozen=True)
+class _Ends:
+    """What tells whether one log continues another: per channel its first and last sample time [s,
+    own clock] and, for measured channels, the median sample interval [s]."""
+
+    names: frozenset[str]
+    first: Mapping[str, float]
+    last: Mapping[str, float]
+    interval: Mapping[str, float]
+
+
+def _ends(log: RawLog) -> _Ends:
+    chans = {n: c for n, c in log.channels.items() if len(c.t)}
+    return _Ends(frozenset(chans), {n: float(c.t[0]) for n, c in chans.items()},
+                 {n: float(c.t[-1]) for n, c in chans.items()},
+                 {n: float(np.median(np.diff(c.t))) if len(c.t) > 1 else math.inf
+                  for n, c in chans.items() if n.split("@")[0] not in INPUT_UNITS})
+
+
+def _continuation(a: RawLog, b: RawLog, ea: _Ends, eb: _Ends) -> str | None:
+    """Why ``b`` continues ``a``'s recording (None when it does not); ``ea``, ``eb`` their :func:`_ends`.
+
+    The channels of one are all in the other (a file may gain a channel, a GNSS that found its fix,
+    or lose one), at least one measured channel in both; every shared measured channel's first
+    sample in ``b`` after its last in ``a`` by no more than a dropout
+    (:func:`pipeline.align.resample.dropout_limit` of its sample interval); no shared input of ``b``
+    before ``a``'s last sample of it.
+    """
+    shared = ea.names & eb.names
+    if not (ea.names <= eb.names or eb.names <= ea.names) or not any(n in ea.interval for n in shared):
+        return None
+    shift = _clock_start(a, b)
+    if shift is None:
+        return None
+    spacing = []
+    for n in sorted(shared):
+        gap = eb.first[n] + shift - ea.last[n]
+        if not gap > 0:
+            return None
+        if n not in ea.interval:
+            continue
+        interval = min(ea.interval[n], eb.interval[n])
+        if not (math.isfinite(interval) and gap <= dropout_limit(interval)):
+            return None
+        spacing.append(gap / interval)
+    return f"{max(spacing):.2g} sample interval(s) after"
+
+
+def _join_rotated(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | None
+                  ) -> tuple[list[RawLog], dict[str, tuple[str, ...]], dict[str, str]]:
+    """Chain the files of one logger that rotates its file: each joined log is one recording.
+
+    A log is chained to the one it continues (:func:`_continuation`) when that is its only
+    candidate and it is the only candidate of that one; with stated runs only within one run.
+
+    Returns
+    -------
+    joined : list[RawLog]
+        One log per chain (the first file's source, channels joined on its clock), in the order
+        of the chains' first files.
+    members : dict[str, tuple[str, ...]]
+        First file's source -> the sources of the chain, in time order.
+    why : dict[str, str]
+        First file's source -> why the chain is one recording (chains of one file: absent).
+    """
+    run_of = {s: k for k, run in enumerate(explicit or ()) for s in run}
+    after: dict[str, list[tuple[str, str]]] = {l.source: [] for l in logs}
+    before: dict[str, list[str]] = {l.source: [] for l in logs}
+    ends = {l.source: _ends(l) for l in logs}
+    for a in logs:
+        for b in logs:
+            if a is b or run_of.get(a.source, -1) != run_of.get(b.source, -1):
+                continue
+            why = _continuation(a, b, ends[a.source], ends[b.source])
+            if why is not None:
+                after[a.source].append((b.source, why))
+                before[b.source].append(a.source)
+    nxt = {a: c[0] for a, c in after.items() if len(c) == 1 and len(before[c[0][0]]) == 1}
+    heads = [l.source for l in logs if not any(b == l.source for b, _ in nxt.values())]
+    by_source = {l.source: l for l in logs}
+    joined, members, why = [], {}, {}
+    for h in heads:
+        chain, notes = [h], []
+        while chain[-1] in nxt and nxt[chain[-1]][0] not in chain:
+            b, text = nxt[chain[-1]]
+            notes.append(f"{Path(b).name} starts {text} {Path(chain[-1]).name} ends")
+            chain.append(b)
+        members[h] = tuple(chain)
+        head = by_source[h]
+        if len(chain) == 1:
+            joined.append(head)
+            continue
+        parts = {n: [c] for n, c in head.channels.items()}
+        for s in chain[1:]:
+            shift = _clock_start(head, by_source[s])
+            for n, c in by_source[s].channels.items():
+                parts.setdefault(n, []).append(replace(c, t=np.asarray(c.t, float) + shift))
+        chans = {n: Channel(n, np.concatenate([c.t for c in cs]), np.concatenate([c.values for c in cs]),
+                            cs[0].source, cs[0].input_kind) for n, cs in parts.items()}
+        joined.append(replace(head, channels=chans))
+        why[h] = (f"{', '.join(Path(s).name for s in chain)} continue one clock without a gap ({'; '.join(notes)}): "
+                  f"one recording whose logger rotated its file, joined end to end")
+    return joined, members, why
+
+
+def _expand(group: RunGroup, members: Mapping[str, tuple[str, ...]], why: Mapping[str, str],
+            by_source: Mapping[str, RawLog]) -> RunGroup:
+    """A run of joined logs as a run of their files: each later file of a chain continues the one before."""
+    if all(len(members[s]) == 1 for s in group.sources):
+        return group
+    sources, offsets, continued, reasons = [], {}, [], []
+    for s in group.sources:
+        head = by_source[s]
+        for k, m in enumerate(members[s]):
+            sources.append(m)
+            base = group.offsets[s]
+            if k == 0:
+                offsets[m] = (ClockOffset(base.offset_s, base.stderr_s, "the first file of the recording")
+                              if base.method == "the run's only log" else base)
+                continue
+            shift = _clock_start(head, by_source[m])
+            offsets[m] = ClockOffset(base.offset_s + shift, base.stderr_s,
+                                     f"continues the clock of {Path(members[s][k - 1]).name} (the same logger)")
+            continued.append(m)
+        if s in why:
+            reasons.append(why[s])
+    return replace(group, sources=tuple(sources), offsets=offsets, continued=tuple(continued),
+                   reason="; ".join(reasons + [group.reason]))
+
+
 def group_runs(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | None = None,
                names: Sequence[str] | None = None) -> list[RunGroup]:
     """Group logs into runs and find each log's clock offset within its run.
@@ -225,7 +382,8 @@ def group_runs(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | None 
     -------
     list[RunGroup]
         In time order where the runs have absolute times (earliest first), otherwise in the
-        order of their first log; each with the reason for its grouping.
+        order of their first log; each with the reason for its grouping. Files that continue one
+        logger's clock are one run (``RunGroup.continued``).
 
     Raises
     ------
@@ -240,6 +398,20 @@ def group_runs(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | None 
     dup = sorted({s for s in sources if sources.count(s) > 1})
     if dup:
         raise AlignError(f"runs: expected one log per source, found {dup} more than once")
+    if explicit is not None:
+        _check_explicit(logs, explicit)
+    files = {l.source: l for l in logs}
+    joined, members, why = _join_rotated(logs, explicit)
+    if explicit is not None:
+        explicit = [[s for s in run if s in members] for run in explicit]
+    groups = _group_joined(joined, explicit, names)
+    return [_expand(g, members, why, files) for g in groups]
+
+
+def _group_joined(logs: Sequence[RawLog], explicit: Sequence[Sequence[str]] | None,
+                  names: Sequence[str] | None) -> list[RunGroup]:
+    """:func:`group_runs` on logs of distinct recordings (rotated files already joined)."""
+    sources = [l.source for l in logs]
     by_source = {l.source: l for l in logs}
     timed = {l.source: _timed(l) for l in logs}
     if explicit is not None:
@@ -343,14 +515,20 @@ def _start_key(group: Sequence[str], timed: Mapping[str, _Timed]) -> float:
     return min(starts) if starts else math.inf
 
 
-def _explicit(logs, explicit, names, by_source, timed) -> list[RunGroup]:
+def _check_explicit(logs, explicit) -> None:
+    """AlignError unless every log is in exactly one stated run and every stated file was read."""
     listed = [s for run in explicit for s in run]
+    read = {l.source for l in logs}
     missing = [l.source for l in logs if l.source not in listed]
-    extra = sorted({s for s in listed if s not in by_source})
+    extra = sorted({s for s in listed if s not in read})
     twice = sorted({s for s in listed if listed.count(s) > 1})
     if missing or extra or twice:
         raise AlignError(f"runs: expected every log in exactly one stated run; found not in any run {missing}, "
                          f"in a run but not read {extra}, in more than one run {twice}")
+
+
+def _explicit(logs, explicit, names, by_source, timed) -> list[RunGroup]:
+    _check_explicit(logs, explicit)
     if names is not None and len(names) != len(explicit):
         raise AlignError(f"runs: expected one name per run ({len(explicit)}), found {len(names)}")
     names_ = list(names) if names is not None else _unique_names([_stem(r[0]) for r in explicit])

@@ -11,6 +11,7 @@ the speed itself (:mod:`pipeline.segment.speed_events`). Each segment carries a 
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -329,11 +330,122 @@ def _has_input_for(trial: Trial, dof: str) -> bool:
                for c in trial.data.columns)
 
 
+#: An input within this fraction of its largest magnitude in the trial (or within 3 noise sigma) is at rest.
+REST_FRACTION = 0.05
+#: Stretch [s] at a run's end or start over which an input must stay at rest for no manoeuvre to be under way.
+BOUNDARY_S = 2.0
+
+
+def _under_way(s: Segment) -> bool:
+    """Whether the manoeuvre of an input-driven segment was still going at the segment's end.
+
+    Zig-zags and sinusoids are; a step is unless it brought the input back to rest (a coast-down,
+    a rudder step back to zero: the rest after it is no manoeuvre); decays and coast-downs found
+    from the speed have no input and are over once they have died out.
+    """
+    if s.input_channel is None:
+        return False
+    if s.kind in ("zigzag", "sinusoid"):
+        return True
+    return abs(s.input_after) > REST_FRACTION * max(abs(s.input_before), abs(s.input_after))
+
+
+def _inputs_under_way(trial: Trial, t0: float, t1: float) -> list[str]:
+    """The inputs not at rest (``REST_FRACTION``) somewhere in ``t0 .. t1`` [s], as ``'delta up to 0.17 rad'``."""
+    out = []
+    window = trial.window(t0, t1)
+    for ch in trial.data.columns:
+        if ch.split("@")[0] not in INPUT_UNITS or not trial.has(ch):
+            continue
+        u = trial.data[ch].to_numpy()
+        w = np.abs(window[ch].to_numpy())
+        w = w[np.isfinite(w)]
+        if w.size and float(np.max(w)) > max(REST_FRACTION * float(np.nanmax(np.abs(u))), 3 * noise_std(u)):
+            out.append(f"{ch} up to {float(np.max(w)):.3g} {INPUT_UNITS[ch.split('@')[0]]}")
+    return out
+
+
+def _file_boundaries(trial: Trial, segs: list[Segment]) -> tuple[list[Segment], list[str]]:
+    """Drop the segments a boundary between two runs cuts, say what else it cuts, count every run's segments.
+
+    Runs are recordings with a real gap between them (files that continue one clock are one run,
+    :func:`pipeline.align.runs.group_runs`). An input-driven segment whose window reaches the last
+    sample of a run that another run follows while its manoeuvre is under way (:func:`_under_way`),
+    or starts at the first sample of a run that follows another, belongs to a manoeuvre that went
+    on while nothing was logged: it is dropped, with a note naming it. A segment that reaches such
+    a boundary with its input back at rest is kept, with a note that the boundary ended its window;
+    an input under way at a boundary (``BOUNDARY_S``) that no dropped segment accounts for (a
+    stretch too short to be a segment) gets a note too, so nothing a boundary cuts goes unsaid.
+
+    Returns
+    -------
+    kept : list[Segment]
+        The segments no boundary cuts.
+    notes : list[str]
+        One per dropped segment, per segment kept with its window ended by a boundary, per input
+        under way at a boundary otherwise unaccounted for, then the count of each run's segments
+        (with its files); empty for a trial of one file.
+    """
+    runs = trial.run_list()
+    if len(runs) < 2 and all(len(r.sources) < 2 for r in runs):
+        return segs, []
+    step = 1.0 / trial.fs
+    kept: list[Segment] = []
+    notes: list[str] = []
+    dropped = [0] * len(runs)
+    said: set[tuple[int, str]] = set()
+    for s in segs:
+        k = trial.run_index(s.t_start)
+        run = runs[k]
+        reaches_end = k < len(runs) - 1 and s.t_end >= run.t_end - step
+        at_end = reaches_end and _under_way(s)
+        at_start = k > 0 and s.t_start <= run.t_start + step and s.input_channel is not None
+        if not (at_end or at_start):
+            kept.append(s)
+            if reaches_end and s.input_channel is not None:
+                said.add((k, "end"))
+                notes.append(f"kept: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s: the end of run {k} "
+                             f"{run.name!r} (a file boundary, a gap to the next run) ends its window with its input "
+                             f"back at rest; fitted on the {s.t_end - s.t_start:.1f} s logged")
+            continue
+        dropped[k] += 1
+        said.add((k, "end" if at_end else "start"))
+        where = (f"the end of run {k} {run.name!r} (the next run starts after a gap)" if at_end else
+                 f"the start of run {k} {run.name!r} (a gap after the run before it)")
+        notes.append(f"dropped: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s cut by {where}: the "
+                     f"manoeuvre went on while nothing was logged, so neither file holds it whole")
+    for k, run in enumerate(runs):
+        sides = ([("end", run.t_end - BOUNDARY_S, run.t_end)] if k < len(runs) - 1 else []) + \
+                ([("start", run.t_start, run.t_start + BOUNDARY_S)] if k > 0 else [])
+        for side, t0, t1 in sides:
+            busy = _inputs_under_way(trial, t0, t1) if (k, side) not in said else []
+            if busy:
+                notes.append(f"cut: run {k} {run.name!r} {'ends' if side == 'end' else 'starts'} with "
+                             f"{', '.join(busy)} (a manoeuvre under way at a file boundary, a gap "
+                             f"{'to the next run' if side == 'end' else 'after the run before it'}): its part "
+                             f"{'after the last' if side == 'end' else 'before the first'} segment of this run is "
+                             f"not fitted")
+    counts = []
+    for k, run in enumerate(runs):
+        mine = [s for s in kept if trial.run_index(s.t_start) == k]
+        kinds: dict[str, int] = {}
+        for s in mine:
+            kinds[f"{s.dof} {s.kind}"] = kinds.get(f"{s.dof} {s.kind}", 0) + 1
+        what = ", ".join(f"{n} {v}" for n, v in kinds.items())
+        counts.append(f"run {k} {run.name!r} ({', '.join(Path(f).name for f in run.sources)}): {len(mine)}"
+                      + (f" ({what})" if what else "")
+                      + (f", {dropped[k]} dropped at a file boundary" if dropped[k] else ""))
+    notes.append(f"segments per run: {'; '.join(counts)}")
+    return kept, notes
+
+
 def detect_segments(trial: Trial) -> Segments:
     """Detect every segment kind in ``trial``.
 
     Input-driven segments come from the logged inputs; when no surge input is logged (a GPS-only
-    log), coast-downs are found from the speed alone by :mod:`pipeline.segment.speed_events`.
+    log), coast-downs are found from the speed alone by :mod:`pipeline.segment.speed_events`. A
+    segment cut by a boundary between two runs (files with a gap between them) is dropped with a
+    note, and a trial of several files counts every run's segments in ``Segments.notes``.
 
     Parameters
     ----------
@@ -343,7 +455,7 @@ def detect_segments(trial: Trial) -> Segments:
     Returns
     -------
     Segments
-        In time order, ``origin='detected'``.
+        In time order, ``origin='detected'``; ``notes`` as above.
     """
     check_segmentable(trial)
     trial = without_implausible(trial)
@@ -357,7 +469,8 @@ def detect_segments(trial: Trial) -> Segments:
             if s.kind in ("step", "zigzag", "sinusoid", "free_decay") and s.dof in ("roll", "pitch")]
     segs += _decay_segments(trial, busy)
     segs.sort(key=lambda s: (s.t_start, s.dof))
-    return Segments(trial.name, tuple(segs))
+    segs, notes = _file_boundaries(trial, segs)
+    return Segments(trial.name, tuple(segs), tuple(notes))
 
 
 def segment_table(segments: Segments) -> str:
@@ -366,11 +479,12 @@ def segment_table(segments: Segments) -> str:
     Parameters
     ----------
     segments : Segments
-        Segments to list, one row each (``level`` is ``input_after``).
+        Segments to list, one row each (``level`` is ``input_after``), then its notes.
     """
     head = f"{'#':>3} {'kind':<12} {'dof':<6} {'start [s]':>10} {'end [s]':>10} {'input':<6} {'level':>10} {'quality':>7} {'origin':<9} label"
     rows = [head, "-" * len(head)]
     for i, s in enumerate(segments.items):
         rows.append(f"{i:>3} {s.kind:<12} {s.dof:<6} {s.t_start:>10.2f} {s.t_end:>10.2f} {s.input_channel or '-':<6} "
                     f"{s.input_after:>10.4g} {s.quality:>7.2f} {s.origin:<9} {s.label}")
+    rows += [f"note: {n}" for n in segments.notes]
     return "\n".join(rows)

@@ -83,4 +83,4 @@ def apply_manifest_segments(trial: Trial, detected: Segments, entries: Sequence[
         items += [d for d in detected.items
                   if not any(d.dof == m.dof and d.t_start < m.t_end and m.t_start < d.t_end for m in manual)]
     items.sort(key=lambda s: s.t_start)
-    return Segments(detected.trial, tuple(items))
+    return Segments(detected.trial, tuple(items), detected.notes if mode == "add" else ())

@@ -27,4 +27,4 @@ def segment_trial(trial: Trial, manual: Sequence[Mapping[str, Any]] = (), mode: 
         ones that do not overlap them); see :func:`pipeline.segment.apply_manifest_segments`.
     """
     segs = apply_manifest_segments(trial, detect_segments(trial), manual, mode)
-    return Segments(segs.trial, tuple(replace(s, run=trial.run_index(s.t_start)) for s in segs.items))
+    return Segments(segs.trial, tuple(replace(s, run=trial.run_index(s.t_start)) for s in segs.items), segs.notes)

@@ -1,0 +1,193 @@
+"""Split trials: a trial day comes as several run files.
+
+Files that continue one logger's clock without a gap (a logger that rotates its file) are one run
+and give the segments and estimates of the unsplit log; files with a real gap between them are
+separate runs, each segmented on its own, and a manoeuvre a file boundary cuts is dropped with a
+note. Every run's segments are counted in ``Segments.notes``. All logs are real CSV files.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.align import group_runs
+from pipeline.fit import fit_trial
+from pipeline.flow import load_trial, read_logs
+from pipeline.segment import detect_segments, segment_table
+from pipeline.sim import simulate
+from pipeline.sim.manoeuvres import chain, rudder_step, zigzag
+from pipeline.vessel import load_vessel
+
+ROOT = Path(__file__).resolve().parents[1]
+VESSEL = load_vessel(ROOT / "vessel_configs" / "aauship.toml")
+RATE = 10.0
+
+
+@pytest.fixture(scope="module")
+def table() -> pd.DataFrame:
+    """Rudder steps (8-28 s to +10 deg, 28-48 s back), a 10/10 zig-zag (56-116 s) and two more steps,
+    logged at 10 Hz as a user's logger writes them: t, yaw rate, heading, speed, rudder command."""
+    z = math.radians(10)
+    tau_x = {"tau_x": float(np.diag(VESSEL.damping)[0])}
+    sched = chain(rudder_step(z, 20.0, 20.0, tau_x), zigzag(z, z, 60.0, tau_x), rudder_step(-z, 20.0, 20.0, tau_x),
+                  rest_s=8.0)
+    ch = simulate(VESSEL, sched, seed=3).log.channels
+    t = np.round(np.arange(0.0, 172.0 + 1e-9, 1 / RATE), 6)
+
+    def at(name: str) -> np.ndarray:
+        return ch[name].values[np.clip(np.searchsorted(ch[name].t, t - 1e-9), 0, len(ch[name].t) - 1)]
+
+    return pd.DataFrame({"t": t, "r": at("r"), "psi": at("psi"), "u": at("sog"), "delta": at("delta")})
+
+
+def _write(frame: pd.DataFrame, path: Path, iso: bool) -> Path:
+    out = frame.copy()
+    if iso:
+        out["t"] = [(pd.Timestamp("2024-05-05T09:00:00Z") + pd.Timedelta(seconds=float(x))).isoformat() for x in out["t"]]
+    out.to_csv(path, index=False, float_format="%.10g")
+    return path
+
+
+def _pieces(frame: pd.DataFrame, cuts: list[float], folder: Path, iso: bool = False,
+            gap_s: float = 0.0) -> list[Path]:
+    """The log as consecutive files cut at ``cuts`` [s]; each later file's clock ``gap_s`` later than the one before."""
+    folder.mkdir()
+    edges = [-math.inf] + list(cuts) + [math.inf]
+    paths = []
+    for k, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+        part = frame[(frame["t"] >= a) & (frame["t"] < b)].assign(t=lambda f, k=k: f["t"] + k * gap_s)
+        paths.append(_write(part, folder / f"part{k + 1}.csv", iso))
+    return paths
+
+
+@pytest.mark.parametrize("iso", [False, True], ids=["logged time", "ISO UTC time"])
+def test_files_that_continue_one_clock_are_one_run_with_the_segments_of_the_unsplit_log(table, tmp_path, iso):
+    one = load_trial([_write(table, tmp_path / "day.csv", iso)])
+    # Cut inside the first rudder step and inside the zig-zag.
+    parts = _pieces(table, [20.05, 90.0], tmp_path / "parts", iso)
+    split = load_trial(parts)
+    assert len(split.runs) == 1 and split.runs[0].sources == tuple(str(p) for p in parts)
+    assert "rotated its file" in split.runs[0].reason
+    assert list(split.data.columns) == list(one.data.columns)
+    a, b = detect_segments(one), detect_segments(split)
+    if iso:
+        # Each file's times count from its own UTC start (a float of 1.7e9 s): equal to ~1e-7 s.
+        assert split.fs == pytest.approx(one.fs, rel=1e-12)
+        for c in one.data.columns:
+            np.testing.assert_allclose(split.data[c].to_numpy(), one.data[c].to_numpy(), rtol=0, atol=1e-6, err_msg=c)
+        assert [(s.kind, s.dof) for s in b.items] == [(s.kind, s.dof) for s in a.items]
+        for x, y in zip(a.items, b.items):
+            assert x.t_start == pytest.approx(y.t_start, abs=1e-6) and x.t_end == pytest.approx(y.t_end, abs=1e-6)
+    else:
+        assert split.fs == one.fs
+        for c in one.data.columns:
+            np.testing.assert_array_equal(split.data[c].to_numpy(), one.data[c].to_numpy(), err_msg=c)
+        assert b.items == a.items
+    assert [s.kind for s in a.items if s.dof == "yaw"] == ["rudder_step", "rudder_step", "zigzag", "rudder_step",
+                                                           "rudder_step", "rudder_step"]
+    # Every file is counted: the one run lists its three files and its nine segments.
+    assert b.notes == ("segments per run: run 0 'part1' (part1.csv, part2.csv, part3.csv): 9 (yaw rudder_step 5, "
+                       "surge coast_down 3, yaw zigzag 1)",)
+    assert not a.notes
+    if not iso:
+        fa, fb = fit_trial(one, a, VESSEL, extend=False), fit_trial(split, b, VESSEL, extend=False)
+        for name in ("K_nomoto", "T_nomoto"):
+            assert fb.estimates[name].value == fa.estimates[name].value
+            assert fb.estimates[name].stderr == fa.estimates[name].stderr
+
+
+def test_files_with_a_real_gap_are_runs_of_their_own_and_a_cut_manoeuvre_is_dropped_with_a_note(table, tmp_path):
+    # The same cuts, each later file's clock 100 s on: the logger was off in between.
+    parts = _pieces(table, [20.05, 90.0], tmp_path / "parts", gap_s=100.0)
+    trial = load_trial(parts)
+    assert [r.sources for r in trial.runs] == [(str(p),) for p in parts]
+    segs = detect_segments(trial)
+    runs = [trial.run_index(s.t_start) for s in segs.items]
+    dropped = [n for n in segs.notes if n.startswith("dropped: ")]
+    # The rudder step under way at the end of part1, the zig-zag's two pieces either side of a gap.
+    assert len(dropped) == 3, segs.notes
+    assert "yaw rudder_step" in dropped[0] and "the end of run 0 'part1'" in dropped[0]
+    assert "yaw zigzag" in dropped[1] and "the end of run 1 'part2'" in dropped[1]
+    assert "yaw zigzag" in dropped[2] and "the start of run 2 'part3'" in dropped[2]
+    assert not any(s.kind == "zigzag" for s in segs.items)
+    # part2 begins with the rudder still at +10 deg: the rest of the step cut at the end of part1.
+    (cut,) = [n for n in segs.notes if n.startswith("cut: ")]
+    assert cut.startswith("cut: run 1 'part2' starts with delta up to 0.174 rad"), cut
+    # Each run is segmented on its own: the rudder manoeuvres kept are those its file alone gives, minus
+    # the cut ones. (Coast-downs found in the speed may move by a sample next to a run boundary.)
+    for k, p in enumerate(parts):
+        alone = load_trial([p])
+        mine = [s for s, r in zip(segs.items, runs) if r == k and s.input_channel]
+        theirs = [s for s in detect_segments(alone).items
+                  if s.input_channel and not any(math.isclose(s.t_start + trial.runs[k].t_start, d, abs_tol=1e-6)
+                                                 for d in _dropped(segs, k))]
+        assert [(s.kind, round(s.t_start - trial.runs[k].t_start, 6)) for s in mine] == \
+               [(s.kind, round(s.t_start, 6)) for s in theirs]
+    counts = segs.notes[-1]
+    assert counts == ("segments per run: run 0 'part1' (part1.csv): 0, 1 dropped at a file boundary; "
+                      "run 1 'part2' (part2.csv): 2 (yaw rudder_step 1, surge coast_down 1), 1 dropped at a file "
+                      "boundary; run 2 'part3' (part3.csv): 5 (surge coast_down 2, yaw rudder_step 3), 1 dropped at "
+                      "a file boundary"), counts
+    assert sum(int(part.split("): ", 1)[1].split(" ")[0].rstrip(",")) for part in counts.split("; ")) == len(segs.items)
+    assert "note: dropped: yaw zigzag" in segment_table(segs)
+
+
+def _dropped(segs, k: int) -> list[float]:
+    """Start times [s, trial clock] of the segments of run ``k`` that the trial dropped (from their notes)."""
+    return [float(n.split("t = ", 1)[1].split("-", 1)[0]) for n in segs.notes
+            if n.startswith("dropped: ") and f"run {k} " in n]
+
+
+def test_a_gap_longer_than_a_dropout_keeps_files_apart(table, tmp_path):
+    """0.1 s between the files (one sample) continues the clock; 1.5 s (above the 1 s dropout limit at
+    10 Hz: five intervals, at least 0.5 s) is a real gap."""
+    joined = read_logs(_pieces(table, [60.0], tmp_path / "near"))
+    assert [g.sources for g in group_runs(joined)] == [tuple(l.source for l in joined)]
+    apart = read_logs(_pieces(table, [60.0], tmp_path / "far", gap_s=1.4))
+    groups = group_runs(apart)
+    assert [g.sources for g in groups] == [(apart[0].source,), (apart[1].source,)]
+    assert not any(g.continued for g in groups)
+
+
+def test_stated_runs_of_rotated_files_with_utc_times_are_joined(table, tmp_path):
+    """A manifest stating the three files of one rotated UTC log as one run: before, refused as files
+    of one run that do not overlap in absolute time; now one recording, as the unsplit file."""
+    parts = _pieces(table, [20.05, 90.0], tmp_path / "parts", iso=True)
+    trial = load_trial(parts, runs=[parts], run_names=["day"])
+    assert [r.name for r in trial.runs] == ["day"] and trial.runs[0].sources == tuple(str(p) for p in parts)
+    one = load_trial([_write(table, tmp_path / "day.csv", True)])
+    assert len(trial.t) == len(one.t)
+    np.testing.assert_allclose(trial.data["r"].to_numpy(), one.data["r"].to_numpy(), rtol=0, atol=1e-6)
+
+
+def test_a_step_back_to_rest_cut_by_a_gap_is_kept_and_said(table, tmp_path):
+    """Cut at 40 s, inside the rudder step back to zero (28-48 s): its input is at rest when part1 ends,
+    so it is kept as its file alone gives it (12 s of the return to zero), with a note."""
+    parts = _pieces(table, [40.05], tmp_path / "parts", gap_s=100.0)
+    segs = detect_segments(load_trial(parts))
+    kept = [n for n in segs.notes if n.startswith("kept: ")]
+    assert len(kept) == 1 and "yaw rudder_step at t = 28.00-40.00 s" in kept[0] and "12.0 s logged" in kept[0], segs.notes
+    assert any(s.kind == "rudder_step" and s.t_start == pytest.approx(28.0) for s in segs.items)
+    assert not any(n.startswith(("dropped: ", "cut: ")) for n in segs.notes), segs.notes
+
+
+def test_a_rotated_file_that_gains_a_channel_continues_the_recording(table, tmp_path):
+    """The speed appears only from the second file on (a GNSS that found its fix): still one recording,
+    the speed NaN before its first sample and equal to the unsplit file's after it."""
+    folder = tmp_path / "parts"
+    folder.mkdir()
+    first = _write(table[table["t"] < 60.0].drop(columns="u"), folder / "part1.csv", False)
+    second = _write(table[table["t"] >= 60.0], folder / "part2.csv", False)
+    trial = load_trial([first, second])
+    one = load_trial([_write(table, tmp_path / "day.csv", False)])
+    assert len(trial.runs) == 1 and trial.runs[0].sources == (str(first), str(second))
+    u, t = trial.data["u"].to_numpy(), trial.t
+    assert np.isnan(u[t < 59.95]).all()
+    # (The grid rate comes from the fastest channel's median interval: equal to 1e-11 here.)
+    np.testing.assert_allclose(u[t >= 60.0], one.data["u"].to_numpy()[t >= 60.0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(trial.data["r"].to_numpy(), one.data["r"].to_numpy(), rtol=0, atol=1e-9)
