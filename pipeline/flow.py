@@ -193,9 +193,11 @@ def segments_to_json(segments: Segments) -> dict:
     Parameters
     ----------
     segments : Segments
-        Segments of one trial; each item becomes a dict of its fields.
+        Segments of one trial; each item becomes a dict of its fields, and the detector's notes
+        (what it left out at a boundary between runs, and why) are kept under ``notes``.
     """
-    return {"trial": segments.trial, "segments": [asdict(s) for s in segments.items]}
+    return {"trial": segments.trial, "segments": [asdict(s) for s in segments.items],
+            "notes": list(segments.notes)}
 
 
 def segments_from_json(path: str | Path) -> Segments:
@@ -215,9 +217,10 @@ def segments_from_json(path: str | Path) -> Segments:
     try:
         doc = json.loads(p.read_text())
         items = tuple(Segment(**s) for s in doc["segments"])
+        notes = tuple(str(n) for n in doc.get("notes", ()))
     except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
         raise SegmentError(f"{p}: expected a segments JSON {{'trial', 'segments': [...]}}, found: {exc}") from None
-    return Segments(str(doc.get("trial", p.stem)), items)
+    return Segments(str(doc.get("trial", p.stem)), items, notes)
 
 
 def write_json(obj: Any, path: str | Path) -> Path:

@@ -17,7 +17,7 @@ import pytest
 
 from pipeline.align import group_runs
 from pipeline.fit import fit_trial
-from pipeline.flow import load_trial, read_logs
+from pipeline.flow import load_trial, read_logs, segments_from_json, segments_to_json, write_json
 from pipeline.segment import detect_segments, segment_table
 from pipeline.sim import simulate
 from pipeline.sim.manoeuvres import chain, rudder_step, zigzag
@@ -191,3 +191,14 @@ def test_a_rotated_file_that_gains_a_channel_continues_the_recording(table, tmp_
     # (The grid rate comes from the fastest channel's median interval: equal to 1e-11 here.)
     np.testing.assert_allclose(u[t >= 60.0], one.data["u"].to_numpy()[t >= 60.0], rtol=0, atol=1e-9)
     np.testing.assert_allclose(trial.data["r"].to_numpy(), one.data["r"].to_numpy(), rtol=0, atol=1e-9)
+
+
+def test_segments_json_keeps_the_notes_of_what_was_dropped_at_a_boundary(table, tmp_path):
+    # A user who segments once and fits later (`segment --json`, `fit --segments`) keeps the reasons.
+    parts = _pieces(table, [20.05, 90.0], tmp_path / "parts", gap_s=100.0)
+    segs = detect_segments(load_trial(parts))
+    assert any(n.startswith("dropped: ") for n in segs.notes)
+    path = write_json(segments_to_json(segs), tmp_path / "segments.json")
+    back = segments_from_json(path)
+    assert back.notes == segs.notes
+    assert back.items == segs.items
