@@ -46,6 +46,10 @@ STEPS_PER_T = 20.0
 #: Longest window, in time constants, of a DOF's own manoeuvre before it is cut into blocks: the
 #: cross-validation needs several pieces even when a DOF has a single step (AAUSHIP sway).
 BLOCK_T = 2.5
+#: Shortest block [analysis steps] a DOF's own window is cut into (:func:`_blocks`): a replay needs
+#: a few steps (windows under 4 are dropped), so a DOF whose time constant is under the log interval
+#: keeps blocks of this many steps.
+MIN_BLOCK_STEPS = 8
 
 
 @dataclass(frozen=True)
@@ -572,14 +576,17 @@ def _cut_gaps(trial: Trial, windows: list[Window], gaps: tuple[Gap, ...]) -> lis
     return out
 
 
-def _blocks(windows: list[Window], own: list[Window], t_const: float, t: np.ndarray) -> list[Window]:
+def _blocks(windows: list[Window], own: list[Window], t_const: float, t: np.ndarray,
+            shortest: float = 0.0) -> list[Window]:
     """Cut the DOF's own windows longer than ``BLOCK_T`` time constants into equal blocks.
 
     Windows where the DOF is only a bystander stay whole: cutting them would only add pieces in
-    which nothing happens.
+    which nothing happens. No block is shorter than ``shortest`` [s]: a DOF faster than the log
+    (AAUSHIP sway, T = 0.4 s, in a 1.7 Hz log) would otherwise be cut into blocks of one or two
+    samples, each too short to replay, and the DOF dropped (randomised seed 41 r021).
     """
     out = []
-    limit = BLOCK_T * t_const
+    limit = max(BLOCK_T * t_const, shortest)
     for w in windows:
         length = w.t1 - w.t0
         k = int(length // limit) if limit > 0 and w in own else 1
@@ -779,6 +786,24 @@ def _moves(y: np.ndarray, w: Window, noise: float) -> bool:
     return bool(np.percentile(np.abs(means), 95) > 6 * noise / np.sqrt(20 if k else 1))
 
 
+#: Samples per mean of :func:`_long_run_noise`.
+LONG_RUN_SAMPLES = 20
+
+
+def _long_run_noise(y: np.ndarray, windows: list[Window]) -> float:
+    """Per-sample noise [unit of y] that gives the noise of ``LONG_RUN_SAMPLES``-sample means as
+    :func:`block_noise` measures it, correlated noise included.
+
+    A sway speed derived from GNSS speed and course (5-10 Hz, interpolated to the trial rate) has noise
+    correlated over several samples, which the sample-to-sample estimate (:func:`noise_std`) misses:
+    a mean over 20 samples then keeps far more noise than ``noise / sqrt(20)``, and such noise alone
+    would pass the "moves" and "excited" tests of a DOF driven only through coupling. 0 when it cannot
+    be measured.
+    """
+    s = block_noise(y, tuple(windows), LONG_RUN_SAMPLES) if windows else float("nan")
+    return float(s * np.sqrt(LONG_RUN_SAMPLES)) if np.isfinite(s) else 0.0
+
+
 def _excursion(x: np.ndarray, windows: list[Window], noise: float, fs: float) -> float:
     """Largest excursion of ``x`` from its median in any window, in units of the noise of means over
     half a second or a fiftieth of the window (so that a slow ship logged by a noisy gyro counts)."""
@@ -810,16 +835,25 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
     gaps = gaps_of(trial, (ch, angle, heading, *inputs))
     base = _cut_gaps(trial, base, gaps)
     own_w = [w for w in base if dof in w.dofs]
-    if not inputs and not own_w:
+    # Driven only through coupling: no input of its own and no segment of its own (no free decay was
+    # found), but measured, and another DOF's velocity is logged that may drive it (a catamaran's sway
+    # in turns). Its windows are those where it moves, well above the noise.
+    coupled = not inputs and not own_w
+    if coupled and not any(trial.has(c) for c in VELOCITIES if c != ch):
         return None
     y = trial.data[ch].to_numpy(float)
     noise = noise_std(y)
     if not np.isfinite(noise):
         return None
     noise = max(noise, 1e-12)
+    if coupled:
+        noise = max(noise, _long_run_noise(y, base))
     windows0 = [w for w in base if dof in w.dofs or _moves(y, w, noise)]
     if not windows0:
         return None
+    if coupled:
+        # Its own windows (cut into blocks for the cross-validation like a manoeuvre of its own).
+        own_w = list(windows0)
     # Excited: some window moves the response, or the attitude it integrates to (the heading), well
     # above its noise: a small ship's turn at high gyro noise hardly leaves the gyro's noise, but
     # the compass sees its heading change by tens of noise units (randomised seeds 22 and 25: four
@@ -851,7 +885,7 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
     total = sum(w.t1 - w.t0 for w in windows0)
     dt_target = min(max(t_const / STEPS_PER_T, 1.0 / fs, total / MAX_SAMPLES), DT_MAX)
     m = max(int(round(dt_target * fs)), 1)
-    windows = [w for w in _blocks(windows0, own_w, t_const, t) if len_blocks(w, m) >= 4]
+    windows = [w for w in _blocks(windows0, own_w, t_const, t, MIN_BLOCK_STEPS * m / fs) if len_blocks(w, m) >= 4]
     if len(windows) == 1 and len_blocks(windows[0], m) >= 8:
         # Cross-validation needs two pieces at least: a lone window is cut in halves.
         w = windows[0]
@@ -888,6 +922,10 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
             continue
         raw[c] = x
         regs.append(c)
+    if coupled and not regs:
+        # Nothing logged that moves in its windows could drive it: a replay of free decays from the
+        # measured state would call the coupling itself the gap.
+        return None
     acts = []
     for a in (space.actuators if space is not None else ()):
         gains = {c: g for c, g in a.gains.items() if c in inputs}
