@@ -820,6 +820,40 @@ def _excursion(x: np.ndarray, windows: list[Window], noise: float, fs: float) ->
     return peak
 
 
+def _windowing(trial: Trial, windows0: list[Window], own_w: list[Window], t_const: float, inputs: bool,
+               gaps: tuple[Gap, ...]) -> tuple[tuple[Window, ...], int] | None:
+    """The analysis windows and trial samples per analysis step of a DOF, or None when fewer than two
+    windows of at least 4 steps are left.
+
+    Window starts near a record start move on by the input history (when the DOF has ``inputs``); the
+    step is a twentieth of ``t_const`` (within the bounds of :data:`DT_MAX` and :data:`MAX_SAMPLES`);
+    the DOF's own windows ``own_w`` are cut into blocks (:func:`_blocks`); a lone window is halved.
+    """
+    fs, t = trial.fs, trial.t
+    if inputs:
+        # At most a quarter of the shortest own window is given up for the input history.
+        shortest = min((w.t1 - w.t0 for w in (own_w or windows0)), default=0.0)
+        hist = min(INPUT_HISTORY_T * t_const, 0.25 * shortest)
+        moved = dict(zip(map(id, windows0), _after_record_starts(trial, windows0, hist, keep_all=True, gaps=gaps)))
+        own_w = [moved[id(w)] for w in own_w if id(w) in moved and moved[id(w)] is not None]
+        windows0 = [v for v in moved.values() if v is not None]
+        if not windows0:
+            return None
+    total = sum(w.t1 - w.t0 for w in windows0)
+    dt_target = min(max(t_const / STEPS_PER_T, 1.0 / fs, total / MAX_SAMPLES), DT_MAX)
+    m = max(int(round(dt_target * fs)), 1)
+    windows = [w for w in _blocks(windows0, own_w, t_const, t, MIN_BLOCK_STEPS * m / fs) if len_blocks(w, m) >= 4]
+    if len(windows) == 1 and len_blocks(windows[0], m) >= 8:
+        # Cross-validation needs two pieces at least: a lone window is cut in halves.
+        w = windows[0]
+        mid = (w.i0 + w.i1) // 2
+        windows = [Window(w.i0, mid, w.t0, float(t[mid - 1]), w.kinds, w.dofs, f"{w.label} (1/2)"),
+                   Window(mid, w.i1, float(t[mid]), w.t1, w.kinds, w.dofs, f"{w.label} (2/2)")]
+    if len(windows) < 2:
+        return None
+    return tuple(windows), m
+
+
 def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
              t_const: float | None, space: ActuatorSpace | None = None) -> DofProblem | None:
     fs = trial.fs
@@ -873,27 +907,19 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         t_const = quick_time_constant(y, u_sum, fs, own_w or windows0)
         if not np.isfinite(t_const) or t_const <= 0:
             t_const = 0.2 * float(np.median([w.t1 - w.t0 for w in (own_w or windows0)]))
-    if inputs:
-        # At most a quarter of the shortest own window is given up for the input history.
-        shortest = min((w.t1 - w.t0 for w in (own_w or windows0)), default=0.0)
-        hist = min(INPUT_HISTORY_T * t_const, 0.25 * shortest)
-        moved = dict(zip(map(id, windows0), _after_record_starts(trial, windows0, hist, keep_all=True, gaps=gaps)))
-        own_w = [moved[id(w)] for w in own_w if id(w) in moved and moved[id(w)] is not None]
-        windows0 = [v for v in moved.values() if v is not None]
-        if not windows0:
-            return None
-    total = sum(w.t1 - w.t0 for w in windows0)
-    dt_target = min(max(t_const / STEPS_PER_T, 1.0 / fs, total / MAX_SAMPLES), DT_MAX)
-    m = max(int(round(dt_target * fs)), 1)
-    windows = [w for w in _blocks(windows0, own_w, t_const, t, MIN_BLOCK_STEPS * m / fs) if len_blocks(w, m) >= 4]
-    if len(windows) == 1 and len_blocks(windows[0], m) >= 8:
-        # Cross-validation needs two pieces at least: a lone window is cut in halves.
-        w = windows[0]
-        mid = (w.i0 + w.i1) // 2
-        windows = [Window(w.i0, mid, w.t0, float(t[mid - 1]), w.kinds, w.dofs, f"{w.label} (1/2)"),
-                   Window(mid, w.i1, float(t[mid]), w.t1, w.kinds, w.dofs, f"{w.label} (2/2)")]
-    if len(windows) < 2:
+    made = _windowing(trial, windows0, own_w, t_const, bool(inputs), gaps)
+    if made is not None and not np.isfinite(block_noise(y, made[0], made[1], trapezoid=True)):
+        # Too few samples in its windows to measure its noise (a DOF faster than the log, with one
+        # short manoeuvre: seed 41 r021's sway coast-down of 27 samples): it is replayed over every
+        # window, as a bystander where it does not move, which its noise floor is measured on.
+        every = [w for w in base if w not in windows0]
+        wider = _windowing(trial, sorted(windows0 + every, key=lambda w: w.i0), own_w, t_const, bool(inputs),
+                           gaps) if every else None
+        if wider is not None and np.isfinite(block_noise(y, wider[0], wider[1], trapezoid=True)):
+            made = wider
+    if made is None:
         return None
+    windows, m = list(made[0]), made[1]
     noises = {ch: noise}
     if angle:
         raw[angle] = _unwrap_nan(trial.data[angle].to_numpy(float))
