@@ -820,6 +820,21 @@ def _excursion(x: np.ndarray, windows: list[Window], noise: float, fs: float) ->
     return peak
 
 
+def halves(w: Window, t: np.ndarray) -> list[Window]:
+    """Window ``w`` cut in two halves (labelled ``(1/2)`` and ``(2/2)``).
+
+    Parameters
+    ----------
+    w : Window
+        The window.
+    t : numpy.ndarray
+        Trial clock [s].
+    """
+    mid = (w.i0 + w.i1) // 2
+    return [Window(w.i0, mid, w.t0, float(t[mid - 1]), w.kinds, w.dofs, f"{w.label} (1/2)"),
+            Window(mid, w.i1, float(t[mid]), w.t1, w.kinds, w.dofs, f"{w.label} (2/2)")]
+
+
 def _windowing(trial: Trial, windows0: list[Window], own_w: list[Window], t_const: float, inputs: bool,
                gaps: tuple[Gap, ...]) -> tuple[tuple[Window, ...], int] | None:
     """The analysis windows and trial samples per analysis step of a DOF, or None when fewer than two
@@ -845,10 +860,7 @@ def _windowing(trial: Trial, windows0: list[Window], own_w: list[Window], t_cons
     windows = [w for w in _blocks(windows0, own_w, t_const, t, MIN_BLOCK_STEPS * m / fs) if len_blocks(w, m) >= 4]
     if len(windows) == 1 and len_blocks(windows[0], m) >= 8:
         # Cross-validation needs two pieces at least: a lone window is cut in halves.
-        w = windows[0]
-        mid = (w.i0 + w.i1) // 2
-        windows = [Window(w.i0, mid, w.t0, float(t[mid - 1]), w.kinds, w.dofs, f"{w.label} (1/2)"),
-                   Window(mid, w.i1, float(t[mid]), w.t1, w.kinds, w.dofs, f"{w.label} (2/2)")]
+        windows = halves(windows[0], t)
     if len(windows) < 2:
         return None
     return tuple(windows), m
