@@ -6,6 +6,18 @@ Every DOF is replayed over every window (a yaw model during a sway step predicts
 boat turns anyway, that is a coupling gap). Long windows are cut into time blocks so that the
 cross-validation has enough independent pieces.
 
+A DOF with a measured channel is analysed whether or not it has an input of its own: a sway with
+no sway force and no free decay of its own, moved only by the turns through coupling (a catamaran
+whose sway the yaw rate drives), is replayed over the windows where it moves above its long-run
+noise (:func:`_long_run_noise`: a sway speed derived from GNSS has noise correlated over several
+samples). Its baseline is the first-order model with no input, a decay from the measured state
+(the sway row of :mod:`pipeline.model.vessel5dof` when the mass and damping matrices have no sway-yaw
+terms); the ``coupling`` candidate adds the other DOFs' velocities, and once selected it joins the
+baseline, so that the next candidates (a quadratic damping, a current) are tested on top of it
+(:mod:`pipeline.diagnose.selection`). A DOF faster than the log keeps blocks of at least
+:data:`MIN_BLOCK_STEPS` steps, and where its own windows are too short to measure its noise it is
+replayed over every window, as a bystander where it does not move.
+
 Signals are block-averaged from the trial rate to an analysis step ``dt`` of about a twentieth of
 the DOF's time constant (capped so that the wave band stays resolved), which keeps the refits fast
 on long trials without losing the dynamics: averaging is a proper anti-alias filter, and the
