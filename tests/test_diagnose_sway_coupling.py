@@ -34,7 +34,7 @@ def _bench():
 
 
 @lru_cache(maxsize=None)
-def _trial(y_r: float, tmp: str, rate: float = 5.0, seed: int = 1):
+def _trial(y_r: float, tmp: str, rate: float = 5.0, seed: int = 1, noise: str = "nominal"):
     """AAUSHIP without sway, roll and pitch manoeuvres, sway coupled to yaw by ``y_r`` [N s/rad]."""
     import pandas as pd
 
@@ -50,9 +50,9 @@ def _trial(y_r: float, tmp: str, rate: float = 5.0, seed: int = 1):
     s = Schedule(tuple(m for m in s.manoeuvres if not any(w in m.name for w in ("sway", "roll", "pitch"))))
     c = np.zeros((5, 5))
     c[1, 4] = y_r
-    res = simulate(v, s, Effects(coupling=c if y_r else None), sensors=default_sensors("nominal"), seed=seed,
+    res = simulate(v, s, Effects(coupling=c if y_r else None), sensors=default_sensors(noise), seed=seed,
                    dt=0.01, actuator_rate=50.0)
-    folder = Path(tmp) / f"yr{y_r}"
+    folder = Path(tmp) / f"yr{y_r}_{rate}_{seed}_{noise}"
     folder.mkdir(parents=True, exist_ok=True)
     path = Path(write_log(res.log, folder / "t.csv", vessel=v))
     df, _ = bench.thin_log(pd.read_csv(path), rate)
@@ -135,3 +135,30 @@ def test_withheld_sway_coupling_is_found_and_clean_is_null(tmp_trials):
     trial0, v0 = _trial(0.0, tmp_trials)
     rep0 = diagnose(trial0, v0, segments=_no_sway_segments(trial0))
     assert rep0.effects == () or not rep0.effects, [(e.effect, e.dof) for e in rep0.effects]
+
+
+def sway_set(out=print) -> None:
+    """The small coupling-driven sway set of benchmarks/RESULTS.md ("Sway through coupling (diag18)"):
+    ``Y_r`` 0 (clean), 1.5 and 3 N s/rad, log rates 2 and 10 Hz, seeds 1 and 2 (noise low and high),
+    each diagnosed with the user's segments (no sway segment) and with the detected ones. Run as
+    ``CI=1 .venv/bin/python tests/test_diagnose_sway_coupling.py``."""
+    import tempfile
+
+    from pipeline.diagnose import diagnose
+    from pipeline.diagnose.segments import diagnose_segments
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for y_r in (0.0, 1.5, 3.0):
+            for rate in (2.0, 10.0):
+                for seed, noise in ((1, "low"), (2, "high")):
+                    trial, v = _trial(y_r, tmp, rate, seed, noise)
+                    for mode, segs in (("manifest", _no_sway_segments(trial)), ("detected", diagnose_segments(trial))):
+                        rep = diagnose(trial, v, segments=segs)
+                        sel = [f"{e.effect}/{e.dof} {e.shrink:.1f}%" for e in rep.effects]
+                        gaps = {d.dof: round(d.gap, 2) for d in rep.dofs}
+                        out(f"Y_r {y_r:g} {rate:g} Hz seed {seed} {noise:5s} {mode:8s} sway analysed "
+                            f"{'sway' in gaps}, gap {gaps.get('sway', float('nan')):.2f}: {sel or 'null'}")
+
+
+if __name__ == "__main__":
+    sway_set()

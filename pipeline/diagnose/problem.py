@@ -15,8 +15,7 @@ samples). Its baseline is the first-order model with no input, a decay from the 
 terms); the ``coupling`` candidate adds the other DOFs' velocities, and once selected it joins the
 baseline, so that the next candidates (a quadratic damping, a current) are tested on top of it
 (:mod:`pipeline.diagnose.selection`). A DOF faster than the log keeps blocks of at least
-:data:`MIN_BLOCK_STEPS` steps, and where its own windows are too short to measure its noise it is
-replayed over every window, as a bystander where it does not move.
+:data:`MIN_BLOCK_STEPS` steps.
 
 Signals are block-averaged from the trial rate to an analysis step ``dt`` of about a twentieth of
 the DOF's time constant (capped so that the wave band stays resolved), which keeps the refits fast
@@ -58,10 +57,12 @@ STEPS_PER_T = 20.0
 #: Longest window, in time constants, of a DOF's own manoeuvre before it is cut into blocks: the
 #: cross-validation needs several pieces even when a DOF has a single step (AAUSHIP sway).
 BLOCK_T = 2.5
-#: Shortest block [analysis steps] a DOF's own window is cut into (:func:`_blocks`): a replay needs
-#: a few steps (windows under 4 are dropped), so a DOF whose time constant is under the log interval
-#: keeps blocks of this many steps.
-MIN_BLOCK_STEPS = 8
+#: Shortest block [analysis steps] a DOF's own window is cut into (:func:`_blocks`): windows under 4
+#: steps are dropped, so a DOF whose time constant is under the log interval keeps blocks of this
+#: many steps (5: the integer block edges leave at least 4). Not more: where ``BLOCK_T`` time
+#: constants are a few steps, longer blocks leave fewer pieces (8 steps took seed 45 r020's sway,
+#: AAUSHIP at 7.7 Hz, from 27 windows to 17 and lost its quadratic damping, p 2e-8 -> 0.03).
+MIN_BLOCK_STEPS = 5
 
 
 @dataclass(frozen=True)
@@ -932,15 +933,6 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
         if not np.isfinite(t_const) or t_const <= 0:
             t_const = 0.2 * float(np.median([w.t1 - w.t0 for w in (own_w or windows0)]))
     made = _windowing(trial, windows0, own_w, t_const, bool(inputs), gaps)
-    if made is not None and not np.isfinite(block_noise(y, made[0], made[1], trapezoid=True)):
-        # Too few samples in its windows to measure its noise (a DOF faster than the log, with one
-        # short manoeuvre: seed 41 r021's sway coast-down of 27 samples): it is replayed over every
-        # window, as a bystander where it does not move, which its noise floor is measured on.
-        every = [w for w in base if w not in windows0]
-        wider = _windowing(trial, sorted(windows0 + every, key=lambda w: w.i0), own_w, t_const, bool(inputs),
-                           gaps) if every else None
-        if wider is not None and np.isfinite(block_noise(y, wider[0], wider[1], trapezoid=True)):
-            made = wider
     if made is None:
         return None
     windows, m = list(made[0]), made[1]
