@@ -49,6 +49,9 @@ RESPONSE: Mapping[str, tuple[str, ...]] = {
 FORCE: Mapping[str, str] = {"surge": "tau_x", "sway": "tau_y", "yaw": "tau_n", "roll": "tau_k", "pitch": "tau_m"}
 #: Velocity channels the coupling candidate may use as regressors.
 VELOCITIES = ("u", "v", "p", "q", "r")
+#: DOF -> the velocity that drives it through coupling when it has no input of its own (sizes its
+#: time constant, :func:`_problem`): sway is moved by the turns.
+COUPLING_DRIVERS: Mapping[str, tuple[str, ...]] = {"sway": ("r",), "yaw": ("v",)}
 #: Largest analysis step [s]: keeps the Nyquist frequency (pi/dt) above pi rad/s, so the wave band
 #: of a ship (0.3-1.5 rad/s) stays resolved even when its time constant is a minute.
 DT_MAX = 1.0
@@ -926,6 +929,12 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
     raw = {ch: y}
     for c in inputs:
         raw[c] = held_input(trial.data[c].to_numpy(float))
+    drivers = [c for c in COUPLING_DRIVERS.get(dof, ()) if coupled and trial.has(c)]
+    if drivers:
+        # Driven through coupling: a free decay fitted to it (the first pass's baseline) takes the time
+        # constant of what drives it (the turns'), not its own, and an analysis step sized by that
+        # leaves a sway of T = 0.4 s a 1 s step; its own is estimated with the driver as its input.
+        t_const = quick_time_constant(y, np.nan_to_num(trial.data[drivers[0]].to_numpy(float)), fs, own_w)
     if t_const is None or not np.isfinite(t_const) or t_const <= 0:
         # For the time-constant guess only: inputs scaled to comparable size and summed.
         u_sum = sum(raw[c] / max(np.max(np.abs(raw[c])), 1e-12) for c in inputs) if inputs else None
