@@ -27,7 +27,7 @@ from ..records import Segments, Trial
 from ..segment import noise_std
 from ..segment.replay import gaps_of
 from .gridfit import GridData, channel_scale
-from .problem import Window, block_noise
+from .problem import Window, block_noise, halves
 
 #: DOF -> (rate channel, angle channel, moment input).
 CHANNELS: Mapping[str, tuple[str, str, str]] = {"roll": ("p", "phi", "tau_k"), "pitch": ("q", "theta", "tau_m")}
@@ -171,10 +171,7 @@ def build_oscillatory(trial: Trial, segments: Segments, dof: str) -> OscProblem 
             if (gb - ga) / fs >= MIN_PERIODS * period and (gb - ga) // m >= 8:
                 wins.append(Window(ga, gb, float(t[ga]), float(t[gb - 1]), (s.kind,), (dof,), s.kind))
     if len(wins) == 1 and (wins[0].i1 - wins[0].i0) / fs >= 2 * MIN_PERIODS * period:
-        w = wins[0]
-        mid = (w.i0 + w.i1) // 2
-        wins = [Window(w.i0, mid, w.t0, float(t[mid - 1]), w.kinds, w.dofs, f"{w.label} (1/2)"),
-                Window(mid, w.i1, float(t[mid]), w.t1, w.kinds, w.dofs, f"{w.label} (2/2)")]
+        wins = halves(wins[0], t)
     if len(wins) < 2:
         return None
     n = max((w.i1 - w.i0) // m for w in wins)

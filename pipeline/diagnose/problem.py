@@ -6,6 +6,17 @@ Every DOF is replayed over every window (a yaw model during a sway step predicts
 boat turns anyway, that is a coupling gap). Long windows are cut into time blocks so that the
 cross-validation has enough independent pieces.
 
+A DOF with a measured channel is analysed whether or not it has an input of its own: a sway with
+no sway force and no free decay of its own, moved only by the turns through coupling (a catamaran
+whose sway the yaw rate drives), is replayed over the windows where it moves above its long-run
+noise (:func:`_long_run_noise`: a sway speed derived from GNSS has noise correlated over several
+samples). Its baseline is the first-order model with no input, a decay from the measured state
+(the sway row of :mod:`pipeline.model.vessel5dof` when the mass and damping matrices have no sway-yaw
+terms); the ``coupling`` candidate adds the other DOFs' velocities, and once selected it joins the
+baseline, so that the next candidates (a quadratic damping, a current) are tested on top of it
+(:mod:`pipeline.diagnose.selection`). A DOF faster than the log keeps blocks of at least
+:data:`MIN_BLOCK_STEPS` steps.
+
 Signals are block-averaged from the trial rate to an analysis step ``dt`` of about a twentieth of
 the DOF's time constant (capped so that the wave band stays resolved), which keeps the refits fast
 on long trials without losing the dynamics: averaging is a proper anti-alias filter, and the
@@ -38,6 +49,9 @@ RESPONSE: Mapping[str, tuple[str, ...]] = {
 FORCE: Mapping[str, str] = {"surge": "tau_x", "sway": "tau_y", "yaw": "tau_n", "roll": "tau_k", "pitch": "tau_m"}
 #: Velocity channels the coupling candidate may use as regressors.
 VELOCITIES = ("u", "v", "p", "q", "r")
+#: DOF -> the velocity that drives it through coupling when it has no input of its own (sizes its
+#: time constant, :func:`_problem`): sway is moved by the turns.
+COUPLING_DRIVERS: Mapping[str, tuple[str, ...]] = {"sway": ("r",), "yaw": ("v",)}
 #: Largest analysis step [s]: keeps the Nyquist frequency (pi/dt) above pi rad/s, so the wave band
 #: of a ship (0.3-1.5 rad/s) stays resolved even when its time constant is a minute.
 DT_MAX = 1.0
@@ -46,6 +60,12 @@ STEPS_PER_T = 20.0
 #: Longest window, in time constants, of a DOF's own manoeuvre before it is cut into blocks: the
 #: cross-validation needs several pieces even when a DOF has a single step (AAUSHIP sway).
 BLOCK_T = 2.5
+#: Shortest block [analysis steps] a DOF's own window is cut into (:func:`_blocks`): windows under 4
+#: steps are dropped, so a DOF whose time constant is under the log interval keeps blocks of this
+#: many steps (5: the integer block edges leave at least 4). Not more: where ``BLOCK_T`` time
+#: constants are a few steps, longer blocks leave fewer pieces (8 steps took seed 45 r020's sway,
+#: AAUSHIP at 7.7 Hz, from 27 windows to 17 and lost its quadratic damping, p 2e-8 -> 0.03).
+MIN_BLOCK_STEPS = 5
 
 
 @dataclass(frozen=True)
@@ -572,14 +592,17 @@ def _cut_gaps(trial: Trial, windows: list[Window], gaps: tuple[Gap, ...]) -> lis
     return out
 
 
-def _blocks(windows: list[Window], own: list[Window], t_const: float, t: np.ndarray) -> list[Window]:
+def _blocks(windows: list[Window], own: list[Window], t_const: float, t: np.ndarray,
+            shortest: float = 0.0) -> list[Window]:
     """Cut the DOF's own windows longer than ``BLOCK_T`` time constants into equal blocks.
 
     Windows where the DOF is only a bystander stay whole: cutting them would only add pieces in
-    which nothing happens.
+    which nothing happens. No block is shorter than ``shortest`` [s]: a DOF faster than the log
+    (AAUSHIP sway, T = 0.4 s, in a 1.7 Hz log) would otherwise be cut into blocks of one or two
+    samples, each too short to replay, and the DOF dropped (randomised seed 41 r021).
     """
     out = []
-    limit = BLOCK_T * t_const
+    limit = max(BLOCK_T * t_const, shortest)
     for w in windows:
         length = w.t1 - w.t0
         k = int(length // limit) if limit > 0 and w in own else 1
@@ -779,6 +802,24 @@ def _moves(y: np.ndarray, w: Window, noise: float) -> bool:
     return bool(np.percentile(np.abs(means), 95) > 6 * noise / np.sqrt(20 if k else 1))
 
 
+#: Samples per mean of :func:`_long_run_noise`.
+LONG_RUN_SAMPLES = 20
+
+
+def _long_run_noise(y: np.ndarray, windows: list[Window]) -> float:
+    """Per-sample noise [unit of y] that gives the noise of ``LONG_RUN_SAMPLES``-sample means as
+    :func:`block_noise` measures it, correlated noise included.
+
+    A sway speed derived from GNSS speed and course (5-10 Hz, interpolated to the trial rate) has noise
+    correlated over several samples, which the sample-to-sample estimate (:func:`noise_std`) misses:
+    a mean over 20 samples then keeps far more noise than ``noise / sqrt(20)``, and such noise alone
+    would pass the "moves" and "excited" tests of a DOF driven only through coupling. 0 when it cannot
+    be measured.
+    """
+    s = block_noise(y, tuple(windows), LONG_RUN_SAMPLES) if windows else float("nan")
+    return float(s * np.sqrt(LONG_RUN_SAMPLES)) if np.isfinite(s) else 0.0
+
+
 def _excursion(x: np.ndarray, windows: list[Window], noise: float, fs: float) -> float:
     """Largest excursion of ``x`` from its median in any window, in units of the noise of means over
     half a second or a fiftieth of the window (so that a slow ship logged by a noisy gyro counts)."""
@@ -793,6 +834,52 @@ def _excursion(x: np.ndarray, windows: list[Window], noise: float, fs: float) ->
         means = seg[:nb * k_s].reshape(nb, k_s).mean(axis=1)
         peak = max(peak, float(np.max(np.abs(means - np.median(means)))) / (noise / np.sqrt(k_s)))
     return peak
+
+
+def halves(w: Window, t: np.ndarray) -> list[Window]:
+    """Window ``w`` cut in two halves (labelled ``(1/2)`` and ``(2/2)``).
+
+    Parameters
+    ----------
+    w : Window
+        The window.
+    t : numpy.ndarray
+        Trial clock [s].
+    """
+    mid = (w.i0 + w.i1) // 2
+    return [Window(w.i0, mid, w.t0, float(t[mid - 1]), w.kinds, w.dofs, f"{w.label} (1/2)"),
+            Window(mid, w.i1, float(t[mid]), w.t1, w.kinds, w.dofs, f"{w.label} (2/2)")]
+
+
+def _windowing(trial: Trial, windows0: list[Window], own_w: list[Window], t_const: float, inputs: bool,
+               gaps: tuple[Gap, ...]) -> tuple[tuple[Window, ...], int] | None:
+    """The analysis windows and trial samples per analysis step of a DOF, or None when fewer than two
+    windows of at least 4 steps are left.
+
+    Window starts near a record start move on by the input history (when the DOF has ``inputs``); the
+    step is a twentieth of ``t_const`` (within the bounds of :data:`DT_MAX` and :data:`MAX_SAMPLES`);
+    the DOF's own windows ``own_w`` are cut into blocks (:func:`_blocks`); a lone window is halved.
+    """
+    fs, t = trial.fs, trial.t
+    if inputs:
+        # At most a quarter of the shortest own window is given up for the input history.
+        shortest = min((w.t1 - w.t0 for w in (own_w or windows0)), default=0.0)
+        hist = min(INPUT_HISTORY_T * t_const, 0.25 * shortest)
+        moved = dict(zip(map(id, windows0), _after_record_starts(trial, windows0, hist, keep_all=True, gaps=gaps)))
+        own_w = [moved[id(w)] for w in own_w if id(w) in moved and moved[id(w)] is not None]
+        windows0 = [v for v in moved.values() if v is not None]
+        if not windows0:
+            return None
+    total = sum(w.t1 - w.t0 for w in windows0)
+    dt_target = min(max(t_const / STEPS_PER_T, 1.0 / fs, total / MAX_SAMPLES), DT_MAX)
+    m = max(int(round(dt_target * fs)), 1)
+    windows = [w for w in _blocks(windows0, own_w, t_const, t, MIN_BLOCK_STEPS * m / fs) if len_blocks(w, m) >= 4]
+    if len(windows) == 1 and len_blocks(windows[0], m) >= 8:
+        # Cross-validation needs two pieces at least: a lone window is cut in halves.
+        windows = halves(windows[0], t)
+    if len(windows) < 2:
+        return None
+    return tuple(windows), m
 
 
 def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
@@ -810,16 +897,25 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
     gaps = gaps_of(trial, (ch, angle, heading, *inputs))
     base = _cut_gaps(trial, base, gaps)
     own_w = [w for w in base if dof in w.dofs]
-    if not inputs and not own_w:
+    # Driven only through coupling: no input of its own and no segment of its own (no free decay was
+    # found), but measured, and another DOF's velocity is logged that may drive it (a catamaran's sway
+    # in turns). Its windows are those where it moves, well above the noise.
+    coupled = not inputs and not own_w
+    if coupled and not any(trial.has(c) for c in VELOCITIES if c != ch):
         return None
     y = trial.data[ch].to_numpy(float)
     noise = noise_std(y)
     if not np.isfinite(noise):
         return None
     noise = max(noise, 1e-12)
+    if coupled:
+        noise = max(noise, _long_run_noise(y, base))
     windows0 = [w for w in base if dof in w.dofs or _moves(y, w, noise)]
     if not windows0:
         return None
+    if coupled:
+        # Its own windows (cut into blocks for the cross-validation like a manoeuvre of its own).
+        own_w = list(windows0)
     # Excited: some window moves the response, or the attitude it integrates to (the heading), well
     # above its noise: a small ship's turn at high gyro noise hardly leaves the gyro's noise, but
     # the compass sees its heading change by tens of noise units (randomised seeds 22 and 25: four
@@ -833,33 +929,22 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
     raw = {ch: y}
     for c in inputs:
         raw[c] = held_input(trial.data[c].to_numpy(float))
+    drivers = [c for c in COUPLING_DRIVERS.get(dof, ()) if coupled and trial.has(c)]
+    if drivers:
+        # Driven through coupling: a free decay fitted to it (the first pass's baseline) takes the time
+        # constant of what drives it (the turns'), not its own, and an analysis step sized by that
+        # leaves a sway of T = 0.4 s a 1 s step; its own is estimated with the driver as its input.
+        t_const = quick_time_constant(y, np.nan_to_num(trial.data[drivers[0]].to_numpy(float)), fs, own_w)
     if t_const is None or not np.isfinite(t_const) or t_const <= 0:
         # For the time-constant guess only: inputs scaled to comparable size and summed.
         u_sum = sum(raw[c] / max(np.max(np.abs(raw[c])), 1e-12) for c in inputs) if inputs else None
         t_const = quick_time_constant(y, u_sum, fs, own_w or windows0)
         if not np.isfinite(t_const) or t_const <= 0:
             t_const = 0.2 * float(np.median([w.t1 - w.t0 for w in (own_w or windows0)]))
-    if inputs:
-        # At most a quarter of the shortest own window is given up for the input history.
-        shortest = min((w.t1 - w.t0 for w in (own_w or windows0)), default=0.0)
-        hist = min(INPUT_HISTORY_T * t_const, 0.25 * shortest)
-        moved = dict(zip(map(id, windows0), _after_record_starts(trial, windows0, hist, keep_all=True, gaps=gaps)))
-        own_w = [moved[id(w)] for w in own_w if id(w) in moved and moved[id(w)] is not None]
-        windows0 = [v for v in moved.values() if v is not None]
-        if not windows0:
-            return None
-    total = sum(w.t1 - w.t0 for w in windows0)
-    dt_target = min(max(t_const / STEPS_PER_T, 1.0 / fs, total / MAX_SAMPLES), DT_MAX)
-    m = max(int(round(dt_target * fs)), 1)
-    windows = [w for w in _blocks(windows0, own_w, t_const, t) if len_blocks(w, m) >= 4]
-    if len(windows) == 1 and len_blocks(windows[0], m) >= 8:
-        # Cross-validation needs two pieces at least: a lone window is cut in halves.
-        w = windows[0]
-        mid = (w.i0 + w.i1) // 2
-        windows = [Window(w.i0, mid, w.t0, float(t[mid - 1]), w.kinds, w.dofs, f"{w.label} (1/2)"),
-                   Window(mid, w.i1, float(t[mid]), w.t1, w.kinds, w.dofs, f"{w.label} (2/2)")]
-    if len(windows) < 2:
+    made = _windowing(trial, windows0, own_w, t_const, bool(inputs), gaps)
+    if made is None:
         return None
+    windows, m = list(made[0]), made[1]
     noises = {ch: noise}
     if angle:
         raw[angle] = _unwrap_nan(trial.data[angle].to_numpy(float))
@@ -888,6 +973,10 @@ def _problem(trial: Trial, vessel: Vessel | None, dof: str, base: list[Window],
             continue
         raw[c] = x
         regs.append(c)
+    if coupled and not regs:
+        # Nothing logged that moves in its windows could drive it: a replay of free decays from the
+        # measured state would call the coupling itself the gap.
+        return None
     acts = []
     for a in (space.actuators if space is not None else ()):
         gains = {c: g for c, g in a.gains.items() if c in inputs}
