@@ -24,7 +24,7 @@ from . import selection as sel
 from .candidates import Candidate, candidate_label, candidates_for, composed_candidates, is_input_transform
 from .crossval import CandidateRun, cross_validate, cross_validate_all, jackknife_stderr
 from .actuators import actuator_space
-from .floor import heldout_floors
+from .floor import heldout_floors, with_start
 from .gridfit import grid_data
 from .problem import DofProblem, build_problems
 from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
@@ -163,7 +163,7 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         scored_dofs.append((runs, scored, base_score, _full_outputs(runs[0], len(p.windows))))
     # Every DOF's noise-floor replicates in one call, their units side by side (one call per DOF
     # put 3 units on 2 workers: the third ran with the other worker idle).
-    floors = heldout_floors([(p, d, s[3]) for p, d, s in zip(problems, datas, scored_dofs)])
+    floors = heldout_floors([(p, d, with_start(s[3], s[0][0])) for p, d, s in zip(problems, datas, scored_dofs)])
     for p, d, (runs, scored, base_score, base_full), floor_of in zip(problems, datas, scored_dofs, floors):
         names = {"y": p.channel, "angle": p.angle}
         base = runs[0]
