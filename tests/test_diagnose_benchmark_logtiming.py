@@ -5,20 +5,9 @@ a log interval is the trial without the delay logged with another timing."""
 
 from __future__ import annotations
 
-import importlib
-import sys
-from pathlib import Path
-
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _bench():
-    """benchmarks/diagnose.py, imported by name from its folder."""
-    if str(ROOT / "benchmarks") not in sys.path:
-        sys.path.insert(0, str(ROOT / "benchmarks"))
-    return importlib.import_module("diagnose")
+from test_diagnose_benchmark_signature import _bench
 
 
 def test_only_a_delay_of_every_input_is_cut_by_half_a_log_interval():

@@ -13,8 +13,6 @@ r005, a clean AAUSHIP at 1.75 Hz: yaw gaps of 11.7 and 28.1 noise units).
 
 from __future__ import annotations
 
-import importlib
-import sys
 import tempfile
 from pathlib import Path
 
@@ -31,15 +29,7 @@ from pipeline.diagnose.segments import diagnose_segments
 from pipeline.diagnose.timing import advance_input, input_timing
 from pipeline.diagnose.verdict import _refine_time_constants
 from pipeline.flow import load_trial
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _bench():
-    """benchmarks/diagnose.py, imported by name from its folder."""
-    if str(ROOT / "benchmarks") not in sys.path:
-        sys.path.insert(0, str(ROOT / "benchmarks"))
-    return importlib.import_module("diagnose")
+from test_diagnose_benchmark_signature import _bench
 
 
 def _yaw(seed: int, n: int, kinds: tuple[str, ...], index: int):
