@@ -1138,6 +1138,8 @@ def run_random_case(case: RandomCase) -> dict:
     out["unexplained"] = [{"channel": u.channel, "gap": u.gap} for u in rep.unexplained]
     out["gap_before"], out["gap_final"] = rep.gap_before, rep.gap_final
     out["dof_gaps"] = {d.dof: d.gap for d in rep.dofs}
+    # Each DOF's gap after the last effect selected in it (what a second effect there acts on).
+    out["dof_gaps_after"] = {e.dof: e.gap_after for e in rep.effects}
     out["verdict_shrink"] = rep.verdict.shrink if rep.verdict is not None else None
     # For the miss classification: each channel's baseline gap and held-out floor, and how each true
     # effect's own candidate scored alone (first round, before any selection).
@@ -1285,6 +1287,25 @@ def at_floor(r: dict, dof: str | None) -> bool | None:
     return bool(gaps) and all(g < AT_FLOOR * f for g, f in gaps)
 
 
+def after_first_at_floor(r: dict, dof: str | None) -> bool:
+    """True when an effect was selected in ``dof`` (any DOF when None) and the DOF's gap it left is
+    under :data:`AT_FLOOR` times the DOF's floor (the RMS over its channels' held-out floors): a second
+    effect there acts on what a correct model leaves. A run saved before ``dof_gaps_after`` takes the
+    DOF's gap times ``1 - shrink`` of each effect selected in it."""
+    out = []
+    for d in ([dof] if dof else list(r.get("dof_gaps", {}))):
+        sel = [x for x in r.get("selected", []) if x["dof"] == d]
+        fl = r.get("floors", {}).get(d) or {}
+        if not sel or not fl or d not in r.get("dof_gaps", {}):
+            continue
+        g = r.get("dof_gaps_after", {}).get(d)
+        if g is None:
+            g = r["dof_gaps"][d] * float(np.prod([1 - x["shrink"] / 100 for x in sel]))
+        f = float(np.sqrt(np.mean([max(v, 1.0) ** 2 for v in fl.values()])))
+        out.append(g < AT_FLOOR * f)
+    return bool(out) and all(out)
+
+
 def miss_cause(r: dict) -> str | None:
     """Why a single- or two-effect trial missed (None: no miss)."""
     if "selected" not in r:
@@ -1320,6 +1341,8 @@ def miss_cause(r: dict) -> str | None:
     fl = at_floor(r, dof)
     if fl:
         return which + "at the floor (below detection)"
+    if which == "pair, second: " and after_first_at_floor(r, dof):
+        return which + "at the floor once the first is in (below detection)"
     return which + ("above the floor, not significant" if fl is not None else "not found")
 
 

@@ -51,3 +51,22 @@ def test_a_delay_under_half_a_log_interval_has_no_signature():
         assert b.effect_signatures(case)[1]["rms"] > 20.0
     finally:
         b.log_timing = orig
+
+
+def test_a_second_effect_under_what_the_first_leaves_is_at_the_floor():
+    # Randomised seed 46 r000 (a Nomoto ship, T = 5 s, 19 Hz): a rudder bias and a delay in yaw. The bias
+    # takes yaw's gap from 6.97 to 2.61 noise units (62.6 %); the floors are r 1.13 and psi 2.33, so
+    # what is left is what a correct model leaves, and the delay (signature 1.03) is below detection.
+    b = _bench()
+    r = {"kind": "pair", "effects": [{"effect": "actuator_delay", "dof": "yaw"}, {"effect": "current", "dof": "yaw"}],
+         "selected": [{"effect": "current", "dof": "yaw", "shrink": 62.6}],
+         "alone": [{"dof": "yaw", "shrink": -0.9, "p": 1.0, "significant": False}, None],
+         "signature": [{"rms": 1.03}, {"rms": 1.54}],
+         "channel_gaps": {"yaw": {"r": 1.857, "psi": 9.675}}, "floors": {"yaw": {"r": 1.134, "psi": 2.329}},
+         "dof_gaps": {"yaw": 6.966}}
+    assert b.miss_cause(r) == "pair, second: at the floor once the first is in (below detection)"
+    r["dof_gaps_after"] = {"yaw": 2.61}
+    assert b.after_first_at_floor(r, "yaw")
+    # The same gap left with floors of one noise unit is well above them.
+    r["floors"] = {"yaw": {"r": 1.0, "psi": 1.0}}
+    assert b.miss_cause(r) == "pair, second: above the floor, not significant"
