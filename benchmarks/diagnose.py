@@ -1323,6 +1323,9 @@ def miss_cause(r: dict) -> str | None:
     dof = e.get("dof") or None
     if dof and dof not in r.get("dof_gaps", {}):
         return which + "true DOF not analysed"
+    lost = [x["dof"] for x in todo[1:] if x.get("dof") and x["dof"] not in r.get("dof_gaps", {})]
+    if lost:
+        return which + f"true DOF of the other not analysed ({lost[0]})"
     if r["kind"] in ("single", "actuator", "imbalance") and r["selected"]:
         s0 = r["selected"][0]
         if s0["effect"] == e["effect"] and e.get("label") and s0.get("label") != e["label"]:

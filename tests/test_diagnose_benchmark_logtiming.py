@@ -70,3 +70,13 @@ def test_a_second_effect_under_what_the_first_leaves_is_at_the_floor():
     # The same gap left with floors of one noise unit is well above them.
     r["floors"] = {"yaw": {"r": 1.0, "psi": 1.0}}
     assert b.miss_cause(r) == "pair, second: above the floor, not significant"
+
+
+def test_both_missed_with_one_dof_not_analysed_says_so():
+    # Randomised seed 42 r004 (a twin at 1.1 Hz): the GNSS lag at the floor in surge, the yaw damping's
+    # DOF not analysed at all (its blocks of 2.5 T were shorter than 4 log samples).
+    b = _bench()
+    r = {"kind": "pair", "selected": [], "alone": [None, None], "dof_gaps": {"surge": 0.66},
+         "effects": [{"effect": "sensor_delay", "dof": "surge"}, {"effect": "nonlinear_damping", "dof": "yaw"}],
+         "channel_gaps": {"surge": {"sog": 0.66}}, "floors": {"surge": {"sog": 1.26}}}
+    assert b.miss_cause(r) == "pair, both missed: true DOF of the other not analysed (yaw)"
