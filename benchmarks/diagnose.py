@@ -854,7 +854,7 @@ def _same(x, y) -> bool:
 
 
 def make_random_trial(case: RandomCase, folder: Path, quiet: bool = False,
-                      drop: int | None = None) -> tuple[list[Path], object, dict]:
+                      drop: int | None = None, keep_delay: float = 0.0) -> tuple[list[Path], object, dict]:
     """Draw and write one randomised trial; returns (files, vessel or None, truth).
 
     Parameters
@@ -867,6 +867,10 @@ def make_random_trial(case: RandomCase, folder: Path, quiet: bool = False,
         Without sensor noise (every other draw as in the trial: :func:`effect_signatures`).
     drop : int, optional
         Leave out the trial's ``drop``-th effect (drawn all the same, so every other draw stays).
+    keep_delay : float
+        When the left-out effect is a delay of every input: keep ``min(delay, keep_delay)`` of it [s]
+        instead of none (:func:`effect_signatures`: the part of a delay the log's own timing of the
+        commands carries).
     """
     global MAG_RANGE
     MAG_RANGE = case.mag_range  # a worker process draws the magnitudes the case was made with
@@ -925,7 +929,7 @@ def make_random_trial(case: RandomCase, folder: Path, quiet: bool = False,
                                                  x["effect"].endswith("delay") for x in truth["effects"]) else []))
             on = float(drop != len(truth["effects"]))
             if e == "actuator_delay":
-                kw["act_lag"] = 0.3 * mag * on
+                kw["act_lag"] = 0.3 * mag if on else min(0.3 * mag, keep_delay)
             elif e == "sensor_delay":
                 kw["gnss_lag"] = 0.3 * mag * on
             else:
@@ -944,6 +948,8 @@ def make_random_trial(case: RandomCase, folder: Path, quiet: bool = False,
         one, dof = _sim_effects(e, mag, vessel_kind, v, rng)
         if drop != len(truth["effects"]):
             eff = _merge(eff, one)
+        elif one.actuator_delay and keep_delay > 0:
+            eff = _merge(eff, Effects(actuator_delay=min(one.actuator_delay, keep_delay)))
         truth["effects"].append({"effect": e, "dof": dof, "magnitude": mag})
     truth["vessel"] = v.name
     if vessel_kind == "aauship":
@@ -1010,14 +1016,19 @@ def effect_signatures(case: RandomCase) -> list[dict]:
     difference with and without the effect, divided by the channel's sensor noise (the standard
     deviation of the diagnosed log minus the noise-free one, per sample at the log rate). The heading's
     difference is taken less its centred moving mean over :data:`HEADING_HIGHPASS_S` (its drift over
-    the trial is no signature the window-by-window diagnosis sees).
+    the trial is no signature the window-by-window diagnosis sees). A delay of every input is not
+    switched off but cut to the part the log's own timing of the commands carries (:func:`log_timing`,
+    half a log interval): below it the trial is the trial without the delay, logged with another timing
+    (randomised seed 41 r018: AAUSHIP's 0.29 s at 1.27 Hz, RMS 27.7 switched off, 0 against half a
+    log interval).
 
     Returns
     -------
     list of dict
         Per true effect: ``channels`` ({channel: [RMS in noise units, rows]}), ``rms`` (the largest
         over the channels) and ``snr`` (the largest of ``RMS sqrt(rows)``: the signature's
-        matched-filter signal-to-noise ratio, what white noise lets a known shape be seen at).
+        matched-filter signal-to-noise ratio, what white noise lets a known shape be seen at), and
+        for a delay of every input ``log_timing_s``, the delay kept in the trial it is compared with [s].
         Empty for a trial without effects. The baseline refitted to the data can absorb part of a
         signature (a quadratic damping partly by the linear one), so this is what the data carry,
         an upper bound on what a diagnosis can see.
@@ -1045,8 +1056,9 @@ def effect_signatures(case: RandomCase) -> list[dict]:
             if ok.sum() > 10 and np.std(d[ok]) > 0:
                 sigma[ch] = float(np.std(d[ok]))
         out = []
-        for i in range(len(truth["effects"])):
-            (tw, yw), _ = made(f"without{i}", quiet=True, drop=i)
+        for i, e in enumerate(truth["effects"]):
+            keep = log_timing(truth, e)
+            (tw, yw), _ = made(f"without{i}", quiet=True, drop=i, keep_delay=keep)
             chans = {}
             for ch, sd in sigma.items():
                 d = _diff(yq[ch], yw[ch], ch, t)
@@ -1054,8 +1066,34 @@ def effect_signatures(case: RandomCase) -> list[dict]:
                 if ok.any():
                     chans[ch] = [float(np.sqrt(np.mean(d[ok] ** 2)) / sd), int(ok.sum())]
             out.append({"channels": chans, "rms": max((v[0] for v in chans.values()), default=float("nan")),
-                        "snr": float(max((v[0] * np.sqrt(v[1]) for v in chans.values()), default=float("nan")))})
+                        "snr": float(max((v[0] * np.sqrt(v[1]) for v in chans.values()), default=float("nan"))),
+                        **({"log_timing_s": keep} if keep > 0 else {})})
         return out
+
+
+def log_timing(truth: dict, effect: dict) -> float:
+    """The part of a true delay [s] that the log's own timing of the commands carries: half a log
+    interval for a delay of every input (a command sampled by the log is recorded on average half an
+    interval after it switched), 0 for any other effect.
+
+    The diagnosis advances a DOF's logged inputs by the best-fitting timing in [0, 1] log sample
+    (:mod:`pipeline.diagnose.timing`), since a log does not say whether it samples its commands or
+    records them as issued. A delay ``d`` of every input moves that timing from half a sample to
+    ``half - d``: the trial is the trial without the delay, logged with another timing, and only
+    ``d - half`` (when positive) is a delay in the data. A delay of one actuator (one thruster of
+    two) or of one sensor is not a shift of every input and keeps its whole signature.
+
+    Parameters
+    ----------
+    truth : dict
+        The trial's draws (``log_rate_hz``).
+    effect : dict
+        One true effect of it.
+    """
+    rate = truth.get("log_rate_hz")
+    if effect.get("effect") != "actuator_delay" or effect.get("label") or not rate:
+        return 0.0
+    return 0.5 / float(rate)
 
 
 def stated_noise(case: RandomCase, truth: dict, vessel):
@@ -1100,6 +1138,8 @@ def run_random_case(case: RandomCase) -> dict:
     out["unexplained"] = [{"channel": u.channel, "gap": u.gap} for u in rep.unexplained]
     out["gap_before"], out["gap_final"] = rep.gap_before, rep.gap_final
     out["dof_gaps"] = {d.dof: d.gap for d in rep.dofs}
+    # Each DOF's gap after the last effect selected in it (what a second effect there acts on).
+    out["dof_gaps_after"] = {e.dof: e.gap_after for e in rep.effects}
     out["verdict_shrink"] = rep.verdict.shrink if rep.verdict is not None else None
     # For the miss classification: each channel's baseline gap and held-out floor, and how each true
     # effect's own candidate scored alone (first round, before any selection).
@@ -1247,6 +1287,25 @@ def at_floor(r: dict, dof: str | None) -> bool | None:
     return bool(gaps) and all(g < AT_FLOOR * f for g, f in gaps)
 
 
+def after_first_at_floor(r: dict, dof: str | None) -> bool:
+    """True when an effect was selected in ``dof`` (any DOF when None) and the DOF's gap it left is
+    under :data:`AT_FLOOR` times the DOF's floor (the RMS over its channels' held-out floors): a second
+    effect there acts on what a correct model leaves. A run saved before ``dof_gaps_after`` takes the
+    DOF's gap times ``1 - shrink`` of each effect selected in it."""
+    out = []
+    for d in ([dof] if dof else list(r.get("dof_gaps", {}))):
+        sel = [x for x in r.get("selected", []) if x["dof"] == d]
+        fl = r.get("floors", {}).get(d) or {}
+        if not sel or not fl or d not in r.get("dof_gaps", {}):
+            continue
+        g = r.get("dof_gaps_after", {}).get(d)
+        if g is None:
+            g = r["dof_gaps"][d] * float(np.prod([1 - x["shrink"] / 100 for x in sel]))
+        f = float(np.sqrt(np.mean([max(v, 1.0) ** 2 for v in fl.values()])))
+        out.append(g < AT_FLOOR * f)
+    return bool(out) and all(out)
+
+
 def miss_cause(r: dict) -> str | None:
     """Why a single- or two-effect trial missed (None: no miss)."""
     if "selected" not in r:
@@ -1264,6 +1323,9 @@ def miss_cause(r: dict) -> str | None:
     dof = e.get("dof") or None
     if dof and dof not in r.get("dof_gaps", {}):
         return which + "true DOF not analysed"
+    lost = [x["dof"] for x in todo[1:] if x.get("dof") and x["dof"] not in r.get("dof_gaps", {})]
+    if lost:
+        return which + f"true DOF of the other not analysed ({lost[0]})"
     if r["kind"] in ("single", "actuator", "imbalance") and r["selected"]:
         s0 = r["selected"][0]
         if s0["effect"] == e["effect"] and e.get("label") and s0.get("label") != e["label"]:
@@ -1275,9 +1337,15 @@ def miss_cause(r: dict) -> str | None:
             return which + "no candidate of it" if "alone" in r else which + "not found"
         if a["significant"]:
             return which + "significant alone, not on top of the first"
+    i = effs.index(e)
+    sg = (r.get("signature") or [])[i] if i < len(r.get("signature") or []) else {}
+    if sg.get("log_timing_s") and not sg.get("rms", 1.0) > 0:
+        return which + "inside the log's timing of the commands (below detection)"
     fl = at_floor(r, dof)
     if fl:
         return which + "at the floor (below detection)"
+    if which == "pair, second: " and after_first_at_floor(r, dof):
+        return which + "at the floor once the first is in (below detection)"
     return which + ("above the floor, not significant" if fl is not None else "not found")
 
 

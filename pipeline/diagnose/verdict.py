@@ -24,7 +24,7 @@ from . import selection as sel
 from .candidates import Candidate, candidate_label, candidates_for, composed_candidates, is_input_transform
 from .crossval import CandidateRun, cross_validate, cross_validate_all, jackknife_stderr
 from .actuators import actuator_space
-from .floor import heldout_floors
+from .floor import heldout_floors, replicate_model
 from .gridfit import grid_data
 from .problem import DofProblem, build_problems
 from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
@@ -134,6 +134,7 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     early = ordered_map(_early_unit, [("osc", q) for q in osc_problems] + [("timing", p) for p in problems],
                         jobs=jobs)
     osc_done, timed = early[:len(osc_problems)], early[len(osc_problems):]
+    logged = {p.dof: {c: p.raw[c] for c in p.inputs} for p in problems}
     problems = [p for p, _, _ in timed]
     for p, adv, _ in timed:
         if adv > 0:
@@ -163,7 +164,16 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         scored_dofs.append((runs, scored, base_score, _full_outputs(runs[0], len(p.windows))))
     # Every DOF's noise-floor replicates in one call, their units side by side (one call per DOF
     # put 3 units on 2 workers: the third ran with the other worker idle).
-    floors = heldout_floors([(p, d, s[3]) for p, d, s in zip(problems, datas, scored_dofs)])
+    # The replicates start at the baseline's initial states and, where the log samples its commands (the log's
+    # timing was applied in a DOF), carry the switches' timing within a log sample
+    # (pipeline.diagnose.floor.replicate_model).
+    # A DOF whose own timing the data did not pin (an unmodelled effect dominated its misfit) takes the
+    # trial's: one log times every command.
+    pinned = [adv for _, adv, _ in timed if adv > 0]
+    floors = heldout_floors([(p, d, s[3], replicate_model(s[0][0], logged.get(p.dof) if pinned else None,
+                                                          (adv if adv > 0 else float(np.median(pinned or [0.0])))
+                                                          * p.fs))
+                             for p, d, s, (_, adv, _) in zip(problems, datas, scored_dofs, timed)])
     for p, d, (runs, scored, base_score, base_full), floor_of in zip(problems, datas, scored_dofs, floors):
         names = {"y": p.channel, "angle": p.angle}
         base = runs[0]
