@@ -197,6 +197,49 @@ def dersimonian_laird_tau2(chi2: float, w: np.ndarray) -> float:
     return max(0.0, (chi2 - (w.size - 1)) / (s1 - s2 / s1))
 
 
+def dersimonian_laird_psi(values: np.ndarray, weights: Sequence[np.ndarray]) -> np.ndarray:
+    """Between-segment covariance ``Psi`` of vector values by the matrix method of moments [unit^2].
+
+    The multivariate form of :func:`dersimonian_laird_tau2` (Jackson, White & Riley 2013): with the
+    segments' weight matrices ``W_i = C_i^-1``, ``A = sum W_i``, the fixed-effect mean
+    ``m = A^-1 sum W_i x_i`` and ``Q = sum W_i (x_i - m)(x_i - m)'``, whose expectation is
+    ``(k - 1) I + (A - sum W_i A^-1 W_i) Psi``,
+
+        ``Psi = (A - sum W_i A^-1 W_i)^-1 (Q - (k - 1) I)``,
+
+    made symmetric and truncated to its non-negative eigenvalues. For one parameter it is
+    DerSimonian and Laird's ``tau^2`` exactly.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(k, p)`` segment vectors [unit].
+    weights : sequence of numpy.ndarray
+        Their ``(p, p)`` weight matrices (inverse covariances) [1/unit^2].
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(p, p)`` positive semi-definite ``Psi``.
+
+    References
+    ----------
+    Jackson, D., White, I. R., Riley, R. D. (2013). A matrix-based method of moments for fitting the
+    multivariate random effects model in meta-analysis and meta-regression. Biometrical Journal 55, 231-245.
+    """
+    x = np.atleast_2d(np.asarray(values, float))
+    k, p = x.shape
+    w = [np.atleast_2d(np.asarray(wi, float)) for wi in weights]
+    a = sum(w)
+    a_inv = np.linalg.inv(a)
+    mean = a_inv @ sum(wi @ xi for wi, xi in zip(w, x))
+    q = sum(wi @ np.outer(xi - mean, xi - mean) for wi, xi in zip(w, x))
+    b = a - sum(wi @ a_inv @ wi for wi in w)
+    psi = np.linalg.solve(b, q - (k - 1) * np.eye(p))
+    ev, vec = np.linalg.eigh(0.5 * (psi + psi.T))
+    return (vec * np.maximum(ev, 0.0)) @ vec.T
+
+
 def note_disagreement(messages: list[str], chi2: float, k: int, p_value: float, tau2: float, unit: str,
                       se_re: float, prediction: bool) -> tuple[float, str]:
     """Put the "segments disagree" note first in ``messages``; the reported error and a rule suffix.

@@ -34,16 +34,18 @@ report, coefficients.json and the CLI show what was found and why it is not trus
 
 First, when every segment behind K and T is a second-order fit, both are read from the pooled
 vector of the segments' (K, T1 + T2, T1 T2, T3) (:func:`pooled_estimates`,
-:mod:`pipeline.fit.nomoto_pool`); its segments' heterogeneity is in its Birge-scaled error, and the
-per-segment spread rule above is not applied to it (a segment's own second-order T is biased).
+:mod:`pipeline.fit.nomoto_pool`); its segments' heterogeneity is in its random-effects error (the
+multivariate DerSimonian-Laird spread), and the per-segment spread rule above is not applied to it (a
+segment's own second-order T is biased).
 
 Before these rules, a model-structure term (``STRUCTURE_TERM`` notes in the segment fits'
 messages: the difference between the first- and second-order values where the structure was not
 decided clearly or the two disagree) is added in quadrature to the combined standard error and the
 95 % interval is widened to match (:func:`add_structure_term`): a structure bias is common to all
 segments, so it is added after combining, never averaged down. T gets a rudder-timing term the same way
-where a measured rudder angle jumps within a sample interval (:func:`rudder_timing_term`, ``h / sqrt(12)``:
-the jumps' moments are known only to within the interval), and is unsure where half that interval exceeds
+where a measured rudder angle jumps within a sample interval or drives a sinusoid (:func:`rudder_timing_term`,
+``h / sqrt(12)``: the jumps' moments, or the servo's path between the samples, are known only to within the
+interval), and is unsure where half that interval exceeds
 ``UNSURE_RELATIVE_STDERR`` of it (:func:`rudder_timing_reason`). A speed term follows
 (:func:`add_speed_term`): half the largest relative speed loss in the turns of the records behind K or T
 (``SPEED_RANGE`` notes of :func:`pipeline.fit.nomoto_segment.speed_range_note`) times the value,
@@ -145,7 +147,7 @@ def unsure_reasons(est: Estimate, kinds: Sequence[str] = ()) -> list[str]:
             return out + _rel_reason(est)
     p = est.consistency_p
     # K and T from the pooled second-order vector carry the segments' heterogeneity in their
-    # Birge-scaled error; a second-order segment's own T is biased, so its spread is not tested.
+    # random-effects error; a second-order segment's own T is biased, so its spread is not tested.
     pooled = POOLED_NOTE in est.message
     if x.size >= 2 and math.isfinite(p) and p < CONSISTENCY_ALPHA and not pooled:
         spread = float(np.std(x, ddof=1)) / abs(est.value)
@@ -482,7 +484,8 @@ def superposition_groups(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     that moves toward it out of one; reversals (``|before| == |after|``) are neither. For a
     first-order (per-segment) value each group's value is its inverse-variance mean, its error scaled
     by its own Birge ratio (at least 1). For K and T read from the pooled second-order vector each
-    group's vectors are pooled the same way (:func:`pipeline.fit.nomoto_pool.pool_second_order`) and
+    group's vectors are pooled the same way (:func:`pipeline.fit.nomoto_pool.pool_second_order`, the error
+    of the group's mean: no prediction error, as two means are compared) and
     K or T read from that: a second-order segment's own T, the difference of two correlated
     constants, scatters beyond its error and is not compared.
 
@@ -515,7 +518,7 @@ def superposition_groups(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     means = {}
     for into, members in groups.items():
         if pooled:
-            vec = pool_second_order(members, min_segments=1)
+            vec = pool_second_order(members, min_segments=1, prediction=False)
             if vec is None or short not in vec.values:
                 return None
             means[into] = (vec.values[short].value, vec.values[short].stderr, len(members))
@@ -871,7 +874,7 @@ def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) ->
         The estimate (the intercept, or the value with the speed term), and the unsure reasons.
     """
     # The per-segment T of a second-order fit (T1 + T2 - T3, a difference of two correlated constants)
-    # scatters beyond its error; in the pooled vector that spread is in the Birge-scaled error, so it
+    # scatters beyond its error; in the pooled vector that spread is in the random-effects error, so it
     # is no evidence of a speed dependence (its trend still is).
     spread_counts = not (short == "T" and POOLED_NOTE in est.message)
     trend = speed_trend(fits, short, spread_counts=spread_counts)
