@@ -107,7 +107,8 @@ SHARED_BIAS = "fitted with one rudder bias over all"
 #: (:func:`pipeline.fit.nomoto_structure.exact_fit_k_term`; read by :func:`straight_run_value`).
 EXACT_FIT = "sinusoids fix the second order's constants exactly"
 #: Start of the note with the rudder-timing term of T (``RUDDER_TIMING +-<value> s ...``), written by
-#: :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note` where the rudder jumps within a sample interval.
+#: :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note` where the rudder jumps within a sample interval
+#: or drives a sinusoid.
 RUDDER_TIMING = "rudder-timing term for T:"
 #: Relative difference between the combined and the one-bias K or T that is material [-].
 SHARED_BIAS_MATERIAL = 0.02
@@ -728,8 +729,11 @@ def rudder_timing_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     shift = 0.5 * h / abs(est.value)
     if not shift > UNSURE_RELATIVE_STDERR:
         return []
-    return [f"unsure: the rudder jumps within its sample interval of {h:.3g} s, so each jump's moment is known only "
-            f"to within it, and T moves one for one with the rudder's timing: up to h / 2 = {0.5 * h:.3g} s, "
+    jumps = any(f"{RUDDER_TIMING} +-" in p and "jumps within" in p for f in fits for p in f.message.split("; "))
+    cause = ("the rudder jumps within its sample interval of {h:.3g} s, so each jump's moment is known only to within "
+             "it" if jumps else "the rudder's path between its samples, {h:.3g} s apart, is not logged, so its timing "
+             "is known only to within a sample interval").format(h=h)
+    return [f"unsure: {cause}, and T moves one for one with the rudder's timing: up to h / 2 = {0.5 * h:.3g} s, "
             f"{shift:.0%} of T (> {UNSURE_RELATIVE_STDERR:.0%}), which the data cannot show (log the rudder faster, "
             f"or its servo's ramp)"]
 
@@ -739,7 +743,8 @@ def rudder_timing_term(fits: Sequence[SegmentFit], short: str) -> float:
     :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note`) [s]; 0 for K, which a delay of the
     rudder does not move, and when none.
 
-    A rudder that jumps within a sample interval jumped at a moment known only to within it, and a
+    A rudder that jumps within a sample interval jumped at a moment known only to within it (and a
+    sinusoid's servo path between samples leads their straight line by up to half an interval), and a
     delay of the rudder moves the first-order equivalent T one for one; the term is common to every
     jump of the log (a logger's convention), so it is added after combining, never averaged down.
 
