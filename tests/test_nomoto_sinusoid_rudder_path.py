@@ -71,3 +71,31 @@ def test_sinusoids_behind_a_servo_at_1_hz_cover_t(seed):
     assert "rudder-timing term" in t.message and t.success, t.message
     assert t.ci95[0] < T_TRUE < t.ci95[1], (t.value, t.stderr, t.message)
     assert t.stderr >= 1.0 / math.sqrt(12.0)
+
+
+def test_k_carries_the_timing_term_through_its_slope_on_t():
+    # K read together with T (a sinusoid's gain K / |1 + j w T|) moves with T's timing: the term of K is
+    # T's term times the slope of K on T in the segment's covariance; a segment without the note adds none.
+    from dataclasses import replace
+
+    from pipeline.fit.nomoto_quality import RUDDER_TIMING, k_on_t_slope, rudder_timing_term
+    from pipeline.fit.segment_fit import failed_segment_fit
+    from pipeline.records import Segment
+
+    seg = Segment("sinusoid", "yaw", 0.0, 100.0, "delta", 0.0, 0.1)
+    cov = np.array([[4e-8, 6e-6, 0.0], [6e-6, 1e-2, 0.0], [0.0, 0.0, 1e-6]])
+    base = replace(failed_segment_fit(seg, "nomoto_oe", "psi", ""), success=True,
+                   params={"K": 0.15, "T": 20.0, "b": 0.0}, param_names=["K", "T", "b"], covariance=cov)
+    noted = replace(base, message=f"{RUDDER_TIMING} +-0.2887 s added in quadrature to its standard error: ...")
+    assert k_on_t_slope(base) == pytest.approx(6e-4)
+    assert rudder_timing_term([base, noted], "T") == pytest.approx(0.2887)
+    assert rudder_timing_term([base, noted], "K") == pytest.approx(6e-4 * 0.2887)
+    assert rudder_timing_term([base], "K") == 0.0
+    # The second order's T = T12 - T3.
+    cov2 = np.diag([4e-8, 1.0, 4.0, 1.0])
+    cov2[0, 1] = cov2[1, 0] = 1e-4
+    cov2[0, 3] = cov2[3, 0] = -1e-4
+    cov2[1, 3] = cov2[3, 1] = 0.5
+    second = replace(base, params={"K": 0.15, "T12": 13.5, "T1T2": 64.0, "T3": 10.8},
+                     param_names=["K", "T12", "T1T2", "T3"], covariance=cov2)
+    assert k_on_t_slope(second) == pytest.approx(2e-4 / 1.0)
