@@ -86,19 +86,3 @@ def test_prediction_error_keeps_the_spread_of_disagreeing_segments():
     assert "prediction error" in pred.method and "not averaged down" in pred.message
     agree = [Contribution(v, 0.1, f"s{i}") for i, v in enumerate(values)]
     assert combine("K", "1/s", "m", agree, prediction=True).stderr == pytest.approx(combine("K", "1/s", "m", agree).stderr)
-
-
-def test_nomoto_k_and_t_of_disagreeing_segments_carry_the_error_of_the_mean():
-    # The Nomoto K and T of segments that disagree are the DerSimonian-Laird mean with its own error,
-    # as every other coefficient: the prediction error (the spread added) over-stated them 2.3 times on
-    # PythonVehicleSimulator's frigate and tanker steps (benchmarks/RESULTS.md, ident30).
-    from pipeline.fit.trial import _Collector
-
-    values, se = [0.14, 0.15, 0.13, 0.16, 0.145, 0.135], [0.001] * 6
-    col = _Collector(None, None)
-    for i, (v, s) in enumerate(zip(values, se)):
-        col.add("K_nomoto", "1/s", "m", "rudder_step", Contribution(v, s, f"s{i}"))
-    k = col.estimates()["K_nomoto"]
-    value, stderr, _ = combination_rules(values, se)["dersimonian_laird"]
-    assert k.value == pytest.approx(value) and k.stderr == pytest.approx(stderr)
-    assert "prediction error" not in k.message

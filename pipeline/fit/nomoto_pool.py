@@ -20,19 +20,15 @@ T 2.63 s, truth 2.66 s).
   freedom) tests whether they agree within their errors. Where they do not (p < ``CONSISTENCY_ALPHA``),
   the rule is the one :func:`pipeline.fit.combine.combine` applies to the first-order K and T, in its
   multivariate form: the between-segment covariance ``Psi`` by the matrix method of moments that
-  generalises DerSimonian-Laird (:func:`pipeline.fit.combine.dersimonian_laird_psi`), and the error
-  ``sqrt(g' V g)`` of K or T (``g`` its gradient, ``V`` the mean's covariance under ``Psi``). Like the
-  first-order K and T (:func:`pipeline.fit.combine.combine` without ``prediction``) it is the error of
-  the mean, not the prediction error ``g' (V + Psi) g``, which over-states the error (PythonVehicleSimulator's
-  Clarke83 ship, pooled K of six commanded steps, seeds 0-9: z +0.2 to +1.1 with the spread, +0.3 to +1.7
-  without at 2 Hz, +0.5 to +1.8 at 5 Hz, every interval holding the truth). The mean stays the fixed-effect
+  generalises DerSimonian-Laird (:func:`pipeline.fit.combine.dersimonian_laird_psi`), and the
+  random-effects prediction error ``g' (V + Psi) g`` of K or T (``g`` its gradient): a model error that
+  differs between manoeuvres is not averaged down by their number. The mean stays the fixed-effect
   one, ``V`` its covariance under the random-effects model, ``A^-1 + A^-1 (sum W_i Psi W_i) A^-1``
   with ``A = sum W_i`` (Henmi & Copas 2010): the random-effects weights ``(C_i + Psi)^-1`` tend to
   equal weights as ``Psi`` grows, and so to the mean of the segments' own T, which is biased (below):
   PythonVehicleSimulator's Clarke83 ship, six commanded steps at 5 Hz, seeds 0-9, pooled T median
-  +5.8 % (median absolute error 5.8 %) with those weights against +1.7 % (3.7 %) with the fixed-effect
-  ones; the project's second-order ship (tests/test_fit_nomoto_structure.py) 2.97 s against 2.87 s,
-  truth 2.70 s. A Birge-ratio scaling, used
+  +5.8 % (median absolute error 5.8 %) with those weights against +1.7 % (3.7 %) with the fixed-effect ones; the project's second-order ship
+  (tests/test_fit_nomoto_structure.py) 2.97 s against 2.87 s, truth 2.70 s. A Birge-ratio scaling, used
   before, widened all four directions alike by ``sqrt(chi2 / dof)``: a spread in one direction is
   diluted over four, and on the Clarke83 ship at 2 Hz (seed 0, one step whose servo lag ran to zero)
   it gave T 3.35 +- 0.24 s against the truth 2.66 s (chi-square 67 on 20 dof).
@@ -173,7 +169,7 @@ def _vector(sf: SegmentFit) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def pool_second_order(fits: Sequence[SegmentFit], min_segments: int = 2,
-                      prediction: bool = False) -> PooledSecondOrder | None:
+                      prediction: bool = True) -> PooledSecondOrder | None:
     """K and T from the generalised least-squares mean of second-order segment vectors (module doc).
 
     Parameters
@@ -185,8 +181,7 @@ def pool_second_order(fits: Sequence[SegmentFit], min_segments: int = 2,
         :func:`pipeline.fit.nomoto_quality.superposition_groups`).
     prediction : bool
         Where the segments disagree, add the between-segment spread to the error (the random-effects
-        prediction error, as :func:`pipeline.fit.combine.combine` with ``prediction=True``; not used
-        for K and T, module doc).
+        prediction error, as :func:`pipeline.fit.combine.combine` with ``prediction=True``).
 
     Returns
     -------

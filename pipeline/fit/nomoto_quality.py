@@ -520,7 +520,7 @@ def superposition_groups(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     means = {}
     for into, members in groups.items():
         if pooled:
-            vec = pool_second_order(members, min_segments=1)
+            vec = pool_second_order(members, min_segments=1, prediction=False)
             if vec is None or short not in vec.values:
                 return None
             means[into] = (vec.values[short].value, vec.values[short].stderr, len(members))

@@ -286,8 +286,9 @@ class _Collector:
         for name in ("K_nomoto", "T_nomoto"):
             if note and name in self.pools:
                 self.pools[name].notes.append(note)
-        out = {name: (combine_relative if pool.relative else combine)(name, pool.unit, pool.method_text(), pool.items,
-                                                                      pool.notes)
+        out = {name: (combine_relative if pool.relative else combine)(
+                   name, pool.unit, pool.method_text(), pool.items, pool.notes,
+                   prediction=name in ("K_nomoto", "T_nomoto"))
                for name, pool in self.pools.items()}
         if "b_nomoto" in out:
             out["b_nomoto"] = _bias_estimate(out["b_nomoto"])
