@@ -15,14 +15,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pandas as pd
 import pytest
-import scipy.signal
 
-from pipeline.model import discretise
-from pipeline.model.nomoto import nomoto_matrices, servo_response
+from pipeline.model.nomoto import servo_response
 from pipeline.records import Trial
 from pipeline.segment import detect_segments
+from test_nomoto_segment_held_rudder import log_of_rudder
 
 K_TRUE, T_TRUE = 0.15, 20.0
 
@@ -41,16 +39,7 @@ def _sinusoid_log(h: float, tau: float, seed: int) -> Trial:
     cmd = np.where(t < t_fast, a * np.sin(w_fast * t), 0.0)
     cmd = np.where((t >= t1) & (t < t1 + 3 * 2 * math.pi / w_slow), a * np.sin(w_slow * (t - t1)), cmd)
     d = servo_response(np.repeat(cmd, sub), h / sub, tau, math.inf)
-    am, bm = nomoto_matrices(1, (K_TRUE, T_TRUE))
-    ad, bd = discretise.zoh(am, bm, h / sub)
-    _, xs, _ = scipy.signal.dlsim((ad, bd, np.eye(2), np.zeros((2, 1)), h / sub), d, x0=np.zeros(2))
-    rng = np.random.default_rng(seed)
-    n = t.size
-    psi = xs[::sub, 0] + math.radians(0.2) * rng.standard_normal(n)
-    r = xs[::sub, 1] + math.radians(0.05) * rng.standard_normal(n)
-    delta = d[::sub] + math.radians(0.1) * rng.standard_normal(n)
-    data = pd.DataFrame({"t": t, "psi": (psi + np.pi) % (2 * np.pi) - np.pi, "r": r, "delta": delta})
-    return Trial("ship1", data, 1 / h)
+    return log_of_rudder(d, 1, (K_TRUE, T_TRUE), h, sub, seed, (0.2, 0.05, 0.1), "ship1")
 
 
 @pytest.mark.parametrize("seed", [2, 3])
