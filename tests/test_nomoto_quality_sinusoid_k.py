@@ -24,8 +24,13 @@ def test_k_of_an_exact_second_order_sinusoid_fit_carries_its_own_error_as_a_term
     term = float(notes[0].split("+-")[1].split(" ")[0])
     se = lead.stderr["K"]
     assert term == pytest.approx(se, rel=1e-4)
-    # The combined error holds the term in quadrature: sqrt(2) times the fit's own.
-    assert k.stderr == pytest.approx(math.hypot(se, term), rel=1e-3)
+    # The combined error holds the term in quadrature (sqrt(2) times the fit's own), and the measured
+    # rudder's timing term carried by K's slope on T (pipeline.fit.nomoto_quality.rudder_timing_term).
+    from pipeline.fit.nomoto_quality import rudder_timing_term
+
+    timing = rudder_timing_term([sf for sf in fits.segment_fits if sf.success and sf.segment.dof == "yaw"], "K")
+    assert timing > 0
+    assert k.stderr == pytest.approx(math.sqrt(se**2 + term**2 + timing**2), rel=1e-3)
     assert k.success and k.value == pytest.approx(0.09, rel=0.02), k.message
 
 

@@ -34,17 +34,25 @@ def _log(h, tau, seed, hold=90.0, levels=(0, 10, 0, -10, 0, 5, 0), mid=False):
     if mid:
         fine = np.r_[fine[sub // 2:], np.full(sub // 2, fine[-1])]
     d = servo_response(fine, h / sub, tau, math.inf) if tau > 0 else fine
-    a, b = nomoto_matrices(ORDER2_SUM_PRODUCT, SHIP2)
+    return log_of_rudder(d, ORDER2_SUM_PRODUCT, SHIP2, h, sub, seed, (0.1, 0.03, 0.1), "ship2")
+
+
+def log_of_rudder(d, order, dyn, h, sub, seed, noise_deg, name):
+    """The Nomoto ship (``order``, ``dyn``) driven by the rudder ``d`` [rad] held over each fine step of
+    ``h / sub`` s (exact), logged every ``h`` s with heading, yaw-rate and rudder noise of ``noise_deg``
+    [deg, deg/s, deg]."""
+    a, b = nomoto_matrices(order, dyn)
     ad, bd = discretise.zoh(a, b, h / sub)
+    k = a.shape[0]
     # States at the fine sample times, the rudder held over each fine step (exact).
-    _, xs, _ = scipy.signal.dlsim((ad, bd, np.eye(3), np.zeros((3, 1)), h / sub), d, x0=np.zeros(3))
+    _, xs, _ = scipy.signal.dlsim((ad, bd, np.eye(k), np.zeros((k, 1)), h / sub), d, x0=np.zeros(k))
     rng = np.random.default_rng(seed)
-    n = cmd.size
-    psi = xs[::sub, 0] + math.radians(0.1) * rng.standard_normal(n)
-    r = xs[::sub, 1] + math.radians(0.03) * rng.standard_normal(n)
-    delta = d[::sub] + math.radians(0.1) * rng.standard_normal(n)
+    n = d.size // sub
+    psi = xs[::sub, 0] + math.radians(noise_deg[0]) * rng.standard_normal(n)
+    r = xs[::sub, 1] + math.radians(noise_deg[1]) * rng.standard_normal(n)
+    delta = d[::sub] + math.radians(noise_deg[2]) * rng.standard_normal(n)
     data = pd.DataFrame({"t": np.arange(n) * h, "psi": (psi + np.pi) % (2 * np.pi) - np.pi, "r": r, "delta": delta})
-    return Trial("ship2", data, 1 / h)
+    return Trial(name, data, 1 / h)
 
 @pytest.mark.parametrize("h, seed", [(1.0, 1), (0.2, 2)])
 def test_measured_rudder_jumping_inside_the_interval_gives_unbiased_t(h, seed):

@@ -34,16 +34,18 @@ report, coefficients.json and the CLI show what was found and why it is not trus
 
 First, when every segment behind K and T is a second-order fit, both are read from the pooled
 vector of the segments' (K, T1 + T2, T1 T2, T3) (:func:`pooled_estimates`,
-:mod:`pipeline.fit.nomoto_pool`); its segments' heterogeneity is in its Birge-scaled error, and the
-per-segment spread rule above is not applied to it (a segment's own second-order T is biased).
+:mod:`pipeline.fit.nomoto_pool`); its segments' heterogeneity is in its random-effects error (the
+multivariate DerSimonian-Laird spread), and the per-segment spread rule above is not applied to it (a
+segment's own second-order T is biased).
 
 Before these rules, a model-structure term (``STRUCTURE_TERM`` notes in the segment fits'
 messages: the difference between the first- and second-order values where the structure was not
 decided clearly or the two disagree) is added in quadrature to the combined standard error and the
 95 % interval is widened to match (:func:`add_structure_term`): a structure bias is common to all
 segments, so it is added after combining, never averaged down. T gets a rudder-timing term the same way
-where a measured rudder angle jumps within a sample interval (:func:`rudder_timing_term`, ``h / sqrt(12)``:
-the jumps' moments are known only to within the interval), and is unsure where half that interval exceeds
+where a measured rudder angle jumps within a sample interval or drives a sinusoid (:func:`rudder_timing_term`,
+``h / sqrt(12)``: the jumps' moments, or the servo's path between the samples, are known only to within the
+interval), and is unsure where half that interval exceeds
 ``UNSURE_RELATIVE_STDERR`` of it (:func:`rudder_timing_reason`). A speed term follows
 (:func:`add_speed_term`): half the largest relative speed loss in the turns of the records behind K or T
 (``SPEED_RANGE`` notes of :func:`pipeline.fit.nomoto_segment.speed_range_note`) times the value,
@@ -105,7 +107,8 @@ SHARED_BIAS = "fitted with one rudder bias over all"
 #: (:func:`pipeline.fit.nomoto_structure.exact_fit_k_term`; read by :func:`straight_run_value`).
 EXACT_FIT = "sinusoids fix the second order's constants exactly"
 #: Start of the note with the rudder-timing term of T (``RUDDER_TIMING +-<value> s ...``), written by
-#: :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note` where the rudder jumps within a sample interval.
+#: :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note` where the rudder jumps within a sample interval
+#: or drives a sinusoid.
 RUDDER_TIMING = "rudder-timing term for T:"
 #: Relative difference between the combined and the one-bias K or T that is material [-].
 SHARED_BIAS_MATERIAL = 0.02
@@ -145,7 +148,7 @@ def unsure_reasons(est: Estimate, kinds: Sequence[str] = ()) -> list[str]:
             return out + _rel_reason(est)
     p = est.consistency_p
     # K and T from the pooled second-order vector carry the segments' heterogeneity in their
-    # Birge-scaled error; a second-order segment's own T is biased, so its spread is not tested.
+    # random-effects error; a second-order segment's own T is biased, so its spread is not tested.
     pooled = POOLED_NOTE in est.message
     if x.size >= 2 and math.isfinite(p) and p < CONSISTENCY_ALPHA and not pooled:
         spread = float(np.std(x, ddof=1)) / abs(est.value)
@@ -195,7 +198,8 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         bias_why = shared_bias_reason(est, fits, short)
         est, speed_why = straight_run_value(est, fits, short)
         est = add_structure_term(est, structure_term(fits, short))
-        est = add_structure_term(est, rudder_timing_term(fits, short), "rudder-timing term")
+        est = add_structure_term(est, rudder_timing_term(fits, short),
+                                 "rudder-timing term" + (" (K's slope on T in the fit times T's)" if short == "K" else ""))
         out[name] = est
         why = bias_why + speed_why + unsure_reasons(est, kinds)
         if name == "K_nomoto":
@@ -482,7 +486,8 @@ def superposition_groups(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     that moves toward it out of one; reversals (``|before| == |after|``) are neither. For a
     first-order (per-segment) value each group's value is its inverse-variance mean, its error scaled
     by its own Birge ratio (at least 1). For K and T read from the pooled second-order vector each
-    group's vectors are pooled the same way (:func:`pipeline.fit.nomoto_pool.pool_second_order`) and
+    group's vectors are pooled the same way (:func:`pipeline.fit.nomoto_pool.pool_second_order`, the error
+    of the group's mean: no prediction error, as two means are compared) and
     K or T read from that: a second-order segment's own T, the difference of two correlated
     constants, scatters beyond its error and is not compared.
 
@@ -515,7 +520,7 @@ def superposition_groups(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     means = {}
     for into, members in groups.items():
         if pooled:
-            vec = pool_second_order(members, min_segments=1)
+            vec = pool_second_order(members, min_segments=1, prediction=False)
             if vec is None or short not in vec.values:
                 return None
             means[into] = (vec.values[short].value, vec.values[short].stderr, len(members))
@@ -718,27 +723,36 @@ def rudder_timing_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     short : str
         ``K`` or ``T``.
     """
-    term = rudder_timing_term(fits, short)
+    term = rudder_timing_term(fits, short) if short == "T" else 0.0
     if not (est.success and term > 0 and math.isfinite(est.value) and est.value != 0):
         return []
     h = term * math.sqrt(12.0)
     shift = 0.5 * h / abs(est.value)
     if not shift > UNSURE_RELATIVE_STDERR:
         return []
-    return [f"unsure: the rudder jumps within its sample interval of {h:.3g} s, so each jump's moment is known only "
-            f"to within it, and T moves one for one with the rudder's timing: up to h / 2 = {0.5 * h:.3g} s, "
+    jumps = any(f"{RUDDER_TIMING} +-" in p and "jumps within" in p for f in fits for p in f.message.split("; "))
+    cause = ("the rudder jumps within its sample interval of {h:.3g} s, so each jump's moment is known only to within "
+             "it" if jumps else "the rudder's path between its samples, {h:.3g} s apart, is not logged, so its timing "
+             "is known only to within a sample interval").format(h=h)
+    return [f"unsure: {cause}, and T moves one for one with the rudder's timing: up to h / 2 = {0.5 * h:.3g} s, "
             f"{shift:.0%} of T (> {UNSURE_RELATIVE_STDERR:.0%}), which the data cannot show (log the rudder faster, "
             f"or its servo's ramp)"]
 
 
 def rudder_timing_term(fits: Sequence[SegmentFit], short: str) -> float:
     """The largest rudder-timing term of T in the fits' messages (``RUDDER_TIMING`` notes of
-    :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note`) [s]; 0 for K, which a delay of the
-    rudder does not move, and when none.
+    :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note`) [s], or for K that term carried by
+    K's regression on T in the fit's covariance [1/s]; 0 when none.
 
-    A rudder that jumps within a sample interval jumped at a moment known only to within it, and a
+    A rudder that jumps within a sample interval jumped at a moment known only to within it (and a
+    sinusoid's servo path between samples leads their straight line by up to half an interval), and a
     delay of the rudder moves the first-order equivalent T one for one; the term is common to every
     jump of the log (a logger's convention), so it is added after combining, never averaged down.
+    A delay leaves a steady turn's K alone, but where the fit reads K together with T (a sinusoid's gain
+    at its frequency is ``K / |1 + j w T|``) K moves with T: by ``cov(K, T) / var(T)`` per second of T,
+    the slope of K on T in the segment's own covariance, which is the term of K (measured:
+    PythonVehicleSimulator's frigate, measured-rudder sinusoids at 1 Hz, seeds 0-9: T -0.39 to -0.89 %
+    and K -0.06 to -0.18 % with errors of 0.04-0.10 %, K's interval missing on 3 of 10).
 
     Parameters
     ----------
@@ -747,7 +761,46 @@ def rudder_timing_term(fits: Sequence[SegmentFit], short: str) -> float:
     short : str
         The coefficient, ``K`` or ``T``.
     """
-    return largest_noted(fits, f"{RUDDER_TIMING} +-") if short == "T" else 0.0
+    head = f"{RUDDER_TIMING} +-"
+    if short == "T":
+        return largest_noted(fits, head)
+    if short != "K":
+        return 0.0
+    out = 0.0
+    for f in fits:
+        term = largest_noted([f], head)
+        slope = k_on_t_slope(f) if term > 0 else 0.0
+        out = max(out, abs(slope) * term)
+    return out
+
+
+def k_on_t_slope(sf: SegmentFit) -> float:
+    """The slope of K on the first-order equivalent T in a segment fit's covariance [1/s^2] (0 when unknown).
+
+    ``cov(K, T) / var(T)`` with ``T`` the first-order ``T`` or the second order's ``T12 - T3``.
+
+    Parameters
+    ----------
+    sf : SegmentFit
+        A Nomoto segment fit with ``param_names`` and ``covariance``.
+    """
+    names = list(getattr(sf, "param_names", None) or ())
+    cov = getattr(sf, "covariance", None)
+    if "K" not in names or cov is None:
+        return 0.0
+    cov = np.asarray(cov, float)
+    g = np.zeros(len(names))
+    if "T" in names:
+        g[names.index("T")] = 1.0
+    elif "T12" in names and "T3" in names:
+        g[names.index("T12")], g[names.index("T3")] = 1.0, -1.0
+    else:
+        return 0.0
+    if cov.shape != (g.size, g.size):
+        return 0.0
+    var_t = float(g @ cov @ g)
+    c_kt = float(cov[names.index("K")] @ g)
+    return c_kt / var_t if var_t > 0 and math.isfinite(c_kt) else 0.0
 
 
 def speed_range(fits: Sequence[SegmentFit]) -> float:
@@ -871,7 +924,7 @@ def straight_run_value(est: Estimate, fits: Sequence[SegmentFit], short: str) ->
         The estimate (the intercept, or the value with the speed term), and the unsure reasons.
     """
     # The per-segment T of a second-order fit (T1 + T2 - T3, a difference of two correlated constants)
-    # scatters beyond its error; in the pooled vector that spread is in the Birge-scaled error, so it
+    # scatters beyond its error; in the pooled vector that spread is in the random-effects error, so it
     # is no evidence of a speed dependence (its trend still is).
     spread_counts = not (short == "T" and POOLED_NOTE in est.message)
     trend = speed_trend(fits, short, spread_counts=spread_counts)
