@@ -436,6 +436,28 @@ def noise_scale(x: np.ndarray, windows: tuple[Window, ...]) -> tuple[float, int]
     return float("nan"), 1
 
 
+#: Fewest quarter contrasts (blocks of ``max(m, 8)`` samples) from which :func:`block_noise`
+#: measures a channel's white noise.
+MIN_CONTRASTS = 8
+
+
+def noise_measurable(x: np.ndarray, windows: tuple[Window, ...], m: int) -> bool:
+    """Whether the windows hold enough blocks for :func:`block_noise` to measure the noise of
+    ``m``-sample block means of ``x`` from the data (else only a stated noise gives it).
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Trial-rate signal.
+    windows : tuple[Window, ...]
+        Windows to measure it in.
+    m : int
+        Samples per block.
+    """
+    mb = max(m, 8)
+    return len(_contrasts(x, windows, mb // 4, mb)) >= MIN_CONTRASTS
+
+
 def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: bool = False,
                 stated: float | None = None) -> float:
     """White-noise standard deviation of an ``m``-sample block mean of ``x`` [SI].
@@ -471,18 +493,28 @@ def block_noise(x: np.ndarray, windows: tuple[Window, ...], m: int, trapezoid: b
         whatever moves within ``mb`` samples, and a wave a few samples per period (a heading logged
         at 1-3 Hz) counts as noise there (a 1.3 deg heading wave at 1.1 Hz raised a 0.002 rad
         compass to a floor of 0.026 rad). A sensor better than stated keeps its measured floor;
-        a noise correlated over several samples keeps its measured long-run level.
+        a noise correlated over several samples keeps its measured long-run level. Where the
+        windows hold fewer than ``MIN_CONTRASTS`` blocks of ``mb`` samples (a fast DOF logged at
+        1 Hz, cut into short windows), the data cannot measure the white part and the stated
+        noise is used alone (:func:`noise_measurable` says which of the two).
+
+    Returns
+    -------
+    float
+        The block mean's noise [unit of x]; NaN when the data cannot measure it and none is stated.
     """
     mb = max(m, 8)
     q = mb // 4
     c = _contrasts(x, windows, q, mb)
-    if len(c) < 8:
-        return float("nan")
-    # The contrast uses the first 4 q of the mb samples: it measures a 4q-sample block mean.
-    s_mb = _robust_sd(c) / 4.0
-    s_m = s_mb * np.sqrt(4 * q / m)
-    white = float(s_m * np.sqrt((m - 0.5) / m) if trapezoid else s_m)
     told = stated is not None and np.isfinite(stated) and stated > 0
+    if len(c) < MIN_CONTRASTS and not told:
+        return float("nan")
+    white = float("inf")
+    if len(c) >= MIN_CONTRASTS:
+        # The contrast uses the first 4 q of the mb samples: it measures a 4q-sample block mean.
+        s_mb = _robust_sd(c) / 4.0
+        s_m = s_mb * np.sqrt(4 * q / m)
+        white = float(s_m * np.sqrt((m - 0.5) / m) if trapezoid else s_m)
     if told:
         own = stated / np.sqrt(m)
         white = min(white, float(own * np.sqrt((m - 0.5) / m) if trapezoid else own))

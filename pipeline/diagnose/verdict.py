@@ -350,7 +350,7 @@ def _composed(p: DofProblem, last: CandidateRun | None, taken: set[str], state: 
 
 def _stated_noise_notes(p: DofProblem) -> list[str]:
     """Where the vessel config's ``[sensor_noise]`` capped a DOF's noise floor: the two floors."""
-    from .problem import block_noise
+    from .problem import MIN_CONTRASTS, block_noise
 
     out = []
     for ch in p.outputs:
@@ -360,7 +360,11 @@ def _stated_noise_notes(p: DofProblem) -> list[str]:
         told = block_noise(p.raw[ch], p.windows, p.m, trapezoid=True, stated=s)
         data = block_noise(p.raw[ch], p.windows, p.m, trapezoid=True)
         unit = CHANNEL_UNITS.get(ch, "")
-        if told < data:
+        if not np.isfinite(data) and np.isfinite(told):
+            out.append(f"{p.dof}: noise floor of {ch} from the vessel config's [sensor_noise] ({s:.3g} {unit} per "
+                       f"sample): {told:.3g} {unit} per analysis step; the data cannot measure it (fewer than "
+                       f"{MIN_CONTRASTS} blocks of {max(p.m, 8)} samples in the DOF's windows)")
+        elif told < data:
             out.append(f"{p.dof}: noise floor of {ch} from the vessel config's [sensor_noise] ({s:.3g} {unit} per "
                        f"sample): {told:.3g} {unit} per analysis step; the data alone gave {data:.3g} (what moves "
                        f"within a few samples, a wave among it, counted as noise there)")
