@@ -126,6 +126,11 @@ def slowest_time_constant(fit: SegmentFit) -> tuple[float, float, str]:
     ``2 T1T2 / T12`` (the inverse of the poles' real part), its error by the delta method on their
     covariance. (nan, nan, '') when the fit has none of these.
 
+    Parameters
+    ----------
+    fit : SegmentFit
+        A segment fit; its ``param_names`` give the covariance order.
+
     Returns
     -------
     tau : float
@@ -165,6 +170,16 @@ def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
     failed with an ``unsure:`` message naming the window and the time constant; it is left out of
     the pooled estimates like any failed segment. Segments no boundary cut, fits already failed and
     fits without a free settled level are returned unchanged.
+
+    Parameters
+    ----------
+    fit : SegmentFit
+        A segment's fit; ``fit.segment.t_start`` is its input change [s, trial clock].
+
+    Returns
+    -------
+    SegmentFit
+        ``fit``, or a copy with ``success=False`` and the reason first in its message.
     """
     seg = fit.segment
     if not seg.cut_at_run_end or not fit.success or not any(n in fit.params for n in SETTLING_LEVEL_PARAMS):
