@@ -420,6 +420,9 @@ class Segment:
         Free text (manifest name, detector note).
     run : int
         Index of the run (``Trial.run_list()``) the segment lies in; 0 for a single-run trial.
+    cut_at_run_end : bool
+        True when the end of its run (a file boundary with a gap to the next run) ended the window,
+        not the next input change: its response may not have settled (the fit judges it).
     """
 
     kind: str
@@ -433,6 +436,7 @@ class Segment:
     origin: str = "detected"
     label: str = ""
     run: int = 0
+    cut_at_run_end: bool = False
 
     @property
     def duration(self) -> float:

@@ -17,8 +17,9 @@ import pytest
 
 from pipeline.align import group_runs
 from pipeline.fit import fit_trial
+from pipeline.fit.segment_fit import settled_at_run_end
 from pipeline.flow import load_trial, read_logs, segments_from_json, segments_to_json, write_json
-from pipeline.segment import detect_segments, segment_table
+from pipeline.segment import detect_segments, segment_table, segment_trial
 from pipeline.sim import simulate
 from pipeline.sim.manoeuvres import chain, rudder_step, zigzag
 from pipeline.vessel import load_vessel
@@ -174,6 +175,23 @@ def test_a_step_back_to_rest_cut_by_a_gap_is_kept_and_said(table, tmp_path):
     assert len(kept) == 1 and "yaw rudder_step at t = 28.00-40.00 s" in kept[0] and "12.0 s logged" in kept[0], segs.notes
     assert any(s.kind == "rudder_step" and s.t_start == pytest.approx(28.0) for s in segs.items)
     assert not any(n.startswith(("dropped: ", "cut: ")) for n in segs.notes), segs.notes
+
+
+def test_a_step_back_to_rest_cut_before_it_settled_is_unsure_and_left_out(table, tmp_path):
+    """Cut at 40.05 s: the rudder step back to zero (28-48 s) holds 12 s, 2.8 of its fitted T = 4.2 s at the
+    95 % upper bound, fewer than the 5 a settled response needs. Before, it was marked success and pooled
+    (a Clarke83 step cut to 26.6 s of 80 s gave K +8.6 % success); now it is unsure with the reason and
+    left out of K and T."""
+    parts = _pieces(table, [40.05], tmp_path / "parts", gap_s=100.0)
+    trial = load_trial(parts)
+    fits = fit_trial(trial, segment_trial(trial), VESSEL, extend=False)
+    cut = [f for f in fits.segment_fits if f.segment.cut_at_run_end]
+    assert [(f.segment.kind, round(f.segment.t_start, 1), round(f.segment.t_end, 1)) for f in cut] == \
+        [("rudder_step", 28.0, 40.0)]
+    assert not cut[0].success and cut[0].message.startswith("unsure: the end of its run"), cut[0].message
+    assert "12.0 s after the input change" in cut[0].message and "settled needs 5" in cut[0].message
+    # The rule judged a fit that was itself fine (the message goes on with the fit's own, no other failure).
+    assert cut[0].message.count("unsure:") == 1 and settled_at_run_end(cut[0]) is cut[0]
 
 
 def test_a_rotated_file_that_gains_a_channel_continues_the_recording(table, tmp_path):

@@ -4,6 +4,7 @@ that decide ``success`` (convergence, bounds, covariance, relative standard erro
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -103,3 +104,95 @@ def failed_segment_fit(segment: Segment, model: str, channel: str, reason: str,
         t=t, y=y, y_fit=np.full(y.shape, np.nan), rmse=math.nan, aic=math.nan, bic=math.nan,
         success=False, message=reason,
     )
+
+
+#: Time constants of the slowest mode a window must hold after its input change for the response to
+#: count as settled (exp(-5) < 1 % of the change left), each taken at its 95 % upper bound.
+SETTLED_TIME_CONSTANTS = 5.0
+#: Normal quantile of that upper bound.
+UPPER_BOUND_Z = 1.96
+#: Parameters that set the level a response settles to (a step's ``y_ss``; Nomoto's gain ``K`` and
+#: rudder bias ``b``, the steady rate K (delta + b)): a fit with one of them reads that level from the
+#: window's end, so the window must reach it. A coast-down's ``y0 exp(-t/T)`` settles to the known
+#: zero and reads T from any part of the decay.
+SETTLING_LEVEL_PARAMS = ("y_ss", "K", "b")
+
+
+def slowest_time_constant(fit: SegmentFit) -> tuple[float, float, str]:
+    """The slowest time constant of a fitted segment's response, its standard error and what it is.
+
+    First order: ``T``. Second-order Nomoto with real poles: the larger pole time constant ``T1``;
+    with complex poles (``T12 = T1 + T2``, ``T1T2 = T1 T2``): the envelope time constant
+    ``2 T1T2 / T12`` (the inverse of the poles' real part), its error by the delta method on their
+    covariance. (nan, nan, '') when the fit has none of these.
+
+    Parameters
+    ----------
+    fit : SegmentFit
+        A segment fit; its ``param_names`` give the covariance order.
+
+    Returns
+    -------
+    tau : float
+        Time constant [s].
+    se : float
+        Its standard error [s] (nan when not known).
+    what : str
+        Its name for a message.
+    """
+    p, e = fit.params, fit.stderr
+    if "T12" in p and "T1T2" in p and p["T12"] ** 2 < 4.0 * p["T1T2"] and p["T12"] > 0:
+        s, q = p["T12"], p["T1T2"]
+        i, j = fit.param_names.index("T12"), fit.param_names.index("T1T2")
+        g = np.array([-2.0 * q / s**2, 2.0 / s])
+        cov = np.asarray(fit.covariance, float)[np.ix_([i, j], [i, j])]
+        var = float(g @ cov @ g) if np.all(np.isfinite(cov)) else math.nan
+        return 2.0 * q / s, math.sqrt(var) if var >= 0 else math.nan, "the complex poles' envelope time constant"
+    if "T1" in p and "T2" in p:
+        name = "T1" if p["T1"] >= p["T2"] else "T2"
+        return float(p[name]), float(e.get(name, math.nan)), f"the slower pole's time constant {name}"
+    if "T" in p and "T12" not in p:
+        return float(p["T"]), float(e.get("T", math.nan)), "the time constant T"
+    return math.nan, math.nan, ""
+
+
+def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
+    """``fit`` marked unsure when its window was ended by a run boundary before its response settled.
+
+    A segment whose window the end of its run cut (``Segment.cut_at_run_end``: a file boundary with
+    a gap to the next run, not the next input change) is judged by the time it holds after its input
+    change, ``t_end - t_start``, when its model has a free settled level (``SETTLING_LEVEL_PARAMS``;
+    not a coast-down, which decays to the known zero): fewer than ``SETTLED_TIME_CONSTANTS`` of the slowest time constant
+    (:func:`slowest_time_constant`) at its 95 % upper bound means the response had not settled
+    when the recording stopped, so the window holds the start of the transient only and its
+    estimate leans on the model's shape rather than on the logged response (measured: a Clarke83
+    rudder step back to zero cut to 26.6 s of its 80 s gave K +8.6 % +- 2.7 %). The fit is then
+    failed with an ``unsure:`` message naming the window and the time constant; it is left out of
+    the pooled estimates like any failed segment. Segments no boundary cut, fits already failed and
+    fits without a free settled level are returned unchanged.
+
+    Parameters
+    ----------
+    fit : SegmentFit
+        A segment's fit; ``fit.segment.t_start`` is its input change [s, trial clock].
+
+    Returns
+    -------
+    SegmentFit
+        ``fit``, or a copy with ``success=False`` and the reason first in its message.
+    """
+    seg = fit.segment
+    if not seg.cut_at_run_end or not fit.success or not any(n in fit.params for n in SETTLING_LEVEL_PARAMS):
+        return fit
+    held = seg.t_end - seg.t_start
+    tau, se, what = slowest_time_constant(fit)
+    if not math.isfinite(tau) or tau <= 0:
+        return fit
+    upper = tau + UPPER_BOUND_Z * se if math.isfinite(se) else tau
+    if held >= SETTLED_TIME_CONSTANTS * upper:
+        return fit
+    why = (f"unsure: the end of its run (a file boundary, a gap to the next run) cut the window at "
+           f"{held:.1f} s after the input change, {held / upper:.1f} times {what} at its 95 % upper bound "
+           f"({tau:.3g} +- {se:.2g} s; settled needs {SETTLED_TIME_CONSTANTS:g}): the response had not settled "
+           f"when the recording stopped, so the estimate rests on the start of the transient only")
+    return replace(fit, success=False, message=f"{why}; {fit.message}")

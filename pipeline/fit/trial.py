@@ -24,7 +24,7 @@ from .nomoto_pool import is_joint_follower, samples_window
 from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment
 from .nomoto_structure import fit_nomoto_trial, structure_note
 from .second_order import MIN_SAMPLES_PER_PERIOD, fit_free_decay
-from .segment_fit import failed_segment_fit
+from .segment_fit import failed_segment_fit, settled_at_run_end
 
 #: Segment kind -> (fitter, model name).
 FITTERS: Mapping[str, tuple[Callable[[Trial, Segment], SegmentFit], str]] = {
@@ -447,7 +447,7 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = T
     # Several whole-record Nomoto segments: one model structure chosen across them.
     nomoto = fit_nomoto_trial(trial, segments.items)
     for i, seg in enumerate(segments.items):
-        sf = nomoto[i] if i in nomoto else _fit_segment(trial, seg)
+        sf = settled_at_run_end(nomoto[i] if i in nomoto else _fit_segment(trial, seg))
         fits.append(sf)
         collector.collect(sf)
     estimates = collector.estimates()

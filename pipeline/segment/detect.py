@@ -401,8 +401,9 @@ def _file_boundaries(trial: Trial, segs: list[Segment]) -> tuple[list[Segment], 
         at_end = reaches_end and _under_way(s)
         at_start = k > 0 and s.t_start <= run.t_start + step and s.input_channel is not None
         if not (at_end or at_start):
-            kept.append(s)
-            if reaches_end and s.input_channel is not None:
+            cut = reaches_end and s.input_channel is not None
+            kept.append(replace(s, cut_at_run_end=True) if cut else s)
+            if cut:
                 said.add((k, "end"))
                 notes.append(f"kept: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s: the end of run {k} "
                              f"{run.name!r} (a file boundary, a gap to the next run) ends its window with its input "
