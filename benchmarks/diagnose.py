@@ -1278,13 +1278,17 @@ AT_FLOOR = 1.5
 
 def at_floor(r: dict, dof: str | None) -> bool | None:
     """True when every channel of ``dof`` (every DOF when None) is at its held-out floor; None
-    when the trial saved no channel gaps (a file of an older run)."""
+    when the trial saved no channel gaps (a file of an older run) or a channel has no floor (its
+    noise could not be measured or stated: its gap is in scale units, not noise units, and cannot be
+    read against one)."""
     if "channel_gaps" not in r:
         return None
     dofs = [dof] if dof else list(r["channel_gaps"])
-    gaps = [(g, max(r["floors"].get(d, {}).get(ch, 1.0), 1.0)) for d in dofs
-            for ch, g in r["channel_gaps"].get(d, {}).items() if g is not None and np.isfinite(g)]
-    return bool(gaps) and all(g < AT_FLOOR * f for g, f in gaps)
+    pairs = [(g, r["floors"].get(d, {}).get(ch)) for d in dofs
+             for ch, g in r["channel_gaps"].get(d, {}).items() if g is not None and np.isfinite(g)]
+    if any(f is None or not np.isfinite(f) for _, f in pairs):
+        return None
+    return bool(pairs) and all(g < AT_FLOOR * max(f, 1.0) for g, f in pairs)
 
 
 def after_first_at_floor(r: dict, dof: str | None) -> bool:
@@ -1344,6 +1348,8 @@ def miss_cause(r: dict) -> str | None:
     fl = at_floor(r, dof)
     if fl:
         return which + "at the floor (below detection)"
+    if fl is None and "channel_gaps" in r:
+        return which + "no held-out floor in its DOF (noise neither measurable nor stated; not judged)"
     if which == "pair, second: " and after_first_at_floor(r, dof):
         return which + "at the floor once the first is in (below detection)"
     return which + ("above the floor, not significant" if fl is not None else "not found")

@@ -80,3 +80,20 @@ def test_both_missed_with_one_dof_not_analysed_says_so():
          "effects": [{"effect": "sensor_delay", "dof": "surge"}, {"effect": "nonlinear_damping", "dof": "yaw"}],
          "channel_gaps": {"surge": {"sog": 0.66}}, "floors": {"surge": {"sog": 1.26}}}
     assert b.miss_cause(r) == "pair, both missed: true DOF of the other not analysed (yaw)"
+
+
+def test_a_dof_without_a_floor_is_not_called_at_the_floor():
+    # Randomised seed 41 r021 (AAUSHIP at 1.7 Hz): sway analysed, its noise neither measurable on its few
+    # samples nor stated, so it has no floor and its gap 0.79 is in scale units; it was read against a
+    # floor of 1 and filed "at the floor (below detection)".
+    b = _bench()
+    r = {"kind": "pair", "selected": [{"effect": "thrust_asymmetry", "dof": "surge", "shrink": 90.0}],
+         "effects": [{"effect": "thrust_asymmetry", "dof": "surge"}, {"effect": "nonlinear_damping", "dof": "sway"}],
+         "alone": [None, {"dof": "sway", "shrink": 50.6, "p": 9e-10, "significant": False}],
+         "signature": [{"rms": 1.12}, {"rms": 0.41}],
+         "channel_gaps": {"surge": {"u": 51.8}, "sway": {"v": 0.79}}, "floors": {"surge": {"u": 2.57}, "sway": {}},
+         "dof_gaps": {"surge": 51.8, "sway": 0.79}}
+    assert b.at_floor(r, "sway") is None
+    assert b.miss_cause(r) == "pair, second: no held-out floor in its DOF (noise neither measurable nor stated; not judged)"
+    r["floors"]["sway"] = {"v": 0.7}
+    assert b.miss_cause(r) == "pair, second: at the floor (below detection)"
