@@ -32,9 +32,9 @@ from pipeline.flow import load_trial
 from test_diagnose_benchmark_signature import _bench
 
 
-def _yaw(seed: int, n: int, kinds: tuple[str, ...], index: int):
-    """A randomised trial's yaw problem as the diagnosis builds it: the problem with its log timing, the
-    inputs as logged, the advance [samples], the data and the baseline's run and outputs."""
+def random_problem(seed: int, n: int, kinds: tuple[str, ...], index: int, dof: str = "yaw"):
+    """A randomised benchmark trial's ``dof`` problem as the diagnosis builds it (before its log
+    timing), with the trial's truth."""
     b = _bench()
     case = b.random_cases(n, seed, kinds)[index]
     with tempfile.TemporaryDirectory() as tmp:
@@ -42,8 +42,15 @@ def _yaw(seed: int, n: int, kinds: tuple[str, ...], index: int):
         vessel = b.stated_noise(case, truth, vessel)
         trial = load_trial(files, vessel)
     segs = diagnose_segments(trial)
-    p0 = next(q for q in build_problems(trial, segs, vessel, time_constants=_refine_time_constants(trial, segs, vessel))
-              if q.dof == "yaw")
+    return truth, next(q for q in build_problems(trial, segs, vessel,
+                                                 time_constants=_refine_time_constants(trial, segs, vessel))
+                       if q.dof == dof)
+
+
+def _yaw(seed: int, n: int, kinds: tuple[str, ...], index: int):
+    """A randomised trial's yaw problem as the diagnosis builds it: the problem with its log timing, the
+    inputs as logged, the advance [samples], the data and the baseline's run and outputs."""
+    truth, p0 = random_problem(seed, n, kinds, index)
     p, adv = input_timing(p0)
     d = grid_data(p)
     base = cross_validate(p, d, [Candidate(p, d)])[0]

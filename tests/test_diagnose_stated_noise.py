@@ -57,25 +57,11 @@ def test_measurable_noise_keeps_the_smaller_of_data_and_stated():
 def test_the_twins_yaw_at_1_hz_is_in_noise_units_from_the_stated_noise():
     """Randomised seed 42 r004 (the twin at 1.14 Hz, yaw T about 1 s, [sensor_noise] r and psi stated):
     the yaw's windows are too short for the data to measure its noise; the stated noise gives it."""
-    import tempfile
-    from pathlib import Path
-
     from pipeline.diagnose.gridfit import grid_data
-    from pipeline.diagnose.problem import build_problems
-    from pipeline.diagnose.segments import diagnose_segments
-    from pipeline.diagnose.verdict import _refine_time_constants, _stated_noise_notes
-    from pipeline.flow import load_trial
-    from test_diagnose_benchmark_signature import _bench
+    from pipeline.diagnose.verdict import _stated_noise_notes
+    from test_diagnose_floor_start import random_problem
 
-    b = _bench()
-    case = b.random_cases(16, 42, ("pair",))[4]
-    with tempfile.TemporaryDirectory() as tmp:
-        files, vessel, truth = b.make_random_trial(case, Path(tmp))
-        vessel = b.stated_noise(case, truth, vessel)
-        trial = load_trial(files, vessel)
-    segs = diagnose_segments(trial)
-    p = next(q for q in build_problems(trial, segs, vessel, time_constants=_refine_time_constants(trial, segs, vessel))
-             if q.dof == "yaw")
+    _, p = random_problem(42, 16, ("pair",), 4)
     assert p.stated_noise.get("r") and p.stated_noise.get("psi")
     d = grid_data(p)
     assert np.isfinite(d.sigma_y) and np.isfinite(d.sigma_angle)
