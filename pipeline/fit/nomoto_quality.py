@@ -586,7 +586,10 @@ _SPEED_ENDS = re.compile(r"\((\w+) (\S+) m/s (?:at the straighter end|in the str
 def speed_change_clause(fits: Sequence[SegmentFit]) -> str:
     """The logged speed change that a superposition break points to, as a clause ('' when not material).
 
-    Nomoto's K and T scale with the speed (``K = K' U / L``, ``T = T' L / U``); a ship whose speed
+    K and T depend on the speed (Nomoto's ``K = K' U / L``, ``T = T' L / U`` where the rudder force grows
+    with ``U^2``; a rudder in the propeller race at constant rpm turns the ship faster per degree as it
+    slows: PythonVehicleSimulator's tanker at 20 m, noise-free steps, second-order K -0.7 % with its
+    1.0-1.5 % speed loss, +0.1 % with the speed held); a ship whose speed
     changes with the rudder (drag of the deflected rudder and the drift, or a rudder force that grows
     with the speed) and settles at its surge time constant, slower than the yaw, is still speeding up
     or slowing while a step's yaw settles: the step into a turn answers with a slow creep on top of its
@@ -623,7 +626,7 @@ def speed_change_clause(fits: Sequence[SegmentFit]) -> str:
         return ""
     ch, change, straight, turning = best
     return (f"; the logged speed ({ch}) changed by up to {change:+.1%} between the straight runs and the turns "
-            f"({straight:.4g} to {turning:.4g} m/s): Nomoto's K and T scale with the speed, and a speed still "
+            f"({straight:.4g} to {turning:.4g} m/s): K and T depend on the speed, and a speed still "
             f"changing while a step's yaw settles shapes steps into a turn and out of one differently: the "
             f"difference may come from the speed change alone (a linear model scheduled on the logged speed would "
             f"take it up; a constant-speed Nomoto model cannot)")
