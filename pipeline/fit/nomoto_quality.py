@@ -564,14 +564,72 @@ def superposition_break(est: Estimate, fits: Sequence[SegmentFit], short: str, s
     head = (f"{g.n_in} rudder steps into a turn give {short} = {g.m_in:.4g} +- {g.s_in:.2g} {est.unit}, {g.n_out} "
             f"steps out of one {g.m_out:.4g} +- {g.s_out:.2g}{how} (difference {g.rel:.1%} of the value, "
             f"t = {g.t:+.2g})")
+    cause = speed_change_clause(fits)
     if significant:
         return (f"unsure: nonlinear: {head}: a linear ship's step response does not depend on where the step "
                 f"starts, so the ship is nonlinear (a cubic yaw-rate term, a speed change in the turns) and the "
-                f"combined {short}, an average of the two, is not its linear value")
+                f"combined {short}, an average of the two, is not its linear value{cause}")
     return (f"unsure: not reproduced: {head}: the two halves of the steps differ by more than "
             f"{SUPERPOSITION_SPREAD:.0%} of the value, so the combined {short} is not known to that (a linear "
             f"ship's steps give the same {short} from either start; the difference is a nonlinearity, or an "
-            f"estimator bias that differs between steps from rest and steps from a turn; add steps, or longer holds)")
+            f"estimator bias that differs between steps from rest and steps from a turn; add steps, or longer "
+            f"holds){cause}")
+
+
+#: Relative change of the logged speed between a step window's straight end and its turning end that
+#: is named as the cause of a superposition break [-].
+SPEED_CHANGE_MATERIAL = 0.01
+_SPEED_ENDS = re.compile(r"\((\w+) (\S+) m/s (?:at the straighter end|in the straight run before the manoeuvre), "
+                         r"(\S+) m/s (?:at the turning end|in its slowest tenth)\)")
+
+
+def speed_change_clause(fits: Sequence[SegmentFit]) -> str:
+    """The logged speed change that a superposition break points to, as a clause ('' when not material).
+
+    K and T depend on the speed (Nomoto's ``K = K' U / L``, ``T = T' L / U`` where the rudder force grows
+    with ``U^2``; a rudder in the propeller race at constant rpm turns the ship faster per degree as it
+    slows: PythonVehicleSimulator's tanker at 20 m, noise-free steps, second-order K -0.7 % with its
+    1.0-1.5 % speed loss, +0.1 % with the speed held); a ship whose speed
+    changes with the rudder (drag of the deflected rudder and the drift, or a rudder force that grows
+    with the speed) and settles at its surge time constant, slower than the yaw, is still speeding up
+    or slowing while a step's yaw settles: the step into a turn answers with a slow creep on top of its
+    yaw transient, the step out of one at the turn's speed, so the two groups differ although each is
+    fitted well. Read from the ``SPEED_RANGE`` notes' two speeds (a gain counts as much as a loss; the
+    note's own loss figure is 0 for a gain). Measured: PythonVehicleSimulator's Clarke83 ship speeds
+    up from 3.26 to 3.35 m/s (+2.9 %) in its 10 deg turns (surge time constant L = its length in s);
+    noise-free commanded steps: T of the steps into a turn +27 / +18 / +3 % (10, 10, 5 deg), out of
+    one -2.2 / -1.8 / +0.9 %; with the simulator's surge speed held at the straight-run value the six
+    steps give T from -1.5 to +3.2 %.
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        The segment fits behind the two groups (their messages carry the speed notes).
+    """
+    best = None
+    for f in fits:
+        for part in f.message.split("; "):
+            if not part.startswith(SPEED_RANGE):
+                continue
+            m = _SPEED_ENDS.search(part)
+            if not m:
+                continue
+            try:
+                straight, turning = float(m.group(2)), float(m.group(3))
+            except ValueError:
+                continue
+            if straight > 0 and math.isfinite(turning):
+                change = (turning - straight) / straight
+                if best is None or abs(change) > abs(best[1]):
+                    best = (m.group(1), change, straight, turning)
+    if best is None or not abs(best[1]) > SPEED_CHANGE_MATERIAL:
+        return ""
+    ch, change, straight, turning = best
+    return (f"; the logged speed ({ch}) changed by up to {change:+.1%} between the straight runs and the turns "
+            f"({straight:.4g} to {turning:.4g} m/s): K and T depend on the speed, and a speed still "
+            f"changing while a step's yaw settles shapes steps into a turn and out of one differently: the "
+            f"difference may come from the speed change alone (a linear model scheduled on the logged speed would "
+            f"take it up; a constant-speed Nomoto model cannot)")
 
 
 def superposition_other_reason(est: Estimate, estimates: dict[str, Estimate], fits: Sequence[SegmentFit],
