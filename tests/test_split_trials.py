@@ -186,8 +186,10 @@ def test_a_step_back_to_rest_cut_before_it_settled_is_unsure_and_left_out(table,
     trial = load_trial(parts)
     fits = fit_trial(trial, segment_trial(trial), VESSEL, extend=False)
     cut = [f for f in fits.segment_fits if f.segment.cut_at_run_end]
+    # The last step back to zero runs into the end of the log too, but holds 28 s (6.7 T): settled, kept.
     assert [(f.segment.kind, round(f.segment.t_start, 1), round(f.segment.t_end, 1)) for f in cut] == \
-        [("rudder_step", 28.0, 40.0)]
+        [("rudder_step", 28.0, 40.0), ("rudder_step", 145.1, 173.1)]
+    assert cut[1].success and cut[1].segment.cut_by.startswith("the end of the log (run 1 'part2'"), cut[1].message
     assert not cut[0].success and cut[0].message.startswith("unsure: the end of its run"), cut[0].message
     assert "12.0 s after the input change" in cut[0].message and "settled needs 5" in cut[0].message
     # The rule judged a fit that was itself fine (the message goes on with the fit's own, no other failure).
@@ -220,3 +222,69 @@ def test_segments_json_keeps_the_notes_of_what_was_dropped_at_a_boundary(table, 
     back = segments_from_json(path)
     assert back.notes == segs.notes
     assert back.items == segs.items
+
+
+def _cut_fit(fits, t_start: float):
+    (f,) = [f for f in fits.segment_fits if f.segment.kind == "rudder_step" and f.segment.t_start == pytest.approx(t_start)]
+    return f
+
+
+def test_a_step_cut_by_the_end_of_a_single_file_is_judged_like_one_cut_at_a_file_boundary(table, tmp_path):
+    """One file that stops at 40.05 s, inside the rudder step back to zero (28-48 s): the same 12 s as
+    the file boundary of the test above, but no second file follows. Before, only a boundary with a gap
+    to a next run was judged (this step was pooled as a success); now the end of the log is one too."""
+    trial = load_trial([_write(table[table["t"] < 40.05], tmp_path / "short.csv", False)])
+    segs = segment_trial(trial)
+    fits = fit_trial(trial, segs, VESSEL, extend=False)
+    cut = _cut_fit(fits, 28.0)
+    assert cut.segment.cut_at_run_end and cut.segment.cut_by == "the end of the log", cut.segment
+    assert not cut.success and cut.message.startswith("unsure: the end of the log cut the window at 12.0 s"), cut.message
+    # The step before it ends at its input change (28 s): not cut, judged by the ordinary rules only.
+    first = _cut_fit(fits, 8.0)
+    assert not first.segment.cut_at_run_end and first.segment.cut_by == "" and "cut the window" not in first.message
+
+
+def test_a_step_cut_by_the_end_of_the_last_run_is_judged(table, tmp_path):
+    """Two runs with a gap; the second (from 100 s of the log, 100 s later) stops at 154.05 s, 10 s into the
+    last rudder step back to zero (144 s): before, only the end of the first run was judged."""
+    parts = _pieces(table[table["t"] < 154.05], [100.0], tmp_path / "parts", gap_s=100.0)
+    trial = load_trial(parts)
+    segs = segment_trial(trial)
+    last = [s for s in segs.items if s.kind == "rudder_step"][-1]
+    assert last.cut_at_run_end and last.cut_by == "the end of the log (run 1 'part2', the trial's last)", last
+    assert last.t_end - last.t_start == pytest.approx(10.0, abs=0.15)
+    f = _cut_fit(fit_trial(trial, segs, VESSEL, extend=False), last.t_start)
+    assert not f.success and f.message.startswith("unsure: the end of the log (run 1"), f.message
+
+
+def test_a_step_cut_by_a_dropout_inside_a_run_is_judged(table, tmp_path):
+    """The gyro, compass and rudder stop logging from 40.05 to 45 s (one file, one run): the rudder step back
+    to zero from 28 s is cut by that dropout at 12 s, as by the end of a file."""
+    lost = table[(table["t"] < 40.05) | (table["t"] >= 45.0)].copy()
+    trial = load_trial([_write(lost, tmp_path / "dropout.csv", False)])
+    assert len(trial.run_list()) == 1
+    segs = segment_trial(trial)
+    (seg,) = [s for s in segs.items if s.kind == "rudder_step" and s.t_start == pytest.approx(28.0)]
+    assert seg.cut_at_run_end and seg.cut_by.startswith("a dropout of ") and seg.t_end == pytest.approx(40.0), seg
+    f = _cut_fit(fit_trial(trial, segs, VESSEL, extend=False), 28.0)
+    assert not f.success and f.message.startswith("unsure: a dropout of "), f.message
+
+
+def test_a_step_cut_before_it_settled_is_kept_out_of_the_joint_fits_of_the_others(table, tmp_path):
+    """The step cut at 12 s (28-40 s, unsure) is no record of the ship's settled turn: before, the structure
+    choice across segments and the joint fit with one rudder bias still read it (6 records); now they are
+    made with the 5 others, and it keeps its own failed fit."""
+    from pipeline.fit.nomoto_quality import SHARED_BIAS
+
+    trial = load_trial(_pieces(table, [40.05], tmp_path / "parts", gap_s=100.0))
+    fits = fit_trial(trial, segment_trial(trial), VESSEL, extend=False)
+    yaw = [f for f in fits.segment_fits if f.segment.dof == "yaw"]
+    cut = _cut_fit(fits, 28.0)
+    assert not cut.success and cut.message.startswith("unsure: the end of its run")
+    others = [f for f in yaw if f is not cut]
+    assert len(others) == 5 and all(f.success for f in others)
+    for f in others:
+        parts = f.message.split("; ")
+        assert any(p.startswith(f"{SHARED_BIAS} 5 records") for p in parts), f.message
+        assert any(p.startswith("model structure chosen once across the 5 Nomoto segments") for p in parts), f.message
+    assert fits.estimates["K_nomoto"].n_segments == 5 and fits.estimates["K_nomoto"].success

@@ -159,8 +159,9 @@ def slowest_time_constant(fit: SegmentFit) -> tuple[float, float, str]:
 def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
     """``fit`` marked unsure when its window was ended by a run boundary before its response settled.
 
-    A segment whose window the end of its run cut (``Segment.cut_at_run_end``: a file boundary with
-    a gap to the next run, not the next input change) is judged by the time it holds after its input
+    A segment whose window the end of its data cut (``Segment.cut_at_run_end``, what cut it in
+    ``Segment.cut_by``: a file boundary with a gap to the next run, the end of the log or of its last
+    run, a dropout of its response or input; not the next input change) is judged by the time it holds after its input
     change, ``t_end - t_start``, when its model has a free settled level (``SETTLING_LEVEL_PARAMS``;
     not a coast-down, which decays to the known zero): fewer than ``SETTLED_TIME_CONSTANTS`` of the slowest time constant
     (:func:`slowest_time_constant`) at its 95 % upper bound means the response had not settled
@@ -191,8 +192,9 @@ def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
     upper = tau + UPPER_BOUND_Z * se if math.isfinite(se) else tau
     if held >= SETTLED_TIME_CONSTANTS * upper:
         return fit
-    why = (f"unsure: the end of its run (a file boundary, a gap to the next run) cut the window at "
+    cause = seg.cut_by or "the end of its run (a file boundary, a gap to the next run)"
+    why = (f"unsure: {cause} cut the window at "
            f"{held:.1f} s after the input change, {held / upper:.1f} times {what} at its 95 % upper bound "
            f"({tau:.3g} +- {se:.2g} s; settled needs {SETTLED_TIME_CONSTANTS:g}): the response had not settled "
-           f"when the recording stopped, so the estimate rests on the start of the transient only")
+           f"when its record stopped, so the estimate rests on the start of the transient only")
     return replace(fit, success=False, message=f"{why}; {fit.message}")

@@ -297,6 +297,42 @@ class _Collector:
         return {**first, **{k: v for k, v in out.items() if k not in first}}
 
 
+def _nomoto_without_unsettled_cuts(trial: Trial, items: Sequence[Segment]) -> dict[int, SegmentFit]:
+    """:func:`fit_nomoto_trial` on the segments whose window the end of their data did not cut unsettled.
+
+    The whole-record fits of a trial's yaw segments are made together: one structure chosen across
+    them, their disagreement and the joint fit with one rudder bias
+    (:func:`pipeline.fit.nomoto_structure.shared_bias_note`) read every record handed on. A record cut
+    by the end of its data before its response settled (:func:`settled_at_run_end` fails it) holds the
+    start of a transient only; it is left out of the fits the others are made with, and keeps the
+    failed fit of the first pass, its reason first. The records are handed on again until none of
+    them is failed by that rule (one pass when no segment is cut; each further pass drops at least one
+    record).
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    items : sequence of Segment
+        All its segments, in order.
+
+    Returns
+    -------
+    dict
+        Segment index (into ``items``) -> its whole-record fit, as :func:`fit_nomoto_trial`.
+    """
+    keep = list(range(len(items)))
+    out: dict[int, SegmentFit] = {}
+    while True:
+        fits = {keep[j]: sf for j, sf in fit_nomoto_trial(trial, [items[i] for i in keep]).items()}
+        unsettled = {i: judged for i, sf in fits.items()
+                     if sf.success and not (judged := settled_at_run_end(sf)).success}
+        if not unsettled:
+            return {**fits, **out}
+        out.update(unsettled)
+        keep = [i for i in keep if i not in unsettled]
+
+
 def t_variance_factor(dof: float, several: bool) -> float:
     """``sqrt(dof/(dof - 2))``: the standard deviation of Student's t over that of a normal [-].
 
@@ -445,7 +481,7 @@ def fit_trial(trial: Trial, segments: Segments, vessel: Vessel, extend: bool = T
     collector = _Collector(trial, vessel)
     fits = []
     # Several whole-record Nomoto segments: one model structure chosen across them.
-    nomoto = fit_nomoto_trial(trial, segments.items)
+    nomoto = _nomoto_without_unsettled_cuts(trial, segments.items)
     for i, seg in enumerate(segments.items):
         sf = settled_at_run_end(nomoto[i] if i in nomoto else _fit_segment(trial, seg))
         fits.append(sf)

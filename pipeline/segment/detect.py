@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..align.plausibility import check_segmentable, without_implausible
-from ..records import DOF_ANGLE, DOF_CHANNELS, DOF_NAMES, INPUT_UNITS, Segment, Segments, Trial
+from ..records import DOF_ANGLE, DOF_CHANNELS, DOF_NAMES, INPUT_UNITS, RUN_BOUNDARY, Segment, Segments, Trial
 from .decays import equilibrium, release_decays, release_index
 from .inputs import Level, split_levels
 from .quality import detection_quality, noise_std
@@ -74,6 +74,52 @@ def _in_gap(trial: Trial, t: float, channel: str | None = None) -> bool:
     """True when ``t`` [s] falls inside a dropout (of ``channel`` or an input): a segment starting
     there would span it."""
     return any(g.t_start < t < g.t_end for g in _gaps(trial, channel))
+
+
+def _end_cut(trial: Trial, t_end: float, channel: str, later: list[float]) -> str:
+    """What ended a step's window short of the next input change ('' when the next change did).
+
+    A dropout (of the response, its DOF's channels or an input, :func:`_gaps`) that starts at the
+    window's last sample, or the end of the run that holds it with no input change there.
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial.
+    t_end : float
+        The window's end [s] (after :func:`_gap_cut`).
+    channel : str
+        The response channel (its dropouts and its DOF's count, :func:`_gaps`).
+    later : list of float
+        Input changes after the step [s].
+
+    Returns
+    -------
+    str
+        ``'a dropout of <channel> at t = a-b s'``, ``'the end of run k ...'`` or ``'the end of the
+        log'``; '' when an input change ends the window.
+    """
+    step = 1.0 / trial.fs
+    gap = next((g for g in _gaps(trial, channel) if abs(g.t_start - t_end) <= 0.5 * step), None)
+    if gap is not None:
+        if gap.channel == RUN_BOUNDARY:
+            return _run_end_text(trial, t_end)
+        return f"a dropout of {gap.channel} at t = {gap.t_start:.2f}-{gap.t_end:.2f} s"
+    run = trial.run_list()[trial.run_index(t_end)]
+    if t_end >= min(run.t_end, float(trial.t[-1])) - 1.5 * step and not (later and later[0] <= t_end + 1.5 * step):
+        return _run_end_text(trial, t_end)
+    return ""
+
+
+def _run_end_text(trial: Trial, t: float) -> str:
+    """The end of the run that holds ``t`` [s], in words."""
+    runs = trial.run_list()
+    if len(runs) < 2:
+        return "the end of the log"
+    k = trial.run_index(t)
+    if k < len(runs) - 1:
+        return f"the end of its run (run {k} {runs[k].name!r}: a file boundary, a gap to the next run)"
+    return f"the end of the log (run {k} {runs[k].name!r}, the trial's last)"
 
 
 def _input_segments(trial: Trial) -> list[Segment]:
@@ -142,14 +188,15 @@ def _input_segments(trial: Trial) -> list[Segment]:
             later = [c for c in changes if c > t0 + 0.5 / fs]
             t_end = min(later[0] if later else float(t[-1]), float(t[lv.i_end - 1]))
             t_end = _gap_cut(trial, t0, t_end, resp)
+            cut_by = _end_cut(trial, t_end, resp, later)
             window = trial.window(t0, t_end)
             y = window[resp].to_numpy()
             noise = noise_std(y)
             _, tau = _settle_index(y, fs, noise)
-            if np.isfinite(tau) and ch != "delta":
+            if np.isfinite(tau) and ch != "delta" and t0 + 8 * tau < t_end:
                 # A rudder step's window ends at the next input change: a noisy settle-time
                 # estimate of a slow ship must not cut it (the whole-record fit uses it all).
-                t_end = min(t_end, t0 + 8 * tau)
+                t_end, cut_by = t0 + 8 * tau, ""
             if t_end - t0 < 5 / fs:
                 continue
             if ch == "delta":
@@ -166,7 +213,8 @@ def _input_segments(trial: Trial) -> list[Segment]:
                 snr = max(snr, _heading_snr(trial, t0, t_end))
             q = detection_quality(snr, (t_end - t0) / tau if np.isfinite(tau) else np.nan)
             segs.append(Segment(kind, dof, t0, float(t_end), ch, prev.value, lv.value, quality=q,
-                                label=f"T~{tau:.2f} s, SNR {snr:.0f}" if np.isfinite(tau) else f"SNR {snr:.0f}"))
+                                label=f"T~{tau:.2f} s, SNR {snr:.0f}" if np.isfinite(tau) else f"SNR {snr:.0f}",
+                                cut_at_run_end=bool(cut_by), cut_by=cut_by))
     return segs
 
 
@@ -221,6 +269,7 @@ def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: 
         later = [c for c in changes if c > t0 + 0.5 / fs]
         t1 = min(later[0] if later else float(t[-1]), float(t[st.after.i_end - 1]))
         t1 = _gap_cut(trial, t0, t1, "r")
+        cut_by = _end_cut(trial, t1, "r", later)
         if t1 - t0 < 5 / fs:
             continue
         ramp = (st.after.i_start - st.before.i_end) / fs
@@ -231,7 +280,8 @@ def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: 
                       / max(noise_std(r), 1e-12))
         segs.append(Segment("rudder_step", "yaw", t0, t1, "delta", st.before.value, st.after.value,
                             quality=detection_quality(snr, (t1 - t0) / max(ramp, 1.0)),
-                            label=f"measured rudder, {ramp:.1f} s ramp, SNR {snr:.0f}"))
+                            label=f"measured rudder, {ramp:.1f} s ramp, SNR {snr:.0f}",
+                            cut_at_run_end=bool(cut_by), cut_by=cut_by))
     return segs
 
 
@@ -402,7 +452,7 @@ def _file_boundaries(trial: Trial, segs: list[Segment]) -> tuple[list[Segment], 
         at_start = k > 0 and s.t_start <= run.t_start + step and s.input_channel is not None
         if not (at_end or at_start):
             cut = reaches_end and s.input_channel is not None
-            kept.append(replace(s, cut_at_run_end=True) if cut else s)
+            kept.append(replace(s, cut_at_run_end=True, cut_by=_run_end_text(trial, s.t_end)) if cut else s)
             if cut:
                 said.add((k, "end"))
                 notes.append(f"kept: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s: the end of run {k} "
