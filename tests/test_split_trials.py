@@ -110,12 +110,17 @@ def test_files_with_a_real_gap_are_runs_of_their_own_and_a_cut_manoeuvre_is_drop
     segs = detect_segments(trial)
     runs = [trial.run_index(s.t_start) for s in segs.items]
     dropped = [n for n in segs.notes if n.startswith("dropped: ")]
-    # The rudder step under way at the end of part1, the zig-zag's two pieces either side of a gap.
-    assert len(dropped) == 3, segs.notes
-    assert "yaw rudder_step" in dropped[0] and "the end of run 0 'part1'" in dropped[0]
-    assert "yaw zigzag" in dropped[1] and "the end of run 1 'part2'" in dropped[1]
-    assert "yaw zigzag" in dropped[2] and "the start of run 2 'part3'" in dropped[2]
-    assert not any(s.kind == "zigzag" for s in segs.items)
+    kept = [n for n in segs.notes if n.startswith("kept: ")]
+    # The zig-zag's piece at the start of part3: its (held, command) rudder began while nothing was logged.
+    assert len(dropped) == 1, segs.notes
+    assert "yaw zigzag" in dropped[0] and "the start of run 2 'part3'" in dropped[0]
+    # The rudder step under way at the end of part1 is kept, flagged for the fit to judge whether it settled
+    # (ident33; before, dropped); the zig-zag's piece at the end of part2 (57-91 s, from its first reversal
+    # on) is kept for the whole-record fit, which needs no settled end (before, dropped).
+    assert len(kept) == 2 and "yaw rudder_step at t = 8.00-20.00 s" in kept[0] and "still at 0.1741 rad" in kept[0]
+    assert "yaw zigzag at t = 57.10-91.00 s" in kept[1] and "the end of run 1 'part2'" in kept[1]
+    assert [(s.kind, s.cut_at_run_end) for s in segs.items if round(s.t_start, 1) in (8.0, 57.1)] == \
+        [("rudder_step", True), ("zigzag", False)]
     # part2 begins with the rudder still at +10 deg: the rest of the step cut at the end of part1.
     (cut,) = [n for n in segs.notes if n.startswith("cut: ")]
     assert cut.startswith("cut: run 1 'part2' starts with delta up to 0.174 rad"), cut
@@ -130,9 +135,9 @@ def test_files_with_a_real_gap_are_runs_of_their_own_and_a_cut_manoeuvre_is_drop
         assert [(s.kind, round(s.t_start - trial.runs[k].t_start, 6)) for s in mine] == \
                [(s.kind, round(s.t_start, 6)) for s in theirs]
     counts = segs.notes[-1]
-    assert counts == ("segments per run: run 0 'part1' (part1.csv): 0, 1 dropped at a file boundary; "
-                      "run 1 'part2' (part2.csv): 2 (yaw rudder_step 1, surge coast_down 1), 1 dropped at a file "
-                      "boundary; run 2 'part3' (part3.csv): 5 (surge coast_down 2, yaw rudder_step 3), 1 dropped at "
+    assert counts == ("segments per run: run 0 'part1' (part1.csv): 1 (yaw rudder_step 1); "
+                      "run 1 'part2' (part2.csv): 3 (yaw rudder_step 1, surge coast_down 1, yaw zigzag 1); "
+                      "run 2 'part3' (part3.csv): 5 (surge coast_down 2, yaw rudder_step 3), 1 dropped at "
                       "a file boundary"), counts
     assert sum(int(part.split("): ", 1)[1].split(" ")[0].rstrip(",")) for part in counts.split("; ")) == len(segs.items)
     assert "note: dropped: yaw zigzag" in segment_table(segs)
@@ -288,3 +293,35 @@ def test_a_step_cut_before_it_settled_is_kept_out_of_the_joint_fits_of_the_other
         assert any(p.startswith(f"{SHARED_BIAS} 5 records") for p in parts), f.message
         assert any(p.startswith("model structure chosen once across the 5 Nomoto segments") for p in parts), f.message
     assert fits.estimates["K_nomoto"].n_segments == 5 and fits.estimates["K_nomoto"].success
+
+
+def _measured_rudder(frame: pd.DataFrame) -> pd.DataFrame:
+    """The rudder as a servo's measured angle: the command through a 0.3 s lag, with 0.02 deg sensor noise."""
+    out = frame.copy()
+    cmd = frame["delta"].to_numpy()
+    meas = np.empty_like(cmd)
+    a = math.exp(-1.0 / (RATE * 0.3))
+    meas[0] = cmd[0]
+    for i in range(1, cmd.size):
+        meas[i] = a * meas[i - 1] + (1.0 - a) * cmd[i - 1]
+    out["delta"] = meas + np.random.default_rng(5).normal(0.0, math.radians(0.02), cmd.size)
+    return out
+
+
+def test_a_measured_rudder_zigzag_cut_by_a_gap_keeps_the_piece_before_it(table, tmp_path):
+    """The 10/10 zig-zag (7 holds, 64-112 s) with its rudder logged as the servo's measured angle, the log cut
+    at 90 s with the logger off for 100 s. Before: one zig-zag run across the boundary, dropped, its piece
+    before the gap not fitted. Now the piece with four holds (64.3-90 s) is a zig-zag, kept with a note for the
+    whole-record fit (which starts from an estimated state and needs no settled end), and fitted."""
+    parts = _pieces(_measured_rudder(table), [90.05], tmp_path / "parts", gap_s=100.0)
+    trial = load_trial(parts)
+    segs = detect_segments(trial)
+    (zz,) = [s for s in segs.items if s.kind == "zigzag"]
+    assert trial.run_index(zz.t_start) == 0 and zz.t_end == pytest.approx(trial.runs[0].t_end), segment_table(segs)
+    assert zz.t_start == pytest.approx(64.3, abs=0.15) and not zz.cut_at_run_end
+    assert not any(n.startswith("dropped: ") for n in segs.notes), segs.notes
+    assert any(n.startswith("kept: yaw zigzag at t = 64.30-90.00 s: the end of run 0 'part1'") for n in segs.notes)
+    fits = fit_trial(trial, segs, VESSEL, extend=False)
+    (f,) = [f for f in fits.segment_fits if f.segment.kind == "zigzag"]
+    # (Its K is not compared: the log's yaw answers the command, the "measured" angle is the command lagged here.)
+    assert f.model.startswith("nomoto") and f.success and np.isfinite(f.stderr["K"]), f.message
