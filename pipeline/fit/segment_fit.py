@@ -156,7 +156,7 @@ def slowest_time_constant(fit: SegmentFit) -> tuple[float, float, str]:
     return math.nan, math.nan, ""
 
 
-def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
+def settled_at_run_end(fit: SegmentFit, slowest: tuple[float, float, str] | None = None) -> SegmentFit:
     """``fit`` marked unsure when its window was ended by a run boundary before its response settled.
 
     A segment whose window the end of its data cut (``Segment.cut_at_run_end``, what cut it in
@@ -176,6 +176,10 @@ def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
     ----------
     fit : SegmentFit
         A segment's fit; ``fit.segment.t_start`` is its input change [s, trial clock].
+    slowest : tuple of (float, float, str), optional
+        The slowest time constant to judge by [s], its standard error [s] and its name, when it is
+        known better than from this window (the trial's records that nothing cut: a window cut
+        before the slow mode shows may fit a structure without it); taken when larger than the fit's own.
 
     Returns
     -------
@@ -187,9 +191,12 @@ def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
         return fit
     held = seg.t_end - seg.t_start
     tau, se, what = slowest_time_constant(fit)
+    if slowest is not None and math.isfinite(slowest[0]) and \
+            not (math.isfinite(tau) and _upper(tau, se) >= _upper(slowest[0], slowest[1])):
+        tau, se, what = slowest
     if not math.isfinite(tau) or tau <= 0:
         return fit
-    upper = tau + UPPER_BOUND_Z * se if math.isfinite(se) else tau
+    upper = _upper(tau, se)
     if held >= SETTLED_TIME_CONSTANTS * upper:
         return fit
     cause = seg.cut_by or "the end of its run (a file boundary, a gap to the next run)"
@@ -198,3 +205,8 @@ def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
            f"({tau:.3g} +- {se:.2g} s; settled needs {SETTLED_TIME_CONSTANTS:g}): the response had not settled "
            f"when its record stopped, so the estimate rests on the start of the transient only")
     return replace(fit, success=False, message=f"{why}; {fit.message}")
+
+
+def _upper(tau: float, se: float) -> float:
+    """95 % upper bound of a time constant [s] (``tau`` itself when its error is not known)."""
+    return tau + UPPER_BOUND_Z * se if math.isfinite(se) else tau
