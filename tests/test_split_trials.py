@@ -325,3 +325,18 @@ def test_a_measured_rudder_zigzag_cut_by_a_gap_keeps_the_piece_before_it(table, 
     (f,) = [f for f in fits.segment_fits if f.segment.kind == "zigzag"]
     # (Its K is not compared: the log's yaw answers the command, the "measured" angle is the command lagged here.)
     assert f.model.startswith("nomoto") and f.success and np.isfinite(f.stderr["K"]), f.message
+
+
+def test_a_cut_step_is_judged_by_the_slowest_time_constant_of_the_uncut_records_when_larger(table, tmp_path):
+    """Cut at 52 s, 24 s after the step back to zero (28 s): 5.6 of its own T = 4.2 s at the upper bound, settled
+    and pooled. Judged by a slower mode the trial's uncut records show (a window cut before that mode shows
+    may fit a structure without it: a Clarke83 step cut 39.5 s after its change was settled for the first
+    order's 2.4 s, not for the second order's 9.5 s envelope), it is not settled."""
+    trial = load_trial(_pieces(table, [52.05], tmp_path / "parts", gap_s=100.0))
+    fits = fit_trial(trial, segment_trial(trial), VESSEL, extend=False)
+    cut = _cut_fit(fits, 28.0)
+    assert cut.segment.cut_at_run_end and cut.success, cut.message
+    assert settled_at_run_end(cut) is cut and settled_at_run_end(cut, (4.0, 0.1, "a faster mode")) is cut
+    slow = settled_at_run_end(cut, (6.0, 0.1, "the envelope of the uncut records"))
+    assert not slow.success and slow.message.startswith("unsure: the end of its run"), slow.message
+    assert "3.9 times the envelope of the uncut records at its 95 % upper bound (6 +- 0.1 s" in slow.message
