@@ -421,8 +421,12 @@ class Segment:
     run : int
         Index of the run (``Trial.run_list()``) the segment lies in; 0 for a single-run trial.
     cut_at_run_end : bool
-        True when the end of its run (a file boundary with a gap to the next run) ended the window,
-        not the next input change: its response may not have settled (the fit judges it).
+        True when the end of its data ended the window, not the next input change: the end of its
+        run (a file boundary with a gap to the next run, the end of the log or of its last run) or
+        a dropout of its response or input. Its response may not have settled (the fit judges it).
+    cut_by : str
+        What ended the window when ``cut_at_run_end`` (``'the end of the log'``, ``'a dropout of r
+        at t = 40.00-45.00 s'``, ...); '' otherwise.
     """
 
     kind: str
@@ -437,6 +441,7 @@ class Segment:
     label: str = ""
     run: int = 0
     cut_at_run_end: bool = False
+    cut_by: str = ""
 
     @property
     def duration(self) -> float:

@@ -156,11 +156,12 @@ def slowest_time_constant(fit: SegmentFit) -> tuple[float, float, str]:
     return math.nan, math.nan, ""
 
 
-def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
+def settled_at_run_end(fit: SegmentFit, slowest: tuple[float, float, str] | None = None) -> SegmentFit:
     """``fit`` marked unsure when its window was ended by a run boundary before its response settled.
 
-    A segment whose window the end of its run cut (``Segment.cut_at_run_end``: a file boundary with
-    a gap to the next run, not the next input change) is judged by the time it holds after its input
+    A segment whose window the end of its data cut (``Segment.cut_at_run_end``, what cut it in
+    ``Segment.cut_by``: a file boundary with a gap to the next run, the end of the log or of its last
+    run, a dropout of its response or input; not the next input change) is judged by the time it holds after its input
     change, ``t_end - t_start``, when its model has a free settled level (``SETTLING_LEVEL_PARAMS``;
     not a coast-down, which decays to the known zero): fewer than ``SETTLED_TIME_CONSTANTS`` of the slowest time constant
     (:func:`slowest_time_constant`) at its 95 % upper bound means the response had not settled
@@ -175,6 +176,10 @@ def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
     ----------
     fit : SegmentFit
         A segment's fit; ``fit.segment.t_start`` is its input change [s, trial clock].
+    slowest : tuple of (float, float, str), optional
+        The slowest time constant to judge by [s], its standard error [s] and its name, when it is
+        known better than from this window (the trial's records that nothing cut: a window cut
+        before the slow mode shows may fit a structure without it); taken when larger than the fit's own.
 
     Returns
     -------
@@ -186,13 +191,22 @@ def settled_at_run_end(fit: SegmentFit) -> SegmentFit:
         return fit
     held = seg.t_end - seg.t_start
     tau, se, what = slowest_time_constant(fit)
+    if slowest is not None and math.isfinite(slowest[0]) and \
+            not (math.isfinite(tau) and _upper(tau, se) >= _upper(slowest[0], slowest[1])):
+        tau, se, what = slowest
     if not math.isfinite(tau) or tau <= 0:
         return fit
-    upper = tau + UPPER_BOUND_Z * se if math.isfinite(se) else tau
+    upper = _upper(tau, se)
     if held >= SETTLED_TIME_CONSTANTS * upper:
         return fit
-    why = (f"unsure: the end of its run (a file boundary, a gap to the next run) cut the window at "
+    cause = seg.cut_by or "the end of its run (a file boundary, a gap to the next run)"
+    why = (f"unsure: {cause} cut the window at "
            f"{held:.1f} s after the input change, {held / upper:.1f} times {what} at its 95 % upper bound "
            f"({tau:.3g} +- {se:.2g} s; settled needs {SETTLED_TIME_CONSTANTS:g}): the response had not settled "
-           f"when the recording stopped, so the estimate rests on the start of the transient only")
+           f"when its record stopped, so the estimate rests on the start of the transient only")
     return replace(fit, success=False, message=f"{why}; {fit.message}")
+
+
+def _upper(tau: float, se: float) -> float:
+    """95 % upper bound of a time constant [s] (``tau`` itself when its error is not known)."""
+    return tau + UPPER_BOUND_Z * se if math.isfinite(se) else tau

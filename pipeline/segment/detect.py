@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..align.plausibility import check_segmentable, without_implausible
-from ..records import DOF_ANGLE, DOF_CHANNELS, DOF_NAMES, INPUT_UNITS, Segment, Segments, Trial
+from ..records import DOF_ANGLE, DOF_CHANNELS, DOF_NAMES, INPUT_UNITS, RUN_BOUNDARY, Segment, Segments, Trial
 from .decays import equilibrium, release_decays, release_index
 from .inputs import Level, split_levels
 from .quality import detection_quality, noise_std
@@ -74,6 +74,52 @@ def _in_gap(trial: Trial, t: float, channel: str | None = None) -> bool:
     """True when ``t`` [s] falls inside a dropout (of ``channel`` or an input): a segment starting
     there would span it."""
     return any(g.t_start < t < g.t_end for g in _gaps(trial, channel))
+
+
+def _end_cut(trial: Trial, t_end: float, channel: str, later: list[float]) -> str:
+    """What ended a step's window short of the next input change ('' when the next change did).
+
+    A dropout (of the response, its DOF's channels or an input, :func:`_gaps`) that starts at the
+    window's last sample, or the end of the run that holds it with no input change there.
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial.
+    t_end : float
+        The window's end [s] (after :func:`_gap_cut`).
+    channel : str
+        The response channel (its dropouts and its DOF's count, :func:`_gaps`).
+    later : list of float
+        Input changes after the step [s].
+
+    Returns
+    -------
+    str
+        ``'a dropout of <channel> at t = a-b s'``, ``'the end of run k ...'`` or ``'the end of the
+        log'``; '' when an input change ends the window.
+    """
+    step = 1.0 / trial.fs
+    gap = next((g for g in _gaps(trial, channel) if abs(g.t_start - t_end) <= 0.5 * step), None)
+    if gap is not None:
+        if gap.channel == RUN_BOUNDARY:
+            return _run_end_text(trial, t_end)
+        return f"a dropout of {gap.channel} at t = {gap.t_start:.2f}-{gap.t_end:.2f} s"
+    run = trial.run_list()[trial.run_index(t_end)]
+    if t_end >= min(run.t_end, float(trial.t[-1])) - 1.5 * step and not (later and later[0] <= t_end + 1.5 * step):
+        return _run_end_text(trial, t_end)
+    return ""
+
+
+def _run_end_text(trial: Trial, t: float) -> str:
+    """The end of the run that holds ``t`` [s], in words."""
+    runs = trial.run_list()
+    if len(runs) < 2:
+        return "the end of the log"
+    k = trial.run_index(t)
+    if k < len(runs) - 1:
+        return f"the end of its run (run {k} {runs[k].name!r}: a file boundary, a gap to the next run)"
+    return f"the end of the log (run {k} {runs[k].name!r}, the trial's last)"
 
 
 def _input_segments(trial: Trial) -> list[Segment]:
@@ -142,14 +188,15 @@ def _input_segments(trial: Trial) -> list[Segment]:
             later = [c for c in changes if c > t0 + 0.5 / fs]
             t_end = min(later[0] if later else float(t[-1]), float(t[lv.i_end - 1]))
             t_end = _gap_cut(trial, t0, t_end, resp)
+            cut_by = _end_cut(trial, t_end, resp, later)
             window = trial.window(t0, t_end)
             y = window[resp].to_numpy()
             noise = noise_std(y)
             _, tau = _settle_index(y, fs, noise)
-            if np.isfinite(tau) and ch != "delta":
+            if np.isfinite(tau) and ch != "delta" and t0 + 8 * tau < t_end:
                 # A rudder step's window ends at the next input change: a noisy settle-time
                 # estimate of a slow ship must not cut it (the whole-record fit uses it all).
-                t_end = min(t_end, t0 + 8 * tau)
+                t_end, cut_by = t0 + 8 * tau, ""
             if t_end - t0 < 5 / fs:
                 continue
             if ch == "delta":
@@ -166,7 +213,8 @@ def _input_segments(trial: Trial) -> list[Segment]:
                 snr = max(snr, _heading_snr(trial, t0, t_end))
             q = detection_quality(snr, (t_end - t0) / tau if np.isfinite(tau) else np.nan)
             segs.append(Segment(kind, dof, t0, float(t_end), ch, prev.value, lv.value, quality=q,
-                                label=f"T~{tau:.2f} s, SNR {snr:.0f}" if np.isfinite(tau) else f"SNR {snr:.0f}"))
+                                label=f"T~{tau:.2f} s, SNR {snr:.0f}" if np.isfinite(tau) else f"SNR {snr:.0f}",
+                                cut_at_run_end=bool(cut_by), cut_by=cut_by))
     return segs
 
 
@@ -191,6 +239,11 @@ def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: 
     segs: list[Segment] = []
     runs = zigzag_runs(steps)
     in_zig = {k for run in runs for k in run}
+    # A zig-zag that a run boundary or a dropout interrupts is a piece on each side, each a zig-zag
+    # of its own when it holds three holds (its first change logged, the state there estimated).
+    runs = [piece for run in runs
+            for piece in _split_at_gaps(trial, run, [float(t[steps[k].before.i_end]) for k in run], "r")
+            if len(piece) >= 3]
     for run in runs:
         first, last = steps[run[0]], steps[run[-1]]
         t0 = float(t[first.before.i_end])
@@ -200,7 +253,7 @@ def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: 
         segs.append(Segment("zigzag", "yaw", t0, t1, "delta", first.before.value, first.after.value, quality=1.0,
                             label=f"{len(run)} rudder holds, measured rudder"))
     u = trial.data["delta"].to_numpy()
-    for i0, i1 in varying:
+    for i0, i1 in (piece for a, b in varying for piece in _pieces_between_gaps(trial, a, b, "r")):
         seg = u[i0:i1]
         if len(seg) < 8 or not np.all(np.isfinite(seg)):
             continue
@@ -221,6 +274,7 @@ def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: 
         later = [c for c in changes if c > t0 + 0.5 / fs]
         t1 = min(later[0] if later else float(t[-1]), float(t[st.after.i_end - 1]))
         t1 = _gap_cut(trial, t0, t1, "r")
+        cut_by = _end_cut(trial, t1, "r", later)
         if t1 - t0 < 5 / fs:
             continue
         ramp = (st.after.i_start - st.before.i_end) / fs
@@ -231,8 +285,37 @@ def _measured_rudder_segments(trial: Trial, steps: list[RudderChange], varying: 
                       / max(noise_std(r), 1e-12))
         segs.append(Segment("rudder_step", "yaw", t0, t1, "delta", st.before.value, st.after.value,
                             quality=detection_quality(snr, (t1 - t0) / max(ramp, 1.0)),
-                            label=f"measured rudder, {ramp:.1f} s ramp, SNR {snr:.0f}"))
+                            label=f"measured rudder, {ramp:.1f} s ramp, SNR {snr:.0f}",
+                            cut_at_run_end=bool(cut_by), cut_by=cut_by))
     return segs
+
+
+def _split_at_gaps(trial: Trial, items: list[int], times: list[float], channel: str) -> list[list[int]]:
+    """``items`` (in time order, at ``times`` [s]) in groups that no dropout of ``channel`` (:func:`_gaps`,
+    run boundaries included) separates."""
+    gaps = _gaps(trial, channel)
+    out: list[list[int]] = []
+    for k, (item, tk) in enumerate(zip(items, times)):
+        if k and not any(times[k - 1] <= g.t_start < tk for g in gaps):
+            out[-1].append(item)
+        else:
+            out.append([item])
+    return out
+
+
+def _pieces_between_gaps(trial: Trial, i0: int, i1: int, channel: str) -> list[tuple[int, int]]:
+    """Sample ranges ``[a, b)`` of ``[i0, i1)`` that no dropout of ``channel`` (or run boundary) interrupts."""
+    t = trial.t
+    pieces, a = [], i0
+    for g in sorted(_gaps(trial, channel), key=lambda g: g.t_start):
+        if t[i0] <= g.t_start < t[i1 - 1]:
+            b = int(np.searchsorted(t, g.t_start, side="right"))
+            if b > a:
+                pieces.append((a, b))
+            a = max(a, int(np.searchsorted(t, g.t_end, side="left")))
+    if i1 > a:
+        pieces.append((a, i1))
+    return pieces
 
 
 def _zigzag_runs(levels: list[Level]) -> list[list[int]]:
@@ -350,6 +433,12 @@ def _under_way(s: Segment) -> bool:
     return abs(s.input_after) > REST_FRACTION * max(abs(s.input_before), abs(s.input_after))
 
 
+def _measured_input(trial: Trial, s: Segment) -> bool:
+    """Whether the segment's input is a measured rudder angle (holds and ramps with sensor noise), not a held command."""
+    u = trial.window(s.t_start, s.t_end)[s.input_channel].to_numpy(dtype=float)
+    return s.input_channel.split("@")[0] == "delta" and not is_command_like(u[np.isfinite(u)])
+
+
 def _inputs_under_way(trial: Trial, t0: float, t1: float) -> list[str]:
     """The inputs not at rest (``REST_FRACTION``) somewhere in ``t0 .. t1`` [s], as ``'delta up to 0.17 rad'``."""
     out = []
@@ -366,23 +455,27 @@ def _inputs_under_way(trial: Trial, t0: float, t1: float) -> list[str]:
 
 
 def _file_boundaries(trial: Trial, segs: list[Segment]) -> tuple[list[Segment], list[str]]:
-    """Drop the segments a boundary between two runs cuts, say what else it cuts, count every run's segments.
+    """Drop the segments a boundary between two runs cuts at their start, say what else it cuts, count every run's segments.
 
     Runs are recordings with a real gap between them (files that continue one clock are one run,
-    :func:`pipeline.align.runs.group_runs`). An input-driven segment whose window reaches the last
-    sample of a run that another run follows while its manoeuvre is under way (:func:`_under_way`),
-    or starts at the first sample of a run that follows another, belongs to a manoeuvre that went
-    on while nothing was logged: it is dropped, with a note naming it. A segment that reaches such
-    a boundary with its input back at rest is kept, with a note that the boundary ended its window;
-    an input under way at a boundary (``BOUNDARY_S``) that no dropped segment accounts for (a
-    stretch too short to be a segment) gets a note too, so nothing a boundary cuts goes unsaid.
+    :func:`pipeline.align.runs.group_runs`). An input-driven segment that starts at the first sample
+    of a run that follows another began while nothing was logged (its input before is unknown): it
+    is dropped, with a note naming it, unless it is a piece of a zig-zag or sinusoid driven by a
+    measured rudder angle (:func:`_measured_input`), which the whole-record fit takes from an
+    estimated initial state with no servo state to start. A segment whose window reaches the last
+    sample of a run that another run follows is kept with a note: a step (back to rest or not,
+    :func:`_under_way`) with ``Segment.cut_at_run_end`` set, so the fit judges whether its response
+    settled (:func:`pipeline.fit.segment_fit.settled_at_run_end`); a zig-zag or sinusoid piece as it
+    is (a whole-record fit needs no settled end). An input under way at a boundary
+    (``BOUNDARY_S``) that no segment accounts for (a stretch too short to be a segment) gets a note
+    too, so nothing a boundary cuts goes unsaid.
 
     Returns
     -------
     kept : list[Segment]
-        The segments no boundary cuts.
+        The segments kept (steps a boundary ended flagged).
     notes : list[str]
-        One per dropped segment, per segment kept with its window ended by a boundary, per input
+        One per dropped segment, per segment kept with its window cut by a boundary, per input
         under way at a boundary otherwise unaccounted for, then the count of each run's segments
         (with its files); empty for a trial of one file.
     """
@@ -397,24 +490,38 @@ def _file_boundaries(trial: Trial, segs: list[Segment]) -> tuple[list[Segment], 
     for s in segs:
         k = trial.run_index(s.t_start)
         run = runs[k]
-        reaches_end = k < len(runs) - 1 and s.t_end >= run.t_end - step
-        at_end = reaches_end and _under_way(s)
+        reaches_end = k < len(runs) - 1 and s.t_end >= run.t_end - step and s.input_channel is not None
         at_start = k > 0 and s.t_start <= run.t_start + step and s.input_channel is not None
-        if not (at_end or at_start):
-            cut = reaches_end and s.input_channel is not None
-            kept.append(replace(s, cut_at_run_end=True) if cut else s)
-            if cut:
-                said.add((k, "end"))
-                notes.append(f"kept: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s: the end of run {k} "
-                             f"{run.name!r} (a file boundary, a gap to the next run) ends its window with its input "
-                             f"back at rest; fitted on the {s.t_end - s.t_start:.1f} s logged")
+        piece = s.kind in ("zigzag", "sinusoid")
+        if at_start and not (piece and _measured_input(trial, s)):
+            dropped[k] += 1
+            said.add((k, "start"))
+            notes.append(f"dropped: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s cut by the start of run "
+                         f"{k} {run.name!r} (a gap after the run before it): the manoeuvre went on while nothing was "
+                         f"logged, so its input before the first sample is unknown")
             continue
-        dropped[k] += 1
-        said.add((k, "end" if at_end else "start"))
-        where = (f"the end of run {k} {run.name!r} (the next run starts after a gap)" if at_end else
-                 f"the start of run {k} {run.name!r} (a gap after the run before it)")
-        notes.append(f"dropped: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s cut by {where}: the "
-                     f"manoeuvre went on while nothing was logged, so neither file holds it whole")
+        if not (reaches_end or at_start):
+            kept.append(s)
+            continue
+        if piece:
+            # A whole-record fit simulates the logged input from an estimated initial state: a piece of a
+            # zig-zag or sinusoid needs no settled end, and with a measured rudder angle no servo state.
+            where = " and ".join(w for w, c in ((f"the start of run {k} {run.name!r}", at_start),
+                                                (f"the end of run {k} {run.name!r}", reaches_end)) if c)
+            said.update({(k, side) for side, c in (("start", at_start), ("end", reaches_end)) if c})
+            notes.append(f"kept: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s: {where} (a file boundary, "
+                         f"a gap) cuts the manoeuvre; the piece logged ({s.t_end - s.t_start:.1f} s) is fitted whole "
+                         f"from its estimated initial state"
+                         + (" (the rudder is a measured angle: no servo state to start)" if at_start else ""))
+            kept.append(s)
+            continue
+        said.add((k, "end"))
+        kept.append(replace(s, cut_at_run_end=True, cut_by=_run_end_text(trial, s.t_end)))
+        rest = ("with its input back at rest" if not _under_way(s) else
+                f"with its input still at {s.input_after:.4g} {INPUT_UNITS.get(s.input_channel.split('@')[0], '')}")
+        notes.append(f"kept: {s.dof} {s.kind} at t = {s.t_start:.2f}-{s.t_end:.2f} s: the end of run {k} {run.name!r} "
+                     f"(a file boundary, a gap to the next run) ends its window {rest}; fitted on the "
+                     f"{s.t_end - s.t_start:.1f} s logged and judged by whether its response settled")
     for k, run in enumerate(runs):
         sides = ([("end", run.t_end - BOUNDARY_S, run.t_end)] if k < len(runs) - 1 else []) + \
                 ([("start", run.t_start, run.t_start + BOUNDARY_S)] if k > 0 else [])
