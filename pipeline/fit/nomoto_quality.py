@@ -202,14 +202,19 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
             continue
         short = name.split("_")[0]
         steady = steady_k_value(est, fits) if short == "K" else None
+        bias_why = shared_bias_reason(est, fits, short)
+        est, speed_why = straight_run_value(est, fits, short)
+        est = add_structure_term(est, structure_term(fits, short))
         if steady is not None:
-            # The steady levels' K depends neither on the transient's structure nor on the rudder bias.
-            # It is read at the turns' speed: the speed term applies (whatever the fits' trend).
-            est, bias_why, speed_why = add_speed_term(steady, speed_range(fits), STEADY_K), [], []
-        else:
-            bias_why = shared_bias_reason(est, fits, short)
-            est, speed_why = straight_run_value(est, fits, short)
-            est = add_structure_term(est, structure_term(fits, short))
+            # The steady levels' K depends neither on the transient's structure nor on the rudder bias; it is
+            # read at the turns' speed (the speed term applies whatever the fits' trend). It replaces the fits'
+            # when its error (with the settling and speed terms) is no larger: holds too short to settle leave
+            # the fits' value.
+            steady = add_speed_term(steady, speed_range(fits), STEADY_K)
+            if steady.stderr <= est.stderr:
+                est, bias_why, speed_why = steady, [], []
+            else:
+                steady = None
         est = add_structure_term(est, rudder_timing_term(fits, short),
                                  "rudder-timing term" + (" (K's slope on T in the fit times T's)" if short == "K" else ""))
         out[name] = est
@@ -219,11 +224,11 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         why += nonlinear_reason(est, fits, short)
         why += rudder_timing_reason(est, fits, short)
         if steady is not None:
-            # The steady levels' own superposition test; the transients' (and the structure left undecided)
-            # concern the fits' K, not this one.
+            # The steady levels' own superposition test (and T's break: a nonlinear ship); the transients' K
+            # and the structure left undecided concern the fits' K, not this one.
             note = next((p for p in est.message.split("; ") if p.startswith(STEADY_K)), "")
             broken = note.partition(STEADY_BROKEN)[2] if est.success else ""
-            why += [f"unsure: nonlinear: {broken}"] if broken else []
+            why += ([f"unsure: nonlinear: {broken}"] if broken else []) or superposition_other_reason(est, out, fits, short)
         else:
             why += superposition_reason(est, fits, short) or superposition_other_reason(est, out, fits, short)
         for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):

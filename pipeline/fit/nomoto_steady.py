@@ -9,7 +9,9 @@ from the transient as well, with the structure chosen across the segments
 the first order's K carries the structure's bias (measured: PythonVehicleSimulator's tanker at 20 m,
 commanded steps noise-free, first-order K per step -2.9 to +0.0 %, mean -1.74 %, against secants of
 -0.68 to -1.18 %). :func:`steady_level_note` then gives K from the secants, and
-:func:`pipeline.fit.nomoto_quality.judge_nomoto` reports it in place of the fits' combination.
+:func:`pipeline.fit.nomoto_quality.judge_nomoto` reports it in place of the fits' combination (measured:
+the same tanker, seeds 0-4, commanded steps / measured steps with waves, K median abs error 2.0 / 2.1 % before,
+1.1 / 0.9 % with the steady levels, 10 of 10 intervals covering; the scipy output-error peer 1.4 / 1.3 %).
 
 Each level is the slope of the heading (the mean of the yaw rate when no compass is logged; the
 compass's slope over 90 s is several times more precise than the gyro's mean) over the second half of
