@@ -103,6 +103,12 @@ SPEED_RANGE = "speed lost in the turns:"
 #: (``SHARED_BIAS <n> records (first order): K = <v> +- <se> 1/s, T = <v> +- <se> s, ...``), written by
 #: :func:`pipeline.fit.nomoto_structure.shared_bias_note`.
 SHARED_BIAS = "fitted with one rudder bias over all"
+#: Start of the note with K from the rudder steps' steady levels (``STEADY_K: <why>: K = <v> +- <se> 1/s (...)``),
+#: written by :func:`pipeline.fit.nomoto_steady.steady_level_note` where the structure is undecided; read by
+#: :func:`steady_k_value`.
+STEADY_K = "K from the steady levels"
+#: Joins the ``STEADY_K`` note and the steady levels' superposition break (read by :func:`judge_nomoto`).
+STEADY_BROKEN = ", superposition broken: "
 #: Words of the model-structure note of K from sinusoids that fix the second order's constants exactly
 #: (:func:`pipeline.fit.nomoto_structure.exact_fit_k_term`; read by :func:`straight_run_value`).
 EXACT_FIT = "sinusoids fix the second order's constants exactly"
@@ -195,9 +201,20 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if est is None:
             continue
         short = name.split("_")[0]
+        steady = steady_k_value(est, fits) if short == "K" else None
         bias_why = shared_bias_reason(est, fits, short)
         est, speed_why = straight_run_value(est, fits, short)
         est = add_structure_term(est, structure_term(fits, short))
+        if steady is not None:
+            # The steady levels' K depends neither on the transient's structure nor on the rudder bias; it is
+            # read at the turns' speed (the speed term applies whatever the fits' trend). It replaces the fits'
+            # when its error (with the settling and speed terms) is no larger: holds too short to settle leave
+            # the fits' value.
+            steady = add_speed_term(steady, speed_range(fits), STEADY_K)
+            if steady.stderr <= est.stderr:
+                est, bias_why, speed_why = steady, [], []
+            else:
+                steady = None
         est = add_structure_term(est, rudder_timing_term(fits, short),
                                  "rudder-timing term" + (" (K's slope on T in the fit times T's)" if short == "K" else ""))
         out[name] = est
@@ -206,8 +223,17 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
             why += sinusoid_k_reason(est, kinds, t_why)
         why += nonlinear_reason(est, fits, short)
         why += rudder_timing_reason(est, fits, short)
-        why += superposition_reason(est, fits, short) or superposition_other_reason(est, out, fits, short)
+        if steady is not None:
+            # The steady levels' own superposition test (and T's break: a nonlinear ship); the transients' K
+            # and the structure left undecided concern the fits' K, not this one.
+            note = next((p for p in est.message.split("; ") if p.startswith(STEADY_K)), "")
+            broken = note.partition(STEADY_BROKEN)[2] if est.success else ""
+            why += ([f"unsure: nonlinear: {broken}"] if broken else []) or superposition_other_reason(est, out, fits, short)
+        else:
+            why += superposition_reason(est, fits, short) or superposition_other_reason(est, out, fits, short)
         for part in dict.fromkeys(p for f in fits for p in f.message.split("; ") if p.startswith(STRUCTURE_UNDECIDED)):
+            if steady is not None:
+                continue
             if est.success and f" {short} " in part.split(":")[1] + " ":
                 kept = minority_note_kept(fits, part, short)
                 if kept:
@@ -218,6 +244,39 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if why:
             out[name] = replace(est, success=False, message="; ".join(why + ([est.message] if est.message else [])))
     return out
+
+
+def steady_k_value(est: Estimate, fits: Sequence[SegmentFit]) -> Estimate | None:
+    """K read from the rudder steps' steady levels, in place of the fits' combination (None when not given).
+
+    Where the first-order Nomoto model is kept with the structure undecided, the whole-record fits read
+    K from the transients too, where the structure's bias sits; a step's K is a steady-state gain, and
+    :func:`pipeline.fit.nomoto_steady.steady_level_note` reads it from the turn rates between steady
+    holds (measured: PythonVehicleSimulator's tanker at 20 m, commanded steps noise-free, secants -0.68
+    to -1.18 % against the first order's -1.74 % mean). The combination of the fits stays in the message.
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K (not from the pooled second-order vector).
+    fits : sequence of SegmentFit
+        The segment fits behind it (their messages carry the ``STEADY_K`` note).
+    """
+    if not math.isfinite(est.value) or POOLED_NOTE in est.message:
+        return None
+    note = next((p for f in fits for p in f.message.split("; ") if p.startswith(STEADY_K)), "")
+    m = re.search(r": K = (\S+) \+- (\S+) 1/s", note)
+    if not m:
+        return None
+    try:
+        value, se = float(m.group(1)), float(m.group(2))
+    except ValueError:
+        return None
+    if not (math.isfinite(value) and math.isfinite(se) and se > 0):
+        return None
+    msg = [note, f"the fits' combination (transient and levels) gave {est.value:.4g} +- {est.stderr:.2g} {est.unit}"]
+    return replace(est, value=value, stderr=se, ci95=confidence_interval(value, se, math.inf),
+                   message="; ".join(msg + ([est.message] if est.message else [])))
 
 
 def shared_bias_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) -> list[str]:

@@ -77,6 +77,7 @@ from .nomoto_problem import SERVO_PARAMS, Problem, prepare
 from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_oe import fit_nomoto
 from .nomoto_pool import JOINT_FOLLOWER
+from .nomoto_steady import steady_level_note
 from .nomoto_segment import (LEAD_SPEED_SECONDS, MEASURED_RUDDER, ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order,
                              equivalent_t_stderr, fit_nomoto_window, fit_window, fit_window_order, first_order_start_values, prepare_window,
                              rec_channel, segment_fit_of, slow_noise_note, speed_range_note, stack_rows,
@@ -214,7 +215,12 @@ def _fit_prepared(trial: Trial, segments: Sequence[Segment], prepared: Sequence[
     amps = {c.index: float(np.max(np.abs(c.win.rec.delta))) for c in usable}
     extra = disagreement_note(ok, [amps[c.index] for c in usable if out[c.index].success])
     shared = shared_bias_note(usable) if choice.order == 1 else ""
-    extra = "; ".join(n for n in (undecided, extra, joint_note, shared) if n)
+    steady = ""
+    if choice.order == 1 and (decided != "clear" or terms):
+        steady = steady_level_note([c.win for c in usable], [c.first.T for c in usable],
+                                   "the transient's structure is undecided (first order kept, " + (
+                                       "second order not resolved)" if decided != "clear" else "structure term present)"))
+    extra = "; ".join(n for n in (undecided, extra, joint_note, shared, steady) if n)
     if extra:
         out = {i: replace(sf, message=f"{sf.message}; {extra}") for i, sf in out.items()}
     return out
