@@ -24,7 +24,7 @@ from . import selection as sel
 from .candidates import Candidate, candidate_label, candidates_for, composed_candidates, is_input_transform
 from .crossval import CandidateRun, cross_validate, cross_validate_all, jackknife_stderr
 from .actuators import actuator_space
-from .floor import heldout_floors, replicate_model
+from .floor import heldout_floors, oscillatory_floor, replicate_model
 from .gridfit import grid_data
 from .problem import DofProblem, build_problems
 from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, EffectParam, GapReport, Trace
@@ -349,17 +349,28 @@ def _composed(p: DofProblem, last: CandidateRun | None, taken: set[str], state: 
 
 
 def _stated_noise_notes(p: DofProblem) -> list[str]:
-    """Where the vessel config's ``[sensor_noise]`` capped a DOF's noise floor: the two floors."""
-    from .problem import MIN_CONTRASTS, block_noise
+    """Where a DOF's noise floor does not come from its own windows, or the vessel config's
+    ``[sensor_noise]`` capped it: where it comes from, and the two floors."""
+    from .problem import MIN_CONTRASTS, block_noise, noise_source
 
     out = []
     for ch in p.outputs:
         s = p.stated_noise.get(ch)
+        unit = CHANNEL_UNITS.get(ch, "")
         if s is None:
+            src = noise_source(p.raw[ch], p.windows, p.m)
+            if src == "whole log":
+                got = block_noise(p.raw[ch], p.windows, p.m, trapezoid=True)
+                out.append(f"{p.dof}: noise floor of {ch} measured over the whole log ({got:.3g} {unit} per "
+                           f"analysis step): the DOF's windows hold fewer than {MIN_CONTRASTS} blocks of "
+                           f"{max(p.m, 8)} samples, and the vessel config states no [sensor_noise] for it")
+            elif src == "none":
+                out.append(f"{p.dof}: no noise floor for {ch}: neither its windows nor the whole log hold "
+                           f"{MIN_CONTRASTS} blocks of {max(p.m, 8)} samples and the vessel config states no "
+                           f"[sensor_noise] for it; its gaps are in scale units and it has no held-out floor")
             continue
         told = block_noise(p.raw[ch], p.windows, p.m, trapezoid=True, stated=s)
-        data = block_noise(p.raw[ch], p.windows, p.m, trapezoid=True)
-        unit = CHANNEL_UNITS.get(ch, "")
+        data = block_noise(p.raw[ch], p.windows, p.m, trapezoid=True, whole_log=False)
         if not np.isfinite(data) and np.isfinite(told):
             out.append(f"{p.dof}: noise floor of {ch} from the vessel config's [sensor_noise] ({s:.3g} {unit} per "
                        f"sample): {told:.3g} {unit} per analysis step; the data cannot measure it (fewer than "
@@ -405,12 +416,15 @@ def _oscillatory_dof(q):
         gain=s.gain)
     bs = sig.score(q.data, base_run.heldout, base_run.heldout, 1, names)
     gaps, neff = sel.channel_gaps_of(bs)
+    # Its held-out floor, as every other DOF's (pipeline.diagnose.floor.oscillatory_floor).
+    floor_of = oscillatory_floor(q, base_run)
     summary = DofSummary(dof=q.dof, channels=q.outputs, inputs=q.inputs, dt=q.dt, n_windows=len(q.windows),
                          n_folds=int(base_run.fold_of.max()) + 1,
                          baseline=eparams(base_run, tuple(base_run.full)), gap=bs.gap_before,
-                         noise_floor=float(q.data.sigma_y if q.rate else q.data.sigma_angle), replay_gap=math.nan)
+                         noise_floor=float(q.data.sigma_y if q.rate else q.data.sigma_angle), replay_gap=math.nan,
+                         heldout_floor=dict(floor_of))
     state = sel.DofState(problem=q, data=q.data, results=[(res, cand_run)], base_heldout=base_run.heldout,
-                         channel_gaps=dict(gaps), channel_neff=dict(neff), selected=[])
+                         channel_gaps=dict(gaps), channel_neff=dict(neff), selected=[], channel_floor=dict(floor_of))
     return res, base_run, cand_run, summary, state
 
 
