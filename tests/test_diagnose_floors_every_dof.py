@@ -16,15 +16,8 @@ import numpy as np
 import pytest
 
 from pipeline.diagnose import problem
-from pipeline.diagnose.problem import Window, block_noise
-
-
-def _short_windows(n_windows: int, length: int, gap: int = 3) -> tuple[Window, ...]:
-    out, i = [], 0
-    for _ in range(n_windows):
-        out.append(Window(i, i + length, float(i), float(i + length - 1), ("step",), ("yaw",)))
-        i += length + gap
-    return tuple(out)
+from pipeline.diagnose.problem import block_noise
+from test_diagnose_stated_noise import _short_windows
 
 
 @pytest.mark.parametrize("m", [1, 2])
