@@ -197,7 +197,12 @@ def grid_data(p: DofProblem, inputs: Mapping[str, np.ndarray] | None = None) -> 
     # sample's noise variance, i.e. about twice a block mean's; taken Y0_PRIOR_WIDTH times wider,
     # since the noise between samples is rarely as white as that count assumes, and a prior that
     # is too tight turns a start value's error into a heading drift that candidates then "explain".
-    y0_sigma = Y0_PRIOR_WIDTH * np.sqrt(2.0) * sigma_y if np.isfinite(sigma_y) and sigma_y > 0 else float("nan")
+    # Only from a noise measured in the DOF's windows or stated: a noise from the whole log
+    # (block_noise's fallback for a DOF faster than the log) sets its noise unit and floor, not this
+    # prior, whose start values there err by the dynamics within a sample, not by the noise
+    # (randomised seed 45 r020's sway: its quadratic damping fitted worse with it; seed 41 r021's lost).
+    s0 = block_noise(p.raw[p.channel], w, p.m, trapezoid=True, stated=stated.get(p.channel), whole_log=False)
+    y0_sigma = Y0_PRIOR_WIDTH * np.sqrt(2.0) * s0 if np.isfinite(s0) and s0 > 0 else float("nan")
     return GridData(dt=p.dt, y=y, y0=y0, angle=angle, mask=mask, forcing=forcing, m=p.m, y0_sigma=y0_sigma,
                     w_y=1.0 / channel_scale(y, smask), w_angle=w_angle, sigma_y=sigma_y, sigma_angle=sigma_a)
 
