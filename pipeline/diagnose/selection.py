@@ -271,7 +271,7 @@ def taken_off(s: DofState, res: CandidateResult, run, ref: Mapping[str, np.ndarr
         Outputs the correction is taken from; default the candidate's own (``result_base``), else
         ``base_full``, else ``base_heldout``.
     """
-    carried = None if res.label in s.result_base else _carried(run)
+    carried = None if res.label in s.result_base else carried_regressors(run)
     if carried is not None:
         return carried.apply(s.data), None
     if ref is None:
@@ -279,8 +279,15 @@ def taken_off(s: DofState, res: CandidateResult, run, ref: Mapping[str, np.ndarr
     return corrected(s.data, ref, heldout_or_full(run, s.data.y.shape[0])), ref
 
 
-def _carried(run):
-    """The selected candidate's regressors to carry (None: backfitting; roll and pitch candidates have none)."""
+def carried_regressors(run):
+    """The selected candidate's regressors to carry (None: backfitting; roll and pitch candidates have none).
+
+    Parameters
+    ----------
+    run : CandidateRun
+        The selected candidate's cross-validated run; its ``candidate.carried`` (when it has one) is
+        applied to the fit on every window, ``run.full``.
+    """
     how = getattr(getattr(run, "candidate", None), "carried", None)
     return how(run.full) if how is not None else None
 
@@ -1015,5 +1022,5 @@ def channel_gaps_of(base_score: sig.Score) -> tuple[dict, dict]:
             {c.channel: c.n_eff for c in base_score.channels})
 
 
-__all__ = ["DofState", "channel_gaps_of", "forward_select", "rank_key", "selected_effects", "sensor_or_actuator",
+__all__ = ["DofState", "carried_regressors", "channel_gaps_of", "forward_select", "rank_key", "selected_effects", "sensor_or_actuator",
            "unexplained", "UNEXPLAINED_TEST"]

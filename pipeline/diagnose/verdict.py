@@ -384,7 +384,7 @@ def _waves_on_top(chosen: list, states: Mapping[str, sel.DofState], jobs: int = 
         if res.effect != "waves" or s is None or not isinstance(s.problem, DofProblem):
             continue
         later = [(r2, u2) for r2, u2, *_ in chosen[k + 1:] if r2.dof == res.dof]
-        carried = [sel._carried(u2) for _, u2 in later]
+        carried = [sel.carried_regressors(u2) for _, u2 in later]
         if not later or any(c is None for c in carried):
             continue
         data = run.candidate.data
