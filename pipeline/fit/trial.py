@@ -346,8 +346,8 @@ def _nomoto_without_unsettled_cuts(trial: Trial, items: Sequence[Segment]) -> di
     while settled:
         out = _nomoto_subset(trial, items, sorted(uncut + settled))
         # A cut record whose own fit with the others is not a settled success leaves them too.
-        bad = {i: settled_at_run_end(out[i], slowest) for i in settled
-               if i in out and not settled_at_run_end(out[i], slowest).success}
+        judged = {i: settled_at_run_end(out[i], slowest) for i in settled if i in out}
+        bad = {i: sf for i, sf in judged.items() if not sf.success}
         if not bad:
             break
         failed.update(bad)
@@ -386,8 +386,8 @@ def _nomoto_own_judgement(trial: Trial, items: Sequence[Segment]) -> dict[int, S
     out: dict[int, SegmentFit] = {}
     while True:
         fits = _nomoto_subset(trial, items, keep)
-        unsettled = {i: settled_at_run_end(sf) for i, sf in fits.items()
-                     if sf.segment.cut_at_run_end and not settled_at_run_end(sf).success}
+        judged = {i: settled_at_run_end(sf) for i, sf in fits.items() if sf.segment.cut_at_run_end}
+        unsettled = {i: sf for i, sf in judged.items() if not sf.success}
         if not unsettled:
             return {**fits, **out}
         out.update(unsettled)
