@@ -11,10 +11,12 @@ line; otherwise a one-line entry lists them in ``vesselid --help``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import sys
+import warnings
 from pathlib import Path
-from typing import Sequence
+from typing import Iterator, Sequence
 
 from . import __version__
 from .errors import VesselidError
@@ -445,6 +447,21 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+@contextlib.contextmanager
+def quiet_numerics() -> Iterator[None]:
+    """A context in which floating-point ``RuntimeWarning``s (numpy, scipy) are not printed.
+
+    A fit's trial steps (a solver's step where ``log`` is undefined, a mean over an empty window)
+    raise them; the code checks its results for finiteness and says what it concludes in the
+    estimates' messages. Printed as they are, they would put a Python warning class and a source
+    line in front of the user that say nothing about the trial. Other warning categories print as
+    before; the previous filters are restored on exit.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        yield
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vesselid`` console script.
 
@@ -464,7 +481,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.argv = argv  # the command line for the report footer
     try:
-        return int(args.func(args) or 0)
+        with quiet_numerics():
+            return int(args.func(args) or 0)
     except VesselidError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

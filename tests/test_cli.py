@@ -293,3 +293,23 @@ def test_segment_review_page_offers_the_segments_json_fit_reads(capsys, surge_lo
     if chromium_binary() is not None:
         got = probe(page)
         assert got["broken"] == [] and got["scrollWidth"] <= got["innerWidth"], got
+
+
+def test_numeric_warnings_do_not_reach_the_user(monkeypatch, tmp_path, capsys):
+    """A floating-point RuntimeWarning inside a command is not printed; other warnings are."""
+    import warnings
+
+    import pipeline.cli as cli
+
+    def noisy(args):
+        np.log(np.array([-1.0]))            # invalid value: RuntimeWarning
+        warnings.warn("kept", UserWarning)  # another category still reaches the user
+        return 0
+
+    monkeypatch.setattr(cli, "cmd_run", noisy)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        assert main(["run", str(tmp_path)]) == 0
+    categories = [w.category for w in seen]
+    assert RuntimeWarning not in categories
+    assert UserWarning in categories
