@@ -59,6 +59,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from pipeline.fit.heldout_test import MIN_SHRINK  # noqa: E402
 from pipeline.flow import load_trial  # noqa: E402
 from pipeline.model.waves import WaveParams  # noqa: E402
 from pipeline.sim import Effects, sea_trial, simulate  # noqa: E402
@@ -1157,12 +1158,86 @@ def run_random_case(case: RandomCase) -> dict:
         alone.append(None if best is None else {"dof": best.dof, "shrink": best.shrink, "p": best.p_value,
                                                 "significant": bool(best.significant)})
     out["alone"] = alone
+    out["dof_noise"] = {d.dof: float(d.noise_floor) for d in rep.dofs}
     if truth["effects"]:
         try:
             out["signature"] = effect_signatures(case)
         except Exception as exc:  # noqa: BLE001 (reported; the diagnosis' result stays)
             out["signature_error"] = str(exc)
+    missed = [i for i, e in enumerate(truth["effects"]) if not any(_hit(s, e) for s in out["selected"])]
+    if case.kind == "pair" and len(missed) == 1:
+        try:
+            out["power"] = power_off(case, missed[0])
+        except Exception as exc:  # noqa: BLE001 (reported; the diagnosis' result stays)
+            out["power_error"] = f"{type(exc).__name__}: {exc}"
     return out
+
+
+def power_off(case: RandomCase, i: int) -> dict:
+    """The trial diagnosed again with its ``i``-th effect switched off, every draw (vessel, schedule, log
+    rate, sensor noise) as in the trial: what the data show of that effect is the difference between
+    the two diagnoses (:func:`perfect_shrink`).
+
+    Returns
+    -------
+    dict
+        ``effect`` (``i``), ``dof_gaps``, ``dof_gaps_after``, ``dof_noise`` (each DOF's noise unit of its
+        response, SI) and ``selected`` (labels) of the diagnosis without it.
+    """
+    from pipeline.diagnose import diagnose
+
+    with tempfile.TemporaryDirectory() as tmp:
+        files, vessel, truth = make_random_trial(case, Path(tmp), drop=i)
+        vessel = stated_noise(case, truth, vessel)
+        rep = diagnose(load_trial(files, vessel), vessel)
+    return {"effect": i, "dof_gaps": {d.dof: d.gap for d in rep.dofs},
+            "dof_gaps_after": {e.dof: e.gap_after for e in rep.effects},
+            "dof_noise": {d.dof: float(d.noise_floor) for d in rep.dofs},
+            "selected": [e.label for e in rep.effects]}
+
+
+#: The least shrink the significance rule asks of a channel [%].
+RULE_SHRINK = MIN_SHRINK
+
+
+def perfect_shrink(r: dict) -> tuple[float, str] | None:
+    """What a perfect candidate of a pair's missed effect could shrink [%], and in which DOF.
+
+    A candidate that models the missed effect exactly, on top of what was selected, leaves at best what
+    the same trial without the effect leaves (:func:`power_off`). Per DOF the final gap (after the
+    effects selected in it, else its baseline gap) is ``g_on`` with the effect and ``g_off`` without it,
+    ``g_off`` put in the noise unit of the trial with the effect (the noise is measured on each trial's
+    windows, which the effect can move); the shrink is the larger of the gap's, ``1 - g_off / g_on``, and
+    of the error above one noise unit (the rule's shrink on top). The DOF of the effect, or for a delay of
+    every input the DOF where it is largest. None when the trial has no power record.
+
+    Parameters
+    ----------
+    r : dict
+        A saved pair trial with ``power``.
+    """
+    pw = r.get("power")
+    if not pw or "dof_gaps" not in r:
+        return None
+    e = r["effects"][pw["effect"]]
+    dofs = [e["dof"]] if e.get("dof") else [d for d in r["dof_gaps"] if d in pw["dof_gaps"]]
+    best = None
+    for d in dofs:
+        if d not in r["dof_gaps"] or d not in pw["dof_gaps"]:
+            continue
+        g_on = r.get("dof_gaps_after", {}).get(d, r["dof_gaps"][d])
+        g_off = pw["dof_gaps_after"].get(d, pw["dof_gaps"][d])
+        n_on, n_off = r.get("dof_noise", {}).get(d), pw["dof_noise"].get(d)
+        if n_on and n_off and np.isfinite(n_on) and np.isfinite(n_off) and n_on > 0:
+            g_off = g_off * n_off / n_on
+        if not (np.isfinite(g_on) and np.isfinite(g_off) and g_on > 0):
+            continue
+        s = 100.0 * (1.0 - g_off / g_on)
+        if g_on > 1.0:
+            s = max(s, 100.0 * (1.0 - np.sqrt(max(g_off * g_off - 1.0, 0.0)) / np.sqrt(g_on * g_on - 1.0)))
+        if best is None or s > best[0]:
+            best = (float(s), d)
+    return best
 
 
 def add_signatures(path: Path, seed: int, jobs: int, allocation: bool = True) -> None:
@@ -1345,6 +1420,11 @@ def miss_cause(r: dict) -> str | None:
     sg = (r.get("signature") or [])[i] if i < len(r.get("signature") or []) else {}
     if sg.get("log_timing_s") and not sg.get("rms", 1.0) > 0:
         return which + "inside the log's timing of the commands (below detection)"
+    pw = perfect_shrink(r) if which == "pair, second: " else None
+    if pw is not None:
+        if pw[0] < RULE_SHRINK:
+            return which + f"without it the trial leaves its DOF within {RULE_SHRINK:g} % (below detection)"
+        return which + f"a perfect candidate would shrink its DOF by {RULE_SHRINK:g} % or more (power left)"
     fl = at_floor(r, dof)
     if fl:
         return which + "at the floor (below detection)"
@@ -1484,7 +1564,9 @@ def random_report(results: list[dict]) -> None:
                   + (f" signature {[round(x.get('rms', float('nan')), 2) for x in r['signature']]}"
                      if r.get("signature") else "")
                   + f" -> {[(s.get('label', s['effect']), s['dof']) for s in r['selected']]} unexplained "
-                  f"{[u['channel'] for u in r['unexplained']]}")
+                  f"{[u['channel'] for u in r['unexplained']]}"
+                  + (" power: a perfect candidate {:.1f} % in {}".format(*perfect_shrink(r))
+                     if perfect_shrink(r) is not None else ""))
     for r in errors:
         print(f"  {r['case']:<16} {r.get('vessel', ''):<12} rate {r.get('log_rate_hz', 0):5.1f} Hz: {r['error'][:160]}")
 
