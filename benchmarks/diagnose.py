@@ -1183,10 +1183,11 @@ def _channel_gaps(rep) -> dict:
     return chan
 
 
-def power_off(case: RandomCase, i: int) -> dict:
+def power_off(case: RandomCase, i: int | None) -> dict:
     """The trial diagnosed again with its ``i``-th effect switched off, every draw (vessel, schedule, log
     rate, sensor noise) as in the trial: what the data show of that effect is the difference between
-    the two diagnoses (:func:`perfect_shrink`).
+    the two diagnoses (:func:`perfect_shrink`). ``i`` None: the trial as it was (:func:`add_power`, for a
+    run saved without ``dof_noise``).
 
     Returns
     -------
@@ -1281,13 +1282,21 @@ def add_power(path: Path, seed: int, jobs: int, allocation: bool = True) -> None
     for i, r in enumerate(rows):
         missed = [k for k, e in enumerate(r.get("effects", [])) if not any(_hit(s, e) for s in r.get("selected", []))]
         if r.get("kind") == "pair" and "selected" in r and len(missed) == 1:
-            todo.append((i, RandomCase(int(r["case"][1:4]), "pair", int(seed * 1000 + int(r["case"][1:4])), MAG_RANGE,
-                                       allocation), missed[0]))
+            case = RandomCase(int(r["case"][1:4]), "pair", int(seed * 1000 + int(r["case"][1:4])), MAG_RANGE, allocation)
+            todo.append((i, case, missed[0]))
+            if "dof_noise" not in r:
+                todo.append((i, case, None))
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        for (i, _, _), pw in zip(todo, pool.map(power_off, [c for _, c, _ in todo], [k for _, _, k in todo])):
-            rows[i]["power"] = pw
+        for (i, _, k), pw in zip(todo, pool.map(power_off, [c for _, c, _ in todo], [k for _, _, k in todo])):
+            if k is not None:
+                rows[i]["power"] = pw
+                continue
+            rows[i]["dof_noise"] = pw["dof_noise"]
+            same = {d: round(g, 6) for d, g in pw["dof_gaps"].items()} == {d: round(g, 6) for d, g in rows[i]["dof_gaps"].items()}
+            print(f"{rows[i]['case']}: diagnosed again for its noise units, DOF gaps "
+                  + ("as saved" if same else f"{pw['dof_gaps']} against {rows[i]['dof_gaps']} saved"))
     path.write_text("".join(json.dumps(r, default=float) + "\n" for r in rows))
-    print(f"power added to {len(todo)} trials of {path}")
+    print(f"power added to {len({i for i, _, k in todo if k is not None})} trials of {path}")
 
 
 #: Share of trials above an effect's detection threshold in which it is found (issue 12: 90 %).
