@@ -1468,8 +1468,8 @@ def miss_cause(r: dict) -> str | None:
     pw = perfect_shrink(r) if which == "pair, second: " else None
     if pw is not None:
         if pw[0] < RULE_SHRINK:
-            return which + f"without it the trial leaves its gaps within {RULE_SHRINK:g} % (below detection)"
-        return which + f"without it a channel's gap is {RULE_SHRINK:g} % smaller (power left)"
+            return which + f"the trial without it leaves gaps less than {RULE_SHRINK:g} % smaller (below detection)"
+        return which + f"the trial without it leaves a gap {RULE_SHRINK:g} % smaller or more (power left)"
     fl = at_floor(r, dof)
     if fl:
         return which + "at the floor (below detection)"
