@@ -50,7 +50,7 @@ def test_a_miss_whose_trial_without_it_leaves_the_same_gap_is_below_detection():
     r["power"] = {**r["power"], "channel_gaps": {"yaw": {"r": 1.31, "psi": 1.46}, "surge": {"sog": 1.36}},
                   "dof_noise": {"yaw": 0.0021, "surge": 0.010956}}
     assert b.miss_cause(r) == "pair, second: the trial without it leaves gaps less than 10 % smaller (below detection)"
-    assert b.miss_cause(_miss()) == "pair, second: the trial without it leaves a gap 10 % smaller or more (power left)"
+    assert b.miss_cause(_miss()) == "pair, second: the trial without it leaves a gap 10 % smaller or more (an upper bound of power)"
     # A delay of every input (no DOF of its own) is judged where a perfect candidate would shrink most.
     r = _miss(effects=[{"effect": "nonlinear_damping", "dof": "yaw"}, {"effect": "actuator_delay", "dof": None}])
     assert b.perfect_shrink(r)[1] == "surge/sog"
