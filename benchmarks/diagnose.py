@@ -1228,8 +1228,9 @@ def perfect_shrink(r: dict) -> tuple[float, str] | None:
     An upper bound, not a candidate's reach: the trial without the effect is diagnosed on its own
     windows, input timing and noise floor, which the effect can move (randomised seed 41 r009, a GNSS
     lag of 0.18 s at 4.5 Hz: 34 surge windows with the lag, 35 without, inputs advanced 0 and 0.022 s;
-    29.5 % here, while the delay candidate held at the lag's true values, 0.066-0.18 s, leaves the gap
-    as it was), and the error above one noise unit is sensitive to the noise unit near one. Below
+    29.5 % here, while the delay candidate held at 0.066-0.18 s, the lag less or more of the log's
+    timing, leaves sog's held-out gap at 1.18-1.21 noise units against 1.177 without it), and the error
+    above one noise unit is sensitive to the noise unit near one. Below
     :data:`RULE_SHRINK` it shows that no candidate could be selected by the rule's shrink.
 
     Parameters
