@@ -19,6 +19,7 @@ from pipeline.fit.nomoto_oe import fit_nomoto
 from pipeline.fit.nomoto_pool import pool_second_order
 from pipeline.fit.nomoto_records import NomotoRecord
 from pipeline.fit.nomoto_retime import pool_time_constants, retime_record
+from pipeline.model.integrate import integrate_rk4
 from pipeline.model.nomoto import NomotoParams, distance_time, nomoto_rhs
 from pipeline.records import Segment, SegmentFit
 
@@ -27,24 +28,19 @@ FS, H = 5.0, 0.05
 T_SURGE = 60.0
 
 
+def _ship_rhs(t, x, d, speed_gain):
+    """``[psi, r, u]``: Nomoto with K and T scaled by the speed u, which settles towards ``U0 (1 + speed_gain sin^2 d)``."""
+    psi_r = nomoto_rhs(t, x[:2], d, NomotoParams(K=K0 * x[2] / U0, T=T0 * U0 / x[2]))
+    return np.array([psi_r[0], psi_r[1], (U0 * (1.0 + speed_gain * math.sin(d[0]) ** 2) - x[2]) / T_SURGE])
+
+
 def _step_record(speed_gain: float, seed: int = 0, lead: float = 60.0, hold: float = 150.0):
     """A 10 deg rudder step (5 deg/s) from a settled straight run; speed towards ``U0 (1 + speed_gain sin^2 delta)``."""
-    x, u, d, rows = np.zeros(2), U0, 0.0, []
+    fine = np.arange(0.0, lead + hold + H / 2, H)
+    rudder = np.clip((fine - lead) * math.radians(5.0), 0.0, math.radians(10.0))
+    x = integrate_rk4(_ship_rhs, np.array([0.0, 0.0, U0]), fine, rudder[:, None], speed_gain)
     every = int(round(1 / (FS * H)))
-    for k in range(int((lead + hold) / H) + 1):
-        t = k * H
-        if k % every == 0:
-            rows.append((t, x[0], x[1], u, d))
-        target = math.radians(10.0) if t >= lead else 0.0
-        d += float(np.clip(target - d, -math.radians(5.0) * H, math.radians(5.0) * H))
-        p = NomotoParams(K=K0 * u / U0, T=T0 * U0 / u)
-        k1 = nomoto_rhs(0, x, (d,), p)
-        k2 = nomoto_rhs(0, x + H / 2 * k1, (d,), p)
-        k3 = nomoto_rhs(0, x + H / 2 * k2, (d,), p)
-        k4 = nomoto_rhs(0, x + H * k3, (d,), p)
-        x = x + H / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        u += H * (U0 * (1.0 + speed_gain * math.sin(d) ** 2) - u) / T_SURGE
-    t, psi, r, u, delta = np.array(rows).T
+    t, psi, r, u, delta = fine[::every], x[::every, 0], x[::every, 1], x[::every, 2], rudder[::every]
     rng = np.random.default_rng(seed)
     psi = psi + math.radians(0.2) * rng.standard_normal(t.size)
     r = r + math.radians(0.05) * rng.standard_normal(t.size)
@@ -69,13 +65,13 @@ def test_a_step_re_timed_on_the_distance_sailed_gives_the_straight_run_k_and_t()
     raw = fit_nomoto(rec, order=1, channels=("psi", "r"))
     timed = fit_nomoto(retime_record(rec, u, U0), order=1, channels=("psi", "r"))
     raw_t, raw_k = raw.T / T0 - 1.0, raw.K / K0 - 1.0
-    # The creep of the speed (3 % at 60 s) on top of the 20 s transient: the constant-speed fit's T is +3.0 %.
+    # The creep of the speed (3 % at 60 s) on top of the 20 s transient: the constant-speed fit's T is +3.2 %.
     assert raw_t > 0.02 and raw.T - T0 > 5 * raw.error("T"), (raw.T, raw.K)
     assert raw_k > 0.01, (raw.T, raw.K)
     assert abs(timed.T / T0 - 1.0) < 0.01, (timed.T, timed.error("T"))
-    # K within 0.5 %: the re-timed model leaves out T0 U0 (du/dt) / u^2 of the damping (0.1-0.6 % while the
-    # speed still creeps up in the hold: -0.41 % measured), against +2.1 % at constant speed.
-    assert abs(timed.K / K0 - 1.0) < 0.005, (timed.K, timed.error("K"))
+    # K within 0.7 %: the re-timed model leaves out T0 U0 (du/dt) / u^2 of the damping (0.1-0.6 % while the
+    # speed still creeps up in the hold: -0.49 % measured), against +2.2 % at constant speed.
+    assert abs(timed.K / K0 - 1.0) < 0.007, (timed.K, timed.error("K"))
     assert abs(timed.T - T0) < 3 * timed.error("T") + 0.002 * T0
 
 

@@ -9,7 +9,7 @@ the reference speed ``U0`` (:func:`pipeline.model.nomoto.distance_time`), so the
 on a uniform ``tau`` grid (the heading interpolated, the yaw rate scaled by ``U0 / u`` to a rate per
 distance, the rudder as the mean of the logged zero-order hold over each new interval) and fitted
 by the project's constant-speed fit; its K and T are those at ``U0``. The model leaves out
-``T0 U0 (du/dt) / u^2`` of the damping (a speed that still creeps within the time constant; -0.4 % in K
+``T0 U0 (du/dt) / u^2`` of the damping (a speed that still creeps within the time constant; -0.5 % in K
 on tests/test_nomoto_retime.py's ship, whose speed rises 3 % at 60 s).
 
 :func:`pool_time_constants` pools second-order segments' time constants with each segment's gain left
