@@ -18,6 +18,19 @@ The heading model the Kalman filter and the prediction-error fit share (the ship
 eq. 1: wave states, Nomoto, rudder bias as a random walk) is :func:`heading_model_matrices`; the
 rudder servo (first-order lag with a rate limit) is :func:`servo_response`.
 
+Speed-scaled Nomoto (Nomoto's scaling ``K = K' u / L``, ``T = T' L / u``, Fossen 2021, sec. 7.2, applied
+on a speed ``u(t)`` that changes during the record)::
+
+    T0 (U0 / u) r_dot + r = K0 (u / U0) (delta - b)
+
+is the constant-coefficient model at the reference speed ``U0`` in the distance-sailed time
+``tau = integral of u / U0 dt`` (:func:`distance_time`), for the rate per distance ``r U0 / u``:
+``dpsi/dtau = r U0 / u`` and ``T0 d(r U0/u)/dtau + r U0/u = K0 (delta - b)`` up to the term
+``T0 (r U0 / u) (du/dtau) / u`` of a speed that changes within the time constant. A linear
+manoeuvring model whose damping scales with the speed and whose rudder force with its square
+(Clarke et al. 1983, as in PythonVehicleSimulator's Clarke83 ship) is, in ``tau``, the model at
+``U0`` for any order, so each time constant scales with ``U0 / u`` and the gain with ``u / U0``.
+
 References
 ----------
 Nomoto, K., Taguchi, T., Honda, K., Hirano, S. (1957). On the steering qualities of ships.
@@ -277,6 +290,47 @@ def nomoto_matrices(order: int, dyn: Sequence[float]) -> tuple[np.ndarray, np.nd
         a = np.array([[0.0, 1.0, 0.0], [0.0, -a1, 1.0], [0.0, -a0, 0.0]])
         return a, np.array([[0.0], [b1], [b0]])
     raise ValueError(f"Nomoto model order: expected 1, 2 or 3, found {order!r}")
+
+
+def distance_time(t: np.ndarray, u: np.ndarray, u_ref: float) -> np.ndarray:
+    """Distance-sailed time ``tau = t0 + integral of u / u_ref dt`` (trapezoid) of the speed-scaled Nomoto model.
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (N,)
+        Sample times [s], increasing.
+    u : numpy.ndarray, shape (N,)
+        Speed through the water at the samples [m/s], positive and finite.
+    u_ref : float
+        Reference speed ``U0`` [m/s] (the straight-run speed of the model's K0 and T0).
+
+    Returns
+    -------
+    numpy.ndarray, shape (N,)
+        ``tau`` [s], ``tau[0] = t[0]``; equal to ``t`` where ``u = u_ref`` throughout.
+
+    Raises
+    ------
+    ValueError
+        Shapes differ, times not increasing, a speed not positive and finite, or ``u_ref`` not positive.
+    """
+    t = np.asarray(t, float)
+    u = np.asarray(u, float)
+    if t.shape != u.shape or t.ndim != 1:
+        raise ValueError(f"error: distance time: expected t and u of one shape, found {t.shape} and {u.shape}")
+    if not (math.isfinite(u_ref) and u_ref > 0):
+        raise ValueError(f"error: distance time: expected a positive reference speed [m/s], found {u_ref!r}")
+    if not np.all(np.isfinite(u) & (u > 0)):
+        raise ValueError("error: distance time: expected positive finite speeds [m/s], found "
+                         f"{int((~(np.isfinite(u) & (u > 0))).sum())} others")
+    if t.size > 1 and not np.all(np.diff(t) > 0):
+        raise ValueError("error: distance time: expected increasing sample times")
+    s = u / u_ref
+    tau = np.empty_like(t)
+    if t.size:
+        tau[0] = t[0]
+        tau[1:] = t[0] + np.cumsum(0.5 * (s[1:] + s[:-1]) * np.diff(t))
+    return tau
 
 
 def heading_model_matrices(K: float, T: float, waves: WaveParams
