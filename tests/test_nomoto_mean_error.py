@@ -4,7 +4,8 @@ The prediction error (the mean's error plus the between-segment spread) reads th
 on segments that scatter about the truth it is a bound (benchmarks/RESULTS.md, "Coverage over 20 seeds
 (ident37)"). The rules of pipeline/fit/nomoto_quality.py still read the prediction error (success flags
 unchanged); the error reported is the mean's. Both paths are tested: the first-order combination of
-pipeline/fit/trial.py and the pooled second-order vector.
+pipeline/fit/trial.py and the pooled second-order vector. Last, sinusoids fitted one by one of which only one
+identifies T are one frequency (pipeline/fit/nomoto_quality.py `sinusoid_check_reason`).
 """
 
 from __future__ import annotations
@@ -83,3 +84,35 @@ def test_pooled_second_order_t_carries_the_mean_error_and_covers_about_95_percen
     covered = float(np.mean(np.abs(z) <= 1.96))
     assert 0.88 <= covered <= 0.98, covered
     assert 0.8 <= math.sqrt(float(np.mean(z**2))) <= 1.5  # heavy-tailed: a spread estimated from six segments
+
+
+def _sinusoid_fit(k, k_se, t, t_se, t0):
+    from dataclasses import replace
+
+    from pipeline.fit.segment_fit import failed_segment_fit
+
+    seg = Segment("sinusoid", "yaw", t0, t0 + 300.0, "delta", 0.0, 0.1)
+    return replace(failed_segment_fit(seg, "nomoto_oe", "psi", ""), success=True, params={"K": k, "T": t, "b": 0.0},
+                   param_names=["K", "T", "b"], stderr={"K": k_se, "T": t_se, "b": 1e-5},
+                   t=np.array([0.0, 300.0]))
+
+
+def _judged(fits):
+    start = {name: combine(name, unit, "Nomoto", [Contribution(sf.params[short], sf.stderr[short], f"s{i}")
+                                                  for i, sf in enumerate(fits)])
+             for name, unit, short in (("K_nomoto", "1/s", "K"), ("T_nomoto", "s", "T"))}
+    return judge_nomoto(start, fits)
+
+
+def test_two_sinusoids_of_which_one_does_not_identify_t_are_one_frequency():
+    # PythonVehicleSimulator's tanker at 20 m, commanded sinusoids, seed 1: the fast sinusoid's T +- 40 %,
+    # K +- 1.7 %; the slow one's K +- 0.11 %, T +- 0.6 %: the combined K (+3.2 %) was marked success.
+    weak = [_sinusoid_fit(-0.005655, 0.0000984, 9.5, 3.8, 0.0), _sinusoid_fit(-0.005885, 6.5e-6, 9.9, 0.061, 400.0)]
+    out = _judged(weak)
+    for name in ("K_nomoto", "T_nomoto"):
+        assert not out[name].success
+        assert "1 of the 2 identify T to within 10%" in out[name].message, out[name].message
+    # The frigate's pair (the fast one's T +- 1.6 %) checks the first order: K and T stay success.
+    good = [_sinusoid_fit(0.14803, 0.0019, 24.95, 0.40, 0.0), _sinusoid_fit(0.14668, 0.000104, 24.667, 0.093, 400.0)]
+    out = _judged(good)
+    assert out["K_nomoto"].success and out["T_nomoto"].success, out["K_nomoto"].message

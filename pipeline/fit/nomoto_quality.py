@@ -21,7 +21,8 @@ report, coefficients.json and the CLI show what was found and why it is not trus
   or not (measured: a Clarke83 pair with waves, T 2.96 +- 0.50 s fast and 4.18 +- 0.008 s slow,
   passed the chi-square test at p = 0.015 and gave T +57 % marked success). Their K is unsure
   too when that T spread is flagged and the K values disagree beyond their errors
-  (:func:`sinusoid_k_reason`).
+  (:func:`sinusoid_k_reason`). Sinusoids fitted one by one of which fewer than two identify T to within
+  ``HETEROGENEITY_MATERIAL`` are the one-sinusoid case (:func:`sinusoid_check_reason`).
 
 - the segments' values trend with the rudder amplitude (:func:`nonlinear_reason`): the ship is
   nonlinear, and a linear K or T holds for one amplitude only.
@@ -236,6 +237,7 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         why = bias_why + speed_why + unsure_reasons(est, kinds)
         if name == "K_nomoto":
             why += sinusoid_k_reason(est, kinds, t_why)
+        why += sinusoid_check_reason(est, fits)
         why += nonlinear_reason(est, fits, short)
         why += rudder_timing_reason(est, fits, short)
         if steady is not None:
@@ -845,6 +847,39 @@ def sinusoid_k_reason(est: Estimate, kinds: Sequence[str], t_reasons: Sequence[s
             f"matched at each frequency: the ship is not first order) and their K values disagree beyond their "
             f"errors (chi-square p = {p:.2g} < {CONSISTENCY_ALPHA}; from {x.min():.4g} to {x.max():.4g} {est.unit}): "
             f"the combined K is a mean of two frequencies' gains, not the ship's (add a rudder step or a zig-zag)"]
+
+
+def sinusoid_check_reason(est: Estimate, fits: Sequence[SegmentFit]) -> list[str]:
+    """Why K or T from sinusoids fitted one by one is unsure when fewer than two of them identify T to within
+    ``HETEROGENEITY_MATERIAL`` (empty otherwise).
+
+    Sinusoids alone show the ship's structure only by agreeing across frequencies (:func:`unsure_reasons`); a
+    sinusoid whose own T is known to no better than that share of it agrees with any value, so it checks
+    nothing, and the combined K and T are the other frequency's first-order match: the one-sinusoid case
+    (measured: PythonVehicleSimulator's tanker at 20 m, commanded-rudder sinusoids, seed 1: the fast one's T
+    +- 40 % and 49 % (with waves), the combined K +3.2 / +3.3 % +- 0.11 / 0.26 % marked success). Sinusoids
+    fitted jointly (one fit, :func:`pipeline.fit.nomoto_pool.is_joint_follower`) are judged by their own rules.
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined K or T.
+    fits : sequence of SegmentFit
+        The segment fits behind it.
+    """
+    fits = [f for f in fits if getattr(f, "success", True)]
+    if not (est.success and len(fits) >= 2 and all(f.segment.kind == "sinusoid" for f in fits)
+            and not any(is_joint_follower(f) for f in fits)):
+        return []
+    rel = [abs(f.stderr.get("T", math.nan) / f.params["T"]) if f.params.get("T") else math.inf for f in fits]
+    checked = sum(r <= HETEROGENEITY_MATERIAL for r in rel)
+    if checked >= 2:
+        return []
+    shown = ", ".join("not identified" if not math.isfinite(r) else f"{r:.0%}" for r in rel)
+    return [f"unsure: sinusoids only, and {checked} of the {len(fits)} identify T to within "
+            f"{HETEROGENEITY_MATERIAL:.0%} (their T errors {shown} of it): a sinusoid whose T is that uncertain "
+            f"agrees with any value, so the frequencies do not check that the ship is first order, and K and T are "
+            f"one frequency's first-order match (add a rudder step or a zig-zag, or a sinusoid that identifies T)"]
 
 
 def structure_term(fits: Sequence[SegmentFit], short: str) -> float:
