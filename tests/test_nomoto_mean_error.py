@@ -20,6 +20,7 @@ from pipeline.fit.nomoto_pool import pool_second_order
 from pipeline.fit.nomoto_quality import judge_nomoto
 from pipeline.fit.trial import _Collector
 from pipeline.records import Segment
+from test_fit_nomoto_structure import _second_order_fit
 
 
 def test_first_order_k_from_disagreeing_segments_carries_the_mean_error():
@@ -38,23 +39,6 @@ def test_first_order_k_from_disagreeing_segments_carries_the_mean_error():
     assert est.ci95[1] - est.ci95[0] == pytest.approx(2 * 1.959964 * est.stderr, rel=1e-6)
     assert "the random-effects mean's error" in est.message.split("; ")[0]
     assert est.success  # the rules read the prediction error: the success flag is theirs
-
-
-def _second_order_fit(vec, cov, t0, t1):
-    from dataclasses import replace
-
-    from pipeline.fit.segment_fit import failed_segment_fit
-
-    seg = Segment("rudder_step", "yaw", t0, t1, "delta", 0.0, 0.1)
-    names = ["K", "T12", "T1T2", "T3", "b"]
-    c = np.zeros((5, 5))
-    c[:4, :4] = cov
-    c[4, 4] = 1e-8
-    params = dict(zip(names, list(vec) + [0.0]))
-    params["T"] = vec[1] - vec[3]
-    return replace(failed_segment_fit(seg, "nomoto_oe", "psi", ""), success=True, params=params, param_names=names,
-                   stderr={n: math.sqrt(c[i, i]) for i, n in enumerate(names)}, covariance=c,
-                   t=np.array([0.0, t1 - t0]))
 
 
 def test_pooled_second_order_t_carries_the_mean_error_and_covers_about_95_percent():
