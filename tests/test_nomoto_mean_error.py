@@ -100,3 +100,32 @@ def test_two_sinusoids_of_which_one_does_not_identify_t_are_one_frequency():
     good = [_sinusoid_fit(0.14803, 0.0019, 24.95, 0.40, 0.0), _sinusoid_fit(0.14668, 0.000104, 24.667, 0.093, 400.0)]
     out = _judged(good)
     assert out["K_nomoto"].success and out["T_nomoto"].success, out["K_nomoto"].message
+
+
+def test_a_speed_loss_line_that_misses_its_points_at_the_5_percent_level_is_not_extrapolated():
+    # Four steps whose K falls with the speed their turns lost, scattered about the line by more than their
+    # errors (chi-square about it between the 1 % and the 5 % levels on 2 dof): the shape the intercept
+    # extrapolates is not shown, so K is unsure (PythonVehicleSimulator's tanker at 25 m, commanded steps,
+    # seed 0: chi-square 9.9 and 8.6 on 3 dof, intercepts -3.7 / -4.0 % +- 0.24 / 0.18 % marked success).
+    from types import SimpleNamespace
+
+    from scipy import stats
+
+    from pipeline.fit.nomoto_quality import SPEED_RANGE, weighted_line
+
+    truth, se = 0.021795, 1e-5
+    losses = np.array([0.02, 0.035, 0.05, 0.07])
+    noise = np.array([1.1, -1.9, 1.7, -0.7])    # the segments' scatter, in standard errors
+    ks = truth * (1 - 0.7 * losses) + se * noise
+    line = weighted_line(losses, ks, np.full(4, 1 / se**2))
+    assert 0.01 < stats.chi2.sf(line.chi2, 2) < 0.05, line
+
+    def seg(v, loss):
+        return SimpleNamespace(params={"K": v}, stderr={"K": se}, segment=SimpleNamespace(kind="rudder_step"),
+                               message=f"OE, order 1; {SPEED_RANGE} {loss:.4g} of the straight-run speed (u 7.19 m/s "
+                                       f"at the straighter end, 6.64 m/s at the turning end)")
+
+    fits = [seg(v, loss) for v, loss in zip(ks, losses)]
+    k = combine("K_nomoto", "1/s", "m", [Contribution(v, se, f"s{i}") for i, v in enumerate(ks)])
+    out = judge_nomoto({"K_nomoto": k}, fits)["K_nomoto"]
+    assert not out.success and "a straight line in the speed loss misses" in out.message, out.message
