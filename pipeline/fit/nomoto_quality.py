@@ -328,8 +328,11 @@ def without_spread(est: Estimate, prediction: float, mean: float) -> Estimate:
     note = (f"standard error {est.stderr:.4g} -> {se:.4g} {est.unit}: the random-effects mean's error {mean:.4g} in "
             f"place of the prediction error {prediction:.4g} (the between-segment spread, which the rules above "
             f"read, is not in the error: on segments that scatter about the truth it was a bound)")
+    parts = est.message.split("; ") if est.message else []
+    lead = next((i for i, part in enumerate(parts) if not part.startswith("unsure:")), len(parts))
+    # The unsure reasons stay first (what the report shows of a value not marked success).
     return replace(est, stderr=se, ci95=confidence_interval(est.value, se, math.inf),
-                   message="; ".join([note] + ([est.message] if est.message else [])))
+                   message="; ".join(parts[:lead] + [note] + parts[lead:]))
 
 
 def steady_k_value(est: Estimate, fits: Sequence[SegmentFit]) -> Estimate | None:
