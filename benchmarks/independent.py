@@ -28,7 +28,10 @@ amplitude method.
 
 Per row (ship, manoeuvre, rudder log, waves): median and worst relative error of K and T over the
 seeds, 95 % CI coverage, the number of estimates more than 20 % off that were marked success,
-and the peers' median errors.
+and the peers' median errors. A second table gives, per row and pooled over the rows, the coverage of the
+estimates marked success with its Clopper-Pearson 95 % interval and the root mean square of their z
+(:func:`coverage_table`): one row's 20 / 20 is what a true 95 % gives 36 % of the time, so coverage is judged
+pooled and by the z rms, per row only where its interval excludes 95 %.
 
 Run: ``.venv/bin/python benchmarks/independent.py [--seeds N] [--ships a,b] [--manoeuvres a,b]``.
 PythonVehicleSimulator is found at ``$PVS_PATH`` (default ``/work/pvs/src``); without it the script
@@ -682,6 +685,7 @@ def summarise(res: dict) -> dict:
     K0, T0 = truth["K"], truth["T"]
     errs = {"K": [], "T": []}
     cover = {"K": [], "T": []}
+    zs = {"K": [], "T": []}
     wrong_success = 0
     unsure = {"K": [], "T": []}
     fails = []
@@ -703,6 +707,8 @@ def summarise(res: dict) -> dict:
             errs[key].append(e)
             lo, hi = est["ci"]
             cover[key].append(lo <= tv <= hi)
+            se = est.get("stderr")
+            zs[key].append((est["value"] - tv) / se if se is not None and se > 0 else math.nan)
             if abs(e) > 0.2:
                 wrong_success += 1
         for key, tv in (("K", K0), ("T", T0)):
@@ -745,6 +751,8 @@ def summarise(res: dict) -> dict:
             "T_bias": float(np.nanmedian(errs["T"])) if np.isfinite(errs["T"]).any() else math.nan,
             "cov_K": float(np.mean(cover["K"])) if cover["K"] else math.nan,
             "cov_T": float(np.mean(cover["T"])) if cover["T"] else math.nan,
+            "covered": {key: [int(sum(cover[key])), len(cover[key])] for key in ("K", "T")},
+            "z": {key: [float(z) for z in zs[key]] for key in ("K", "T")},
             "wrong_success": wrong_success, "oe_K": med(oe_err["K"]), "oe_T": med(oe_err["T"]),
             "amp_K": med(amp_err["K"]), "amp_T": med(amp_err["T"]), "fails": fails[:2],
             "unsure_n": len(unsure["K"]) + len(unsure["T"]), "unsure_K": med(unsure["K"]), "unsure_T": med(unsure["T"]),
@@ -817,10 +825,68 @@ def render(rows: list[dict], args, elapsed: float, truths: dict) -> str:
     lines.append("| all | | | | " + " | ".join(
         " / ".join(pct(total[rule][k][0] / total[rule][k][1]) if total[rule][k][1] else "-" for k in ("K", "T"))
         + f" ({total[rule]['K'][1]} / {total[rule]['T'][1]})" for rule in COMBINATION_RULES) + " |")
+    lines += ["", *coverage_table(rows)]
     fails = [f"- {r['ship']} {r['man']} {r['rudder']} {r['waves']}: {r['fails'][0]}" for r in rows if r["fails"]]
     if fails:
         lines += ["", "First failure message per row (not identified / not marked success):", ""] + fails
     return "\n".join(lines) + "\n"
+
+
+def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Clopper-Pearson (exact binomial) interval of a coverage ``k / n`` at ``level`` (nan, nan for n = 0)."""
+    if n <= 0:
+        return math.nan, math.nan
+    from scipy.stats import beta
+
+    a = 1.0 - level
+    lo = float(beta.ppf(a / 2, k, n - k + 1)) if k > 0 else 0.0
+    hi = float(beta.ppf(1 - a / 2, k + 1, n - k)) if k < n else 1.0
+    return lo, hi
+
+
+def z_rms(z) -> float:
+    """Root mean square of the finite z = (value - truth) / standard error (nan when none)."""
+    z = np.asarray(z, float)
+    z = z[np.isfinite(z)]
+    return float(np.sqrt(np.mean(z**2))) if z.size else math.nan
+
+
+def coverage_cell(k: int, n: int, z) -> str:
+    """``k/n (lo-hi %) z rms`` for one coefficient; the interval flagged where it excludes 95 %."""
+    if n == 0:
+        return "- | -"
+    lo, hi = clopper_pearson(k, n)
+    flag = " **below 95**" if hi < 0.95 else (" **above 95**" if lo > 0.95 else "")
+    zr = z_rms(z)
+    return f"{k}/{n} ({100 * lo:.0f}-{100 * hi:.0f}){flag} | " + ("-" if not math.isfinite(zr) else f"{zr:.2f}")
+
+
+def coverage_table(rows: list[dict]) -> list[str]:
+    """Per row and pooled over the rows: how many K and T marked success the 95 % interval holds, the
+    Clopper-Pearson 95 % interval of that coverage, and the root mean square of their z.
+
+    One row's 20 / 20 is what a true 95 % coverage gives 36 % of the time: coverage is judged pooled and by
+    the z rms (1 for an error that is right; well below 1 for a bound), per row only where its interval
+    excludes 95 %.
+    """
+    out = ["Coverage of the estimates marked success: covered / count (Clopper-Pearson 95 % interval of the "
+           "coverage, %; flagged where it excludes 95 %) and the root mean square of z = (value - truth) / "
+           "standard error (1 for an error that is right, below 1 for a bound):", "",
+           "| ship | manoeuvre | rudder log | waves | K covered | K z rms | T covered | T z rms |",
+           "|---|---|---|---|---|---|---|---|"]
+    tot = {key: [0, 0, []] for key in ("K", "T")}
+    for r in rows:
+        cells = []
+        for key in ("K", "T"):
+            k, n = r.get("covered", {}).get(key, [0, 0])
+            z = r.get("z", {}).get(key, [])
+            tot[key][0] += k
+            tot[key][1] += n
+            tot[key][2] += list(z)
+            cells.append(coverage_cell(k, n, z))
+        out.append(f"| {r['ship']} | {r['man']} | {r['rudder']} | {r['waves']} | " + " | ".join(cells) + " |")
+    out.append("| all rows | | | | " + " | ".join(coverage_cell(*tot[key]) for key in ("K", "T")) + " |")
+    return out
 
 
 def write_results(text: str) -> None:
