@@ -82,6 +82,7 @@ from typing import Sequence
 from ..records import Estimate, SegmentFit
 from .combine import CONSISTENCY_ALPHA
 from .least_squares import confidence_interval
+from .nomoto_joint_value import JOINT_T, joint_t_value
 from .nomoto_pool import POOLED_NOTE, is_joint_follower, pool_second_order
 from .segment_fit import MAX_RELATIVE_STDERR
 
@@ -201,7 +202,7 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if est is None:
             continue
         short = name.split("_")[0]
-        steady = steady_k_value(est, fits) if short == "K" else None
+        steady = steady_k_value(est, fits) if short == "K" else joint_t_value(est, fits)
         bias_why = shared_bias_reason(est, fits, short)
         est, speed_why = straight_run_value(est, fits, short)
         est = add_structure_term(est, structure_term(fits, short))
@@ -210,7 +211,7 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
             # read at the turns' speed (the speed term applies whatever the fits' trend). It replaces the fits'
             # when its error (with the settling and speed terms) is no larger: holds too short to settle leave
             # the fits' value.
-            steady = add_speed_term(steady, speed_range(fits), STEADY_K)
+            steady = add_speed_term(steady, speed_range(fits), STEADY_K if short == "K" else JOINT_T)
             if steady.stderr <= est.stderr:
                 est, bias_why, speed_why = steady, [], []
             else:

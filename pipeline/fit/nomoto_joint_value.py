@@ -1,0 +1,58 @@
+"""T read from the joint second-order fit of a trial's rudder steps, in place of the fits' combination.
+
+The note is written by :func:`pipeline.fit.nomoto_joint.joint_step_note` (kept free of the fitters'
+imports here, so that :mod:`pipeline.fit.nomoto_quality` can read it without an import cycle).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import replace
+from typing import Sequence
+
+from ..records import Estimate, SegmentFit
+from .least_squares import confidence_interval
+
+#: Start of the note with T from the joint second-order fit of the rudder steps
+#: (``JOINT_T <n> rudder steps (...): T = <v> +- <se> s (...)``).
+JOINT_T = "T from the joint second-order fit of"
+_VALUE = re.compile(r": T = (\S+) \+- (\S+) s ")
+
+
+def joint_t_value(est: Estimate, fits: Sequence[SegmentFit]) -> Estimate | None:
+    """T from the joint second-order fit of the rudder steps, in place of the fits' combination (None when
+    the segment fits carry no such note).
+
+    Where the first-order Nomoto model is kept with the structure undecided, the per-step first-order
+    T is biased by the pole-zero pair it lacks (PythonVehicleSimulator's tanker at 20 m, noise-free: -9
+    to -35 % per step), and a second order fitted step by step is not identified under noise (3 of 30
+    per-step fits did not converge). The first-order equivalent ``T1 + T2 - T3`` of a second-order
+    model fitted to every step at once is the low-frequency lag of the response whatever the ship's
+    structure (a first-order ship gives ``T3 = T2``), so it holds for either structure;
+    :func:`pipeline.fit.nomoto_joint.joint_step_note` writes it with its error (Newey-West where the
+    residuals are coloured, and the spread between the steps into a turn and out of one where they
+    disagree). The fits' combination stays in the message.
+
+    Parameters
+    ----------
+    est : Estimate
+        The combined T.
+    fits : sequence of SegmentFit
+        The segment fits behind it (their messages carry the ``JOINT_T`` note).
+    """
+    if not math.isfinite(est.value):
+        return None
+    note = next((p for f in fits for p in f.message.split("; ") if p.startswith(JOINT_T)), "")
+    m = _VALUE.search(note)
+    if not m:
+        return None
+    try:
+        value, se = float(m.group(1)), float(m.group(2))
+    except ValueError:
+        return None
+    if not (math.isfinite(value) and value > 0 and math.isfinite(se) and se > 0):
+        return None
+    msg = [note, f"the fits' combination gave {est.value:.4g} +- {est.stderr:.2g} {est.unit}"]
+    return replace(est, value=value, stderr=se, ci95=confidence_interval(value, se, math.inf),
+                   message="; ".join(msg + ([est.message] if est.message else [])))
