@@ -70,6 +70,7 @@ def test_the_joint_second_order_fit_reads_t_of_a_tanker_shaped_ship(seed):
     assert max(abs(f.T / T_EQ - 1) for f in firsts) > 0.05
     note = joint_step_note(recs, firsts, ("psi", "r"), (), "undecided")
     assert note.startswith(f"{JOINT_T} 6 rudder steps (undecided"), note
+    assert "; " not in note  # one part of a message joined by "; "
     value, se = (float(x) for x in note.split(": T = ")[1].split(" s ")[0].split(" +- "))
     assert abs(value - T_EQ) < 2.5 * se, (value, se)
     assert abs(value / T_EQ - 1) < 0.03 and se < 0.03 * T_EQ, (value, se)
@@ -101,7 +102,7 @@ def _estimates():
 def test_the_combined_t_is_the_joint_fits_where_the_fits_carry_it():
     undecided = (f"{STRUCTURE_UNDECIDED} T: the first- and second-order Nomoto values differ beyond their errors, "
                  f"first order 7 s, second order 9.3 s")
-    note = (f"{JOINT_T} 6 rudder steps (undecided; one K, T1 + T2, T1 T2, T3, rudder bias): T = 9.41 +- 0.14 s "
+    note = (f"{JOINT_T} 6 rudder steps (undecided, one K, T1 + T2, T1 T2, T3, rudder bias): T = 9.41 +- 0.14 s "
             f"(T1 + T2 = 30 s, T1 T2 = 270 s^2, T3 = 20.6 s, K = -0.0057 1/s, white noise)")
     fits = [_fit(f"a; {undecided}; {note}"), _fit(f"b; {undecided}; {note}")]
     t = judge_nomoto(_estimates(), fits)["T_nomoto"]

@@ -136,7 +136,9 @@ def joint_step_note(recs: Sequence[NomotoRecord], firsts: Sequence[NomotoFit], c
     if len(recs) < 2 or not channels:
         return ""
     noise, kw = shared_noise(firsts)
-    head = f"{len(recs)} rudder steps ({why}; one K, T1 + T2, T1 T2, T3, rudder bias{' and servo lag' if servo else ''})"
+    # The note is one part of a message joined by "; " (read back by splitting on it).
+    why = why.replace("; ", ", ")
+    head = f"{len(recs)} rudder steps ({why}, one K, T1 + T2, T1 T2, T3, rudder bias{' and servo lag' if servo else ''})"
     try:
         fit = joint_fit(recs, channels, servo, noise, kw)
     except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
