@@ -15,12 +15,14 @@ seeds 0-2): T +1.9, +1.7, +2.5 % with standard errors of 1.1-1.5 % (the best lin
 noise-free record +2.7 %: the ship's speed loss in its turns); the first-order fits' combination was
 unsure (a model-structure term of 1.5-2.5 s).
 
-Not used when the servo lag is fitted and trades off against T: a first-order servo lag adds to the
+Not used when the servo lag is fitted (a logged command): a first-order servo lag adds to the
 response's low-frequency lag exactly as T does (``T1 + T2 - T3 + t_servo``), so only the higher
-frequencies of the steps tell them apart (the same tanker with the logged command, seeds 0-2:
-correlation of T with the lag -0.985 to -0.987, T -12.6 +- 7.7 % and +5.5 +- 7.6 %, on seed 0 the
-lag at its bound). The note then gives the sum, which the steps do identify, and T keeps the fits'
-judgement.
+frequencies of the steps tell them apart, and there the servo's assumed shape (a first-order lag)
+decides the split (the same tanker with the logged command, seeds 0-2: correlation of T with the lag
+-0.985 to -0.987, T -12.6 +- 7.7 % and +5.5 +- 7.6 %, on seed 0 the lag at its bound;
+PythonVehicleSimulator's Clarke83 ship, commanded steps, seed 0: T -8.9 +- 4.1 % with the lag at
+1.30 +- 0.09 s; both servos are rate limited, which a first-order lag is not). The note then gives
+the sum, which the steps do identify, and T keeps the fits' judgement.
 """
 
 from __future__ import annotations
@@ -38,8 +40,6 @@ from .nomoto_oe import fit_nomoto
 from .nomoto_problem import SERVO_PARAMS
 from .nomoto_records import NomotoFit, NomotoRecord
 
-#: |Correlation| of T with the fitted servo lag above which the joint fit's T is not used [-].
-SERVO_COLLINEAR = 0.95
 #: Start of the note when the joint fit's T is not used (information only).
 JOINT_T_NOT_USED = "joint second-order fit of the rudder steps not used for T:"
 
@@ -154,19 +154,14 @@ def joint_step_note(recs: Sequence[NomotoRecord], firsts: Sequence[NomotoFit], c
         g = t_gradient(fit)
         lag, slag = fit.value("t_servo"), math.sqrt(max(cov[j, j], 0.0))
         corr = float(g @ cov[:, j] / (st * slag)) if slag > 0 else math.nan
-        if "t_servo" in fit.at_bound or not (abs(corr) <= SERVO_COLLINEAR):
-            gs = g.copy()
-            gs[j] = 1.0
-            s_sum = math.sqrt(max(gs @ cov @ gs, 0.0))
-            return (f"{JOINT_T_NOT_USED} the fit of {head} gives T = {t:.4g} +- {st:.2g} s and the servo lag "
-                    f"{lag:.3g} +- {slag:.2g} s{' (at its bound)' if 't_servo' in fit.at_bound else ''}, correlated "
-                    f"{corr:+.3f} (|r| > {SERVO_COLLINEAR:g}): a first-order servo lag adds to the response's lag as T "
-                    f"does, so the steps identify their sum, T + t_servo = {t + lag:.4g} +- {s_sum:.2g} s, not T")
-    se = st
-    servo_txt = ""
-    if "t_servo" in fit.names:
-        j = fit.names.index("t_servo")
-        servo_txt = f", servo lag {fit.value('t_servo'):.3g} +- {math.sqrt(max(cov[j, j], 0.0)):.2g} s"
-    return (f"{JOINT_T} {head}: T = {t:.6g} +- {se:.3g} s (T1 + T2 = {fit.value('T12'):.4g} s, T1 T2 = "
-            f"{fit.value('T1T2'):.4g} s^2, T3 = {fit.value('T3'):.4g} s, K = {fit.K:.5g} 1/s{servo_txt}, "
+        gs = g.copy()
+        gs[j] = 1.0
+        s_sum = math.sqrt(max(gs @ cov @ gs, 0.0))
+        return (f"{JOINT_T_NOT_USED} the fit of {head} gives T = {t:.4g} +- {st:.2g} s and the servo lag "
+                f"{lag:.3g} +- {slag:.2g} s, correlated {corr:+.3f}: a first-order servo lag adds to the response's "
+                f"lag as T does, so the steps identify their sum, T + t_servo = {t + lag:.4g} +- {s_sum:.2g} s, and "
+                f"the split between them rests on the servo's assumed shape (a rate-limited servo is not a "
+                f"first-order lag)")
+    return (f"{JOINT_T} {head}: T = {t:.6g} +- {st:.3g} s (T1 + T2 = {fit.value('T12'):.4g} s, T1 T2 = "
+            f"{fit.value('T1T2'):.4g} s^2, T3 = {fit.value('T3'):.4g} s, K = {fit.K:.5g} 1/s, "
             f"{fit.noise_model} noise)")

@@ -213,7 +213,8 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
             # the fits' value.
             steady = add_speed_term(steady, speed_range(fits), STEADY_K if short == "K" else JOINT_T)
             if steady.stderr <= est.stderr:
-                est, bias_why, speed_why = steady, [], []
+                # A joint fit's T keeps the speed trend's and the steps' superposition rules (below).
+                est, bias_why, speed_why = steady, [], (speed_why if short == "T" else [])
             else:
                 steady = None
         est = add_structure_term(est, rudder_timing_term(fits, short),
@@ -224,7 +225,7 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
             why += sinusoid_k_reason(est, kinds, t_why)
         why += nonlinear_reason(est, fits, short)
         why += rudder_timing_reason(est, fits, short)
-        if steady is not None:
+        if steady is not None and short == "K":
             # The steady levels' own superposition test (and T's break: a nonlinear ship); the transients' K
             # and the structure left undecided concern the fits' K, not this one.
             note = next((p for p in est.message.split("; ") if p.startswith(STEADY_K)), "")
