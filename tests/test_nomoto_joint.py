@@ -85,7 +85,7 @@ def test_a_servo_lag_fitted_with_t_gives_their_sum_not_t():
     assert "T + t_servo = " in note
     total = float(note.split("T + t_servo = ")[1].split(" ")[0])
     assert total == pytest.approx(T_EQ + 1.0, rel=0.02)
-    corr = float(note.split("correlated ")[1].split(" ")[0])
+    corr = float(note.split("correlated ")[1].split(":")[0])
     assert corr < -0.95
 
 
@@ -113,3 +113,18 @@ def test_the_combined_t_is_the_joint_fits_where_the_fits_carry_it():
     bare = [_fit(f"a; {undecided}"), _fit(f"b; {undecided}")]
     t0 = judge_nomoto(_estimates(), bare)["T_nomoto"]
     assert t0.value == 7.0 and not t0.success
+
+
+def test_steps_into_and_out_of_a_turn_that_disagree_still_mark_the_joint_t_unsure():
+    note = (f"{JOINT_T} 4 rudder steps (undecided, one K, T1 + T2, T1 T2, T3, rudder bias): T = 9.41 +- 0.14 s "
+            f"(T1 + T2 = 30 s, T1 T2 = 270 s^2, T3 = 20.6 s, K = -0.0057 1/s, white noise)")
+    fits = []
+    for k, (before, after, t) in enumerate([(0, 10, 7.0), (10, 0, 9.0), (0, -10, 7.1), (-10, 0, 9.1)]):
+        seg = Segment("rudder_step", "yaw", 180.0 * k, 180.0 * (k + 1), "delta", math.radians(before),
+                      math.radians(after))
+        fits.append(replace(failed_segment_fit(seg, "nomoto_oe", "", ""), success=True, params={"K": K, "T": t},
+                            stderr={"K": 2e-5, "T": 0.1}, message=f"m; {note}"))
+    est = {"T_nomoto": Estimate("T_nomoto", 8.0, 0.5, (7.0, 9.0), "s", 4, "m", per_segment=(7.0, 9.0, 7.1, 9.1))}
+    t = judge_nomoto(est, fits)["T_nomoto"]
+    assert t.value == pytest.approx(9.41)
+    assert not t.success and "rudder steps into a turn" in t.message, t.message
