@@ -44,18 +44,20 @@ def joint_t_value(est: Estimate, fits: Sequence[SegmentFit]) -> Estimate | None:
     fits : sequence of SegmentFit
         The segment fits behind it (their messages carry the ``JOINT_T`` note).
     """
-    if not math.isfinite(est.value):
+    note, value, se = joint_note(fits)
+    if not (math.isfinite(est.value) and value > 0 and se > 0 and math.isfinite(value + se)):
         return None
+    head = f"{note}; the fits' combination gave {est.value:.4g} +- {est.stderr:.2g} {est.unit}"
+    return replace(est, value=value, stderr=se, ci95=confidence_interval(value, se, math.inf),
+                   message=f"{head}; {est.message}" if est.message else head)
+
+
+def joint_note(fits: Sequence[SegmentFit]) -> tuple[str, float, float]:
+    """The ``JOINT_T`` note among the fits' messages ('' when none), its T and T's standard error [s]
+    (nan when not given)."""
     note = next((p for f in fits for p in f.message.split("; ") if p.startswith(JOINT_T)), "")
     m = _VALUE.search(note)
-    if not m:
-        return None
     try:
-        value, se = float(m.group(1)), float(m.group(2))
-    except ValueError:
-        return None
-    if not (math.isfinite(value) and value > 0 and math.isfinite(se) and se > 0):
-        return None
-    msg = [note, f"the fits' combination gave {est.value:.4g} +- {est.stderr:.2g} {est.unit}"]
-    return replace(est, value=value, stderr=se, ci95=confidence_interval(value, se, math.inf),
-                   message="; ".join(msg + ([est.message] if est.message else [])))
+        return note, float(m.group(1)), float(m.group(2))
+    except (AttributeError, ValueError):
+        return note, math.nan, math.nan
