@@ -106,7 +106,7 @@ def test_the_combined_t_is_the_joint_fits_where_the_fits_carry_it():
             f"(T1 + T2 = 30 s, T1 T2 = 270 s^2, T3 = 20.6 s, K = -0.0057 1/s, white noise)")
     fits = [_fit(f"a; {undecided}; {note}"), _fit(f"b; {undecided}; {note}")]
     t = judge_nomoto(_estimates(), fits)["T_nomoto"]
-    assert t.value == pytest.approx(9.41) and t.stderr == pytest.approx(0.14)
+    assert t.value == pytest.approx(9.41) and t.stderr == pytest.approx(0.3)   # the fits' larger error kept
     assert t.success, t.message
     assert "the fits' combination gave 7 +- 0.3 s" in t.message
     # Without the note the structure left undecided marks the fits' T unsure, as before.
