@@ -212,8 +212,9 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
             # when its error (with the settling and speed terms) is no larger: holds too short to settle leave
             # the fits' value.
             steady = add_speed_term(steady, speed_range(fits), STEADY_K if short == "K" else JOINT_T)
-            if steady.stderr <= est.stderr:
-                # A joint fit's T keeps the speed trend's and the steps' superposition rules (below).
+            if steady.stderr <= est.stderr or short == "T":
+                # A joint fit's T (its error at least the fits') keeps the speed trend's and the steps'
+                # superposition rules (below).
                 est, bias_why, speed_why = steady, [], (speed_why if short == "T" else [])
             else:
                 steady = None
