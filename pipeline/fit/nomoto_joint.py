@@ -82,12 +82,24 @@ def t_gradient(fit: NomotoFit) -> np.ndarray:
 
 
 def reported_covariance(fit: NomotoFit) -> np.ndarray:
-    """The covariance the fit reports: Newey-West where the residuals stayed coloured, else the plain one."""
+    """The covariance the fit reports: Newey-West where the residuals stayed coloured, else the plain one.
+
+    Parameters
+    ----------
+    fit : NomotoFit
+        A second-order fit.
+    """
     return fit.robust_covariance if fit.robust_covariance is not None else fit.covariance
 
 
 def t_and_error(fit: NomotoFit) -> tuple[float, float]:
-    """First-order equivalent T [s] and its reported standard error [s] (nan when not finite)."""
+    """First-order equivalent T [s] and its reported standard error [s] (nan when not finite).
+
+    Parameters
+    ----------
+    fit : NomotoFit
+        A second-order fit.
+    """
     g, cov = t_gradient(fit), reported_covariance(fit)
     if not np.all(np.isfinite(cov)):
         return fit.T, math.nan
@@ -95,7 +107,13 @@ def t_and_error(fit: NomotoFit) -> tuple[float, float]:
 
 
 def usable(fit: NomotoFit) -> bool:
-    """Converged, finite, the ship's constants in range (a servo parameter at its bound allowed)."""
+    """Converged, finite, the ship's constants in range (a servo parameter at its bound allowed).
+
+    Parameters
+    ----------
+    fit : NomotoFit
+        A second-order fit.
+    """
     return bool(fit.converged and all(n in SERVO_PARAMS for n in fit.at_bound) and np.all(np.isfinite(fit.values))
                 and np.all(np.isfinite(fit.stderr[:4])))
 
@@ -105,6 +123,19 @@ def joint_fit(recs: Sequence[NomotoRecord], channels: tuple[str, ...], servo: tu
     """The second-order fit of ``recs`` at once (one K, T12, T1T2, T3, rudder bias and servo).
 
     Output error keeps Newey-West errors where the compass residuals are coloured.
+
+    Parameters
+    ----------
+    recs : sequence of NomotoRecord
+        The rudder steps' records.
+    channels : tuple of str
+        Channels fitted.
+    servo : tuple of str
+        Servo parameters fitted (empty for a measured rudder).
+    noise : str
+        ``white`` or ``waves`` (:func:`shared_noise`).
+    kw : dict
+        The wave model held for ``waves`` (:func:`shared_noise`).
     """
     return fit_nomoto(list(recs), order=ORDER2_SUM_PRODUCT, noise=noise, channels=channels, servo=servo,
                       robust=noise == "white", **kw)

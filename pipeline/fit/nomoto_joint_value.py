@@ -65,7 +65,13 @@ def joint_t_value(est: Estimate, fits: Sequence[SegmentFit]) -> Estimate | None:
 
 def joint_note(fits: Sequence[SegmentFit]) -> tuple[str, float, float]:
     """The ``JOINT_T`` note among the fits' messages ('' when none), its T and T's standard error [s]
-    (nan when not given)."""
+    (nan when not given).
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Segment fits whose messages may carry the note.
+    """
     note = next((p for f in fits for p in f.message.split("; ") if p.startswith(JOINT_T)), "")
     m = _VALUE.search(note)
     try:
