@@ -90,7 +90,8 @@ __all__ = ["DYNAMIC_PARAMS", "MIN_SAMPLES", "NOISE_MODELS", "NOISE_PARAMS", "Nom
 def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, noise: str = "auto",
                waves: WaveParams | None = None, noise_var: float | None = None, bias: bool = True,
                channels: Sequence[str] | None = None, start: Mapping[str, float] | None = None,
-               max_nfev: int = 100, servo: Sequence[str] = (), gain_floor: "GainFloor | None" = None) -> NomotoFit:
+               max_nfev: int = 100, servo: Sequence[str] = (), gain_floor: "GainFloor | None" = None,
+               robust: bool = False) -> NomotoFit:
     """Fit the Nomoto model to whole records by output error or prediction error.
 
     Parameters
@@ -130,6 +131,9 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
         For the second order: the first-order fit of the same record and the in-sample gain the
         second order must reach within ``GainFloor.nfev`` evaluations to go on
         (:class:`GainFloor`); below it the fit stops with a :class:`SecondOrderNoGain` error.
+    robust : bool
+        With ``noise="white"``: Newey-West errors where the compass residuals are coloured
+        (:func:`correlated_residual_errors`, as ``noise="auto"`` gives an output-error fit it keeps).
 
     Returns
     -------
@@ -208,6 +212,8 @@ def fit_nomoto(records: NomotoRecord | Sequence[NomotoRecord], order: int = 1, n
             _OE_CACHE[key] = (prob, res, oe)
             while len(_OE_CACHE) > OE_CACHE_SIZE:
                 _OE_CACHE.popitem(last=False)
+    if noise == "white" and robust and not _psi_white(oe):
+        return _timed(correlated_residual_errors(prob, res.x, oe), t_start)
     if noise == "white" or (noise == "auto" and waves is None and _psi_white(oe)):
         note = "compass residuals white: OE kept" if noise == "auto" else ""
         return _timed(_with_message(oe, note), t_start)

@@ -94,6 +94,7 @@ from typing import Sequence
 from ..records import Estimate, SegmentFit
 from .combine import CONSISTENCY_ALPHA
 from .least_squares import confidence_interval
+from .nomoto_joint_value import JOINT_T, joint_t_value
 from .nomoto_pool import POOLED_NOTE, is_joint_follower, pool_second_order
 from .segment_fit import MAX_RELATIVE_STDERR
 
@@ -214,7 +215,7 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         if est is None:
             continue
         short = name.split("_")[0]
-        steady = steady_k_value(est, fits) if short == "K" else None
+        steady = steady_k_value(est, fits) if short == "K" else joint_t_value(est, fits)
         bias_why = shared_bias_reason(est, fits, short)
         fitted = est
         est, speed_why = straight_run_value(est, fits, short)
@@ -226,10 +227,12 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
             # read at the turns' speed (the speed term applies whatever the fits' trend). It replaces the fits'
             # when its error (with the settling and speed terms) is no larger: holds too short to settle leave
             # the fits' value.
-            steady = add_speed_term(steady, speed_range(fits), STEADY_K)
-            if steady.stderr <= est.stderr:
-                est, bias_why, speed_why = steady, [], []
-                spreads.pop(name, None)  # the steady levels' own error
+            steady = add_speed_term(steady, speed_range(fits), STEADY_K if short == "K" else JOINT_T)
+            if steady.stderr <= est.stderr or short == "T":
+                # A joint fit's T (its error at least the fits') keeps the speed trend's and the steps'
+                # superposition rules (below).
+                est, bias_why, speed_why = steady, [], (speed_why if short == "T" else [])
+                spreads.pop(name, None)  # the steady levels' or the joint fit's own error
             else:
                 steady = None
         est = add_structure_term(est, rudder_timing_term(fits, short),
@@ -241,7 +244,7 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
         why += sinusoid_check_reason(est, fits)
         why += nonlinear_reason(est, fits, short)
         why += rudder_timing_reason(est, fits, short)
-        if steady is not None:
+        if steady is not None and short == "K":
             # The steady levels' own superposition test (and T's break: a nonlinear ship); the transients' K
             # and the structure left undecided concern the fits' K, not this one.
             note = next((p for p in est.message.split("; ") if p.startswith(STEADY_K)), "")

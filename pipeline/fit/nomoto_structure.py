@@ -66,7 +66,6 @@ from ..model.nomoto import ORDER2_SUM_PRODUCT
 from ..parallel import ordered_map
 from ..records import Segment, SegmentFit, Trial
 from .combine import CONSISTENCY_ALPHA
-from ..model.waves import WaveParams
 from .nomoto_quality import (EXACT_FIT, RUDDER_TIMING, SHARED_BIAS, SPEED_RANGE, STRUCTURE_TERM, STRUCTURE_UNDECIDED,
                              weighted_slope_t)
 from .data import segment_label
@@ -78,6 +77,7 @@ from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_oe import fit_nomoto
 from .nomoto_pool import JOINT_FOLLOWER
 from .nomoto_steady import steady_level_note
+from .nomoto_joint import joint_step_note, shared_noise
 from .nomoto_segment import (LEAD_SPEED_SECONDS, MEASURED_RUDDER, ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order,
                              equivalent_t_stderr, fit_nomoto_window, fit_window, fit_window_order, first_order_start_values, prepare_window,
                              rec_channel, segment_fit_of, slow_noise_note, speed_range_note, stack_rows,
@@ -215,12 +215,21 @@ def _fit_prepared(trial: Trial, segments: Sequence[Segment], prepared: Sequence[
     amps = {c.index: float(np.max(np.abs(c.win.rec.delta))) for c in usable}
     extra = disagreement_note(ok, [amps[c.index] for c in usable if out[c.index].success])
     shared = shared_bias_note(usable) if choice.order == 1 else ""
-    steady = ""
+    steady = joint_t = ""
     if choice.order == 1 and (decided != "clear" or terms):
         steady = steady_level_note([c.win for c in usable], [c.first.T for c in usable],
                                    "the transient's structure is undecided (first order kept, " + (
                                        "second order not resolved)" if decided != "clear" else "structure term present)"))
-    extra = "; ".join(n for n in (undecided, extra, joint_note, shared, steady) if n)
+    steps = all(c.win.segment.kind == "rudder_step" for c in usable) and len({c.win.servo for c in usable}) == 1
+    if steps and (choice.order != 1 or decided != "clear" or terms):
+        # The first-order T is biased where the structure is undecided, and the second order pooled from
+        # per-step fits carries each step's nonlinear-estimator bias: one second order fitted to every
+        # step at once reads the first-order equivalent T from all of them (nomoto_joint).
+        channels = tuple(ch for ch in ("psi", "r") if all(ch in c.win.channels for c in usable))
+        joint_t = joint_step_note([c.win.rec for c in usable], [c.first for c in usable], channels,
+                                  usable[0].win.servo, (why or "structure term present") if choice.order == 1 else
+                                  "second order chosen across the steps")
+    extra = "; ".join(n for n in (undecided, extra, joint_note, shared, steady, joint_t) if n)
     if extra:
         out = {i: replace(sf, message=f"{sf.message}; {extra}") for i, sf in out.items()}
     return out
@@ -262,13 +271,8 @@ def shared_bias_note(cands: Sequence[_Candidate]) -> str:
         return ""
     if any("b" not in f.names for f in firsts):
         return ""
-    noise = "waves" if 2 * sum(f.noise_model == "waves" for f in firsts) > len(firsts) else "white"
-    kw: dict = {"start": {"K": float(np.median([f.K for f in firsts])), "T": float(np.median([f.T for f in firsts]))}}
-    wv = [f.waves for f in firsts if f.noise_model == "waves" and f.waves is not None and "psi" in f.noise_var]
-    if noise == "waves" and wv:
-        kw["waves"] = WaveParams(float(np.median([w.omega0 for w in wv])), float(np.median([w.lam for w in wv])),
-                                 float(np.median([w.kw for w in wv])))
-        kw["noise_var"] = float(np.median([f.noise_var["psi"] for f in firsts if f.noise_model == "waves"]))
+    noise, kw = shared_noise(firsts)
+    kw["start"] = {"K": float(np.median([f.K for f in firsts])), "T": float(np.median([f.T for f in firsts]))}
     try:
         fit = fit_nomoto([w.rec for w in wins], order=1, noise=noise, channels=channels, servo=wins[0].servo, **kw)
     except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
