@@ -558,3 +558,29 @@ def test_second_order_chosen_below_the_shrink_only_when_robust_and_fitted_on_mos
     # Fitted with both structures on too few segments (a first-order ship's second order stops early).
     assert not significant_small_gain(1e-37, 1e-26, 0.01, 2, 6)
     assert not significant_small_gain(1e-3, 1e-26, 0.01, 6, 6)
+
+
+def test_pooled_dynamics_stays_within_the_fits_values():
+    """Correlated K and T: the generalised mean would leave the fits' range in T; the pool falls back to
+    per-parameter inverse-variance means, which lie between the fits' values."""
+    from types import SimpleNamespace
+
+    from pipeline.fit.nomoto_structure import pooled_dynamics
+
+    def fit(values, sd, rho):
+        cov = np.array([[sd[0] ** 2, rho * sd[0] * sd[1]], [rho * sd[0] * sd[1], sd[1] ** 2]])
+        return SimpleNamespace(order=1, values=np.array(values), covariance=cov, stderr=np.array(sd))
+
+    a = fit([0.090, 1.6], [0.002, 0.4], 0.995)
+    b = fit([0.086, 1.4], [0.001, 0.5], 0.0)
+    k = np.linalg.inv(np.linalg.inv(a.covariance) + np.linalg.inv(b.covariance))
+    gls = k @ (np.linalg.inv(a.covariance) @ a.values + np.linalg.inv(b.covariance) @ b.values)
+    assert gls[1] < 1.4                      # the case: the generalised mean extrapolates T
+    pooled = pooled_dynamics([a, b])
+    assert 1.4 <= pooled[1] <= 1.6 and 0.086 <= pooled[0] <= 0.090
+    w = 1 / np.array([a.stderr, b.stderr]) ** 2
+    np.testing.assert_allclose(pooled, (w * np.array([a.values, b.values])).sum(0) / w.sum(0))
+    # Fits that agree keep the generalised mean.
+    c = fit([0.0895, 1.55], [0.002, 0.4], 0.5)
+    pooled = pooled_dynamics([a, c])
+    assert 1.55 <= pooled[1] <= 1.6
