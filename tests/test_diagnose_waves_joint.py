@@ -45,9 +45,9 @@ def test_selected_waves_are_refitted_on_top_of_every_next_model(tmp_path):
     every = np.arange(len(p.windows))
     waves = Waves(p, d)
     carried = waves.carried(waves.fit(every))
-    assert carried is not None and carried.waves   # before: None (backfitted)
+    assert carried is not None and "angle" in carried.waves   # before: None (backfitted)
     on = carried.apply(d)
-    assert on.waves and not d.waves and on.rows(every[:3]).waves
+    assert on.waves == carried.waves and not d.waves and on.rows(every[:3]).waves == on.waves
     cs = candidates_for(p, on)
     # The waves themselves are not offered again; every other candidate keeps its class and label.
     assert not any(isinstance(c, Waves) for c in cs)
@@ -57,7 +57,7 @@ def test_selected_waves_are_refitted_on_top_of_every_next_model(tmp_path):
     base = cs[0]
     train, test = every[::2], every[1::2]
     fitted = base.fit(train)
-    assert set(fitted.waves) == {"angle", "y"}
+    assert fitted.waves["angle"].sigma > 0
     plain = Candidate(p, on)
     out, bare = base.simulate(fitted, test), plain.simulate(replace(fitted, waves=None), test)
     # The held-out outputs are the model's plus the wave its smoother separates from their residuals.
@@ -75,15 +75,16 @@ def test_selected_waves_are_refitted_on_top_of_every_next_model(tmp_path):
         assert type(c) is type(base) and isinstance(c, WavesOnTop)
 
 
-@pytest.mark.slow  # 60-120 s: an AAUSHIP pair trial at 20 Hz (make test-ci)
-def test_a_coupling_under_waves_is_found_on_top_of_them():
-    """Randomised seed 48 r008 (AAUSHIP, low noise, 20 Hz): waves then an N_v coupling in yaw. Before
-    only the waves were selected and r was "unexplained" at 8.02 noise units (floor 1.75)."""
+@pytest.mark.slow  # 30-60 s: a Nomoto ship pair trial (make test-ci)
+def test_no_effect_on_top_of_waves_wins_by_a_wave_of_its_own():
+    """Randomised seed 49 r002 (a Nomoto ship, quadratic yaw damping and waves; both found). When every
+    model on top of the waves could add a wave in the rate (the waves selected had one in the heading
+    only), a coupling outside the truth took r from 1.27 to 1.07 noise units (its floor 1.29) and was
+    selected third; only the channels with a wave in the selected fit get one on top."""
     from test_diagnose_benchmark_thinning import _bench
 
     bench = _bench()
-    out = bench.run_random_case(bench.random_cases(16, 48, ("pair",))[8])
-    assert sorted(e["effect"] for e in out["effects"]) == ["coupling", "waves"]
+    out = bench.run_random_case(bench.random_cases(16, 49, ("pair",))[2])
+    assert sorted(e["effect"] for e in out["effects"]) == ["nonlinear_damping", "waves"]
     sel = [(s["effect"], s["dof"]) for s in out["selected"]]
-    assert sel[:2] == [("waves", "yaw"), ("coupling", "yaw")], sel
-    assert not [u for u in out["unexplained"] if u["channel"] == "r"], out["unexplained"]
+    assert sel == [("nonlinear_damping", "yaw"), ("waves", "yaw")], sel

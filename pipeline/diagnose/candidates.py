@@ -247,7 +247,7 @@ class Carried:
     offsets: Mapping[str, np.ndarray] = field(default_factory=dict)
     derived: Mapping[str, tuple] = field(default_factory=dict)
     transform: tuple = ()
-    waves: bool = False
+    waves: tuple = ()
 
     def apply(self, data: GridData) -> GridData:
         """``data`` with this effect in every model of it.
@@ -258,7 +258,7 @@ class Carried:
             The DOF's current data (built on the same problem as the effect's candidate).
         """
         if self.waves:
-            return replace(data, waves=True)
+            return replace(data, waves=tuple(self.waves))
         if self.transform:
             return carry_transform(data, *self.transform)
         return carry(data, self.spec, self.forcing, self.offsets, self.derived)
@@ -396,8 +396,9 @@ class Candidate:
         model (a constant moment, a current's offsets, a thrust's astern part, an actuator's share,
         another DOF's velocity, a sensor bias): the next
         selection step fits every candidate with them, jointly, on the original measurements. None
-        for an effect that is no set of linear regressors (a quadratic damping, an input transform,
-        waves): its correction is taken off the measurements instead (backfitting).
+        for an effect that is no set of linear regressors (a quadratic damping): its correction is taken
+        off the measurements instead (backfitting). Input transforms and waves return their own
+        (:meth:`_InputTransform.carried`, :meth:`Waves.carried`).
 
         Parameters
         ----------
@@ -1154,8 +1155,13 @@ class Waves(Candidate):
     def carried(self, fitted: Fitted) -> Carried:
         """See :meth:`Candidate.carried`: the waves join every model of the next step, each refitting
         them on its own training residuals (:class:`WavesOnTop`), so an effect tested after them is
-        fitted jointly with them instead of on their correction fitted without it."""
-        return Carried(LinearSpec(()), waves=True)
+        fitted jointly with them instead of on their correction fitted without it. Only the channels
+        that carry a wave in ``fitted`` get one on top of the next models: a candidate on top must not
+        find a new wave (in the rate, say) whose smoother takes sensor noise with it (randomised seed
+        49 r002: a coupling in a Nomoto ship's yaw, outside the truth, took r from 1.27 to 1.07 noise
+        units, below its floor of 1.29, when every model could add a rate wave)."""
+        _, specs = fitted.state
+        return Carried(LinearSpec(()), waves=tuple(k for k, sp in specs.items() if sp.sigma > 0))
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Open-loop outputs on windows ``idx``; see :meth:`Candidate.simulate`.
@@ -1175,7 +1181,8 @@ def _measured(d: GridData, key: str) -> np.ndarray:
     return d.angle if key == "angle" else d.y
 
 
-def wave_spectra(problem: DofProblem, d: GridData, pred: Mapping[str, np.ndarray]) -> dict:
+def wave_spectra(problem: DofProblem, d: GridData, pred: Mapping[str, np.ndarray],
+                 only: tuple[str, ...] | None = None) -> dict:
     """Wave spectra fitted to a model's residuals on some windows, per output key (:class:`Waves`).
 
     Every scored channel gets its own spectrum; the rate's is kept only where the heading shows a
@@ -1192,6 +1199,8 @@ def wave_spectra(problem: DofProblem, d: GridData, pred: Mapping[str, np.ndarray
         The windows' data.
     pred : Mapping[str, numpy.ndarray]
         The model's outputs on them (``"y"``, and ``"angle"`` when scored) [SI].
+    only : tuple of str, optional
+        Output keys that may carry a wave (the others get none); default every key.
 
     Returns
     -------
@@ -1204,7 +1213,8 @@ def wave_spectra(problem: DofProblem, d: GridData, pred: Mapping[str, np.ndarray
     specs, resids = {}, {}
     for k in keys:
         resids[k] = np.where(d.mask, _measured(d, k) - pred[k], np.nan)
-        specs[k] = wave_model.fit_residual_spectrum(resids[k], d.dt, band)
+        specs[k] = wave_model.fit_residual_spectrum(resids[k] if only is None or k in only else np.zeros((0, 1)),
+                                                    d.dt, band)
     spec = specs[key]
     if key == "angle" and "y" in specs:
         ry = specs["y"]
@@ -1261,7 +1271,7 @@ class WavesOnTop:
         """
         fitted = super().fit(train, start)
         pred = super().simulate(fitted, train)
-        return replace(fitted, waves=wave_spectra(self.problem, self.data.rows(train), pred))
+        return replace(fitted, waves=wave_spectra(self.problem, self.data.rows(train), pred, self.data.waves))
 
     def simulate(self, fitted: Fitted, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Open-loop outputs on windows ``idx`` plus the smoothed waves of their residuals; see

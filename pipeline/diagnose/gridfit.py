@@ -88,10 +88,11 @@ class GridData:
         Input transforms already selected in this DOF, ``(candidate, value)`` in order: the inputs
         of every model of these data went through them (their regressors in ``forcing`` are the
         transformed inputs'; :func:`pipeline.diagnose.candidates.carry_transform`).
-    waves : bool
-        True once a wave-band disturbance is selected in this DOF: every model of these data has the
-        waves refitted on top of its own training residuals and smoothed off its held-out ones
-        (:class:`pipeline.diagnose.candidates.WavesOnTop`).
+    waves : tuple of str
+        Once a wave-band disturbance is selected in this DOF, the output keys (``"angle"``, ``"y"``)
+        it acts on: every model of these data has the waves refitted on top of its own training
+        residuals and smoothed off its held-out ones (:class:`pipeline.diagnose.candidates.WavesOnTop`);
+        empty: none.
     """
 
     dt: float
@@ -110,7 +111,7 @@ class GridData:
     carried: "LinearSpec | None" = None
     derived: Mapping[str, tuple] = field(default_factory=dict)
     pre: tuple = ()
-    waves: bool = False
+    waves: tuple = ()
 
     @cached_property
     def angle_mask(self) -> np.ndarray:
