@@ -88,6 +88,11 @@ class GridData:
         Input transforms already selected in this DOF, ``(candidate, value)`` in order: the inputs
         of every model of these data went through them (their regressors in ``forcing`` are the
         transformed inputs'; :func:`pipeline.diagnose.candidates.carry_transform`).
+    waves : tuple of str
+        Once a wave-band disturbance is selected in this DOF, the output keys (``"angle"``, ``"y"``)
+        it acts on: every model of these data has the waves refitted on top of its own training
+        residuals and smoothed off its held-out ones (:class:`pipeline.diagnose.candidates.WavesOnTop`);
+        empty: none.
     """
 
     dt: float
@@ -106,6 +111,7 @@ class GridData:
     carried: "LinearSpec | None" = None
     derived: Mapping[str, tuple] = field(default_factory=dict)
     pre: tuple = ()
+    waves: tuple = ()
 
     @cached_property
     def angle_mask(self) -> np.ndarray:
@@ -138,7 +144,7 @@ class GridData:
             forcing={k: (v[:, idx] if v.ndim == 3 else v[idx]) for k, v in self.forcing.items()},
             offsets={k: b[idx] for k, b in self.offsets.items()}, m=self.m, y0_sigma=self.y0_sigma,
             w_y=self.w_y, w_angle=self.w_angle, sigma_y=self.sigma_y, sigma_angle=self.sigma_angle,
-            carried=self.carried, derived=self.derived, pre=self.pre)
+            carried=self.carried, derived=self.derived, pre=self.pre, waves=self.waves)
 
     def with_forcing(self, **arrays: np.ndarray) -> "GridData":
         """A copy with forcing regressors added or replaced.

@@ -14,8 +14,8 @@ corrected measurements (backfitting; Hastie and Tibshirani 1990) lets any two ef
 library be stacked without writing every pair as one model. An effect that is a set of linear
 regressors (a constant moment or current, a thrust's astern part, an actuator's share, another DOF's
 velocity, a sensor bias: :meth:`pipeline.diagnose.candidates.Candidate.carried`) or an input transform
-(a delay, a rate limit, at its value fitted on every window) is not taken off but joins the baseline
-instead, so the next step fits every candidate jointly with it on the same measurements
+(a delay, a rate limit, at its value fitted on every window) or waves (refitted on top of every
+model's training residuals) is not taken off but joins the baseline instead, so the next step fits every candidate jointly with it on the same measurements
 (:func:`taken_off`): the first effect, fitted alone, has absorbed part of the second, and backfitting
 its correction leaves the second distorted (randomised seeds 41 r015 and 37 r018). One pair does not stack that way: a
 delay behind a rate limit of the same input (the rudder slews, then acts late) does not add to it, so
@@ -245,9 +245,10 @@ def taken_off(s: DofState, res: CandidateResult, run, ref: Mapping[str, np.ndarr
     every model then takes its inputs through it) joins the baseline: the next step fits every
     candidate with it, jointly, on the same measurements (:func:`pipeline.diagnose.gridfit.carry`,
     :func:`pipeline.diagnose.candidates.carry_transform`), and the baseline of that step is the effect
-    itself, cross-validated; no reference is needed (None). Any other effect's correction (a quadratic
-    damping, waves, a delay composed behind a rate limit) is taken off the measurements
-    (:func:`corrected`, backfitting), and the reference it was taken from is returned.
+    itself, cross-validated; no reference is needed (None). Selected waves join too: every model of the
+    next step refits them on its own training residuals (:class:`pipeline.diagnose.candidates.WavesOnTop`).
+    Any other effect's correction (a quadratic damping, a delay composed behind a rate limit) is taken
+    off the measurements (:func:`corrected`, backfitting), and the reference it was taken from is returned.
 
     Backfitting a correction fitted without the second effect leaves that effect distorted: the
     first effect, fitted alone, has absorbed part of it, and the baseline refitted on the corrected

@@ -230,10 +230,6 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
     effects = sel.selected_effects(chosen, states, params_of=lambda res: res.params)
     winner = chosen[0][0] if chosen else None
     gap_final = chosen[-1][2] if chosen else sel.trial_gap(states)
-    refit = _waves_on_top(chosen, states, jobs)
-    if refit:
-        notes += refit
-        gap_final = min(gap_final, sel.trial_gap(states))
 
     # Trial gap: RMS over every scored channel of every DOF.
     before = {(dof, ch): g for dof, v in per_dof.items() for ch, g in v["channel_gaps"].items()}
@@ -349,66 +345,6 @@ def _composed(p: DofProblem, last: CandidateRun | None, taken: set[str], state: 
             res = replace(res, significant=False)
         state.result_base[res.label] = ref if ref is not None else runs[0].heldout
         out.append((res, r))
-    return out
-
-
-def _waves_on_top(chosen: list, states: Mapping[str, sel.DofState], jobs: int = 1) -> list[str]:
-    """Refit selected ``waves`` on top of the effects selected after them in their DOF.
-
-    Waves are not carried into the baseline but backfitted: their smoothed correction is taken off
-    the measurements (:func:`pipeline.diagnose.selection.taken_off`), fitted against the baseline of
-    that moment. An effect selected after them that joins the baseline (a delay, a bias: carried
-    regressors or an input transform) changes that baseline, but the waves' correction stays as
-    fitted without it, and the final gap keeps what the first correction got wrong. Randomised seed 41
-    r000 (a Nomoto ship with waves and a rudder delay; the waves selected first, then the delay):
-    heading 8.84 noise units after both, against a held-out floor of 4.83, reported "unexplained";
-    the waves refitted on the original measurements with the delay in the baseline leave 5.62. A
-    correct model with these waves leaves no more than the white-noise floor: on replicates of the
-    baseline plus white noise plus a realisation of the fitted wave spectrum, the waves candidate's
-    held-out heading gap was 3.23 and 5.22 noise units against 3.34 and 5.43 without waves (two
-    replicates), so the floor is not raised. Here the waves are cross-validated again on the
-    measurements as they were when the waves were selected, with every later carried effect of the
-    DOF applied; the DOF's gaps (and its residual for the unexplained test) become the refit's where
-    they are not larger. Skipped where a later effect of the DOF is itself backfitted.
-
-    Returns
-    -------
-    list[str]
-        Notes: the gaps before and after the refit.
-    """
-    from .candidates import Waves
-
-    out = []
-    for k, (res, run, *_) in enumerate(chosen):
-        s = states.get(res.dof)
-        if res.effect != "waves" or s is None or not isinstance(s.problem, DofProblem):
-            continue
-        later = [(r2, u2) for r2, u2, *_ in chosen[k + 1:] if r2.dof == res.dof]
-        carried = [sel.carried_regressors(u2) for _, u2 in later]
-        if not later or any(c is None for c in carried):
-            continue
-        data = run.candidate.data
-        for c in carried:
-            data = c.apply(data)
-        p = s.problem
-        names = {"y": p.channel, "angle": p.angle}
-        try:
-            runs = cross_validate(p, data, [Candidate(p, data), Waves(p, data)], jobs=jobs)
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
-            continue
-        if len(runs) < 2:
-            continue
-        gaps, neff = sel.channel_gaps_of(sig.score(data, runs[1].heldout, runs[1].heldout, 1, names))
-        old = {ch: s.channel_gaps.get(ch, math.nan) for ch in gaps}
-        if not all(math.isfinite(g) for g in gaps.values()) or \
-                float(np.sum(np.square(list(gaps.values())))) > float(np.nansum(np.square(list(old.values())))):
-            continue
-        s.channel_gaps.update(gaps)
-        s.channel_neff.update(neff)
-        s.data, s.base_heldout = data, runs[1].heldout
-        out.append(f"{res.dof}: {res.label} refitted on top of {', '.join(r2.label for r2, _ in later)} (selected "
-                   f"after them): " + ", ".join(f"{ch} {old[ch]:.3g} -> {g:.3g}" for ch, g in gaps.items())
-                   + " noise units")
     return out
 
 
