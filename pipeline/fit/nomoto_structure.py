@@ -45,7 +45,9 @@ fit materially and beyond its errors is marked unsure
    values. Measured on PythonVehicleSimulator's tanker at 20 m (steps, measured rudder, waves): the
    first order was kept at +0.1 % shrink (p = 5e-6) with T +14.5 % marked success, 0 % coverage.
 
-Where every segment is a rudder step, T comes from one second-order fit of all of them
+A lone zig-zag whose record's held-out end leaves the structures on a near-tie, their K or T differing
+materially, keeps the first order with the difference as that term (:func:`near_tie_zigzag_fit`) rather than
+failing. Where every segment is a rudder step, T comes from one second-order fit of all of them
 (:mod:`pipeline.fit.nomoto_joint`), made only for the fits that are kept (:func:`with_joint_fit`).
 
 The losing structure's held-out error is reported beside the winner's in every segment fit's
@@ -739,6 +741,8 @@ def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) 
     except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
         return {}
     if not sf.success:
+        if seg.kind == "zigzag" and sf.message.startswith(NEAR_TIE):
+            return near_tie_zigzag_fit(index, win, sf)
         return {index: sf}
     chosen_second = "T3" in sf.params
     why = ("the second order won on the held-out end of this one record only (no other manoeuvre confirms the "
@@ -763,6 +767,59 @@ def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) 
     if not notes:
         return {index: sf}
     return {index: replace(sf, message="; ".join([sf.message] + notes) if sf.message else "; ".join(notes))}
+
+
+#: Start of the message of a record whose held-out end leaves the structure on a near-tie and whose two
+#: structures' K or T differ materially (:func:`pipeline.fit.nomoto_segment.structure_ambiguity`).
+NEAR_TIE = "unsure: the held-out data do not decide between first- and second-order Nomoto (near-tie)"
+
+
+def near_tie_zigzag_fit(index: int, win: NomotoWindow, failed: SegmentFit) -> dict[int, SegmentFit]:
+    """A lone zig-zag whose held-out end does not decide the structure: the first order kept with both
+    structures' K and T as a model-structure term (``undecided``, :func:`structure_term_notes`), in place of
+    a failed fit (``failed`` kept where either structure cannot be fitted to the whole record).
+
+    The failed fit left K and T "not identified: no usable segment", although the data give both
+    structures' values, the difference between them being the thing not known; a sinusoid's or a step
+    trial's undecided structure gives its value with that difference as a term, marked unsure where the two
+    differ beyond their errors. Measured (PythonVehicleSimulator, 10 deg zig-zags, no waves, seeds 0-2 of the
+    coordinator's baseline of efba945): Clarke83 measured rudder (first order K +19 %, T +90 %; second order
+    K -3 %, T -22 %), tanker at 20 m measured (T 11.8 s against 9.6 s, truth 9.32 s); an offline fit of the
+    second order to the zig-zag's rudder holds as separate records (each hold a step of
+    :mod:`pipeline.fit.nomoto_joint`, its own initial state) did not help: Clarke83 noise-free T -34 % +- 3.6 %
+    (-27 % re-timed on the distance sailed), the tankers' fits did not converge in range.
+
+    Parameters
+    ----------
+    index : int
+        The segment's index in the trial's segments.
+    win : NomotoWindow
+        Its prepared window.
+    failed : SegmentFit
+        Its failed fit (message starting with ``NEAR_TIE``).
+    """
+    cand = _fit_both(index, win)
+    if cand.first is not None and cand.second is None and cand.first.noise_model == "waves" and not cand.no_gain:
+        # As the structure choice does (nomoto_segment.choose_order): a second order that leaves its range
+        # under the wave noise model is fitted by output error (Clarke83, seed 0: not converged in range).
+        try:
+            second, _ = fit_window_order(win, ORDER2_SUM_PRODUCT, noise="white")
+        except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+            second = None
+        if second is not None and _usable(second):
+            cand = replace(cand, second=second)
+    if cand.first is None or cand.second is None:
+        return {index: failed}
+    why = ("the record's held-out end left the two structures on a near-tie (one record's end is a weak test of "
+           "the structure)")
+    try:
+        sf = fit_window(win, 1, f"first-order Nomoto kept: {why}", "", {1: cand.first, ORDER2_SUM_PRODUCT: cand.second})
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return {index: failed}
+    notes = structure_term_notes(structure_gaps([pair_values(cand.first, cand.second)]), "undecided", why)
+    if not (sf.success and notes):
+        return {index: failed}
+    return {index: replace(sf, message="; ".join([sf.message] + notes))}
 
 
 def undecided_note(cands: Sequence[_Candidate]) -> str:
