@@ -15,15 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-PVS = os.environ.get("PVS_PATH", "/work/pvs/src")
-pytestmark = pytest.mark.skipif(not Path(PVS, "python_vehicle_simulator").is_dir(),
-                                reason=f"PythonVehicleSimulator not found at {PVS!r} (set PVS_PATH)")
+from benchmarks import independent as bench
+
+pytestmark = pytest.mark.skipif(
+    not (Path(os.environ.get("PVS_PATH", "/work/pvs/src")) / "python_vehicle_simulator").is_dir(),
+    reason="PythonVehicleSimulator not found (set PVS_PATH)")
 
 
 @pytest.mark.slow
 def test_a_clarke83_zigzag_on_a_near_tie_gives_k_and_t_unsure_with_the_structure_named():
-    from benchmarks import independent as bench
-
     v = bench.load_pvs()
     ship = bench.ships(v)["clarke83"]
     vehicle = ship.make()
