@@ -319,8 +319,8 @@ def _nomoto_without_unsettled_cuts(trial: Trial, items: Sequence[Segment]) -> di
     When no uncut record gives a time constant, the cut records are judged by their own fits and the
     records handed on again until every cut record left is a settled success. The joint second-order fit of
     the rudder steps (:func:`pipeline.fit.nomoto_structure.with_joint_fit`) is made for the pass kept only
-    (measured, PythonVehicleSimulator's tanker at 20 m, commanded steps, seed 0: two joint fits, 6.0 s of
-    the run's 12.6 s CPU, one of them for a pass that was dropped).
+    (measured, PythonVehicleSimulator's tanker at 20 m, commanded steps, seed 0, one BLAS thread: two joint fits,
+    4.8 s of the benchmark's 9.3 s CPU, one of them for a pass that was dropped; now one, 3.0 s).
 
     Parameters
     ----------
