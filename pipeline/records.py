@@ -472,6 +472,26 @@ class Segments:
 
 # --------------------------------------------------------------------------- fit
 @dataclass(frozen=True)
+class JointNomotoT:
+    """The first-order equivalent T of one second-order Nomoto model fitted to several records at once
+    (:mod:`pipeline.fit.nomoto_joint`), as :func:`pipeline.fit.nomoto_joint_value.joint_t_value` uses it.
+
+    Attributes
+    ----------
+    value : float
+        ``T1 + T2 - T3`` [s].
+    stderr : float
+        Its standard error [s] (Newey-West where the residuals stayed coloured).
+    note : str
+        The user-facing note (also in the segment fits' messages).
+    """
+
+    value: float
+    stderr: float
+    note: str = ""
+
+
+@dataclass(frozen=True)
 class SegmentFit:
     """The least-squares fit of one model to one segment (lmfit-style result).
 
@@ -499,6 +519,9 @@ class SegmentFit:
         False when the fit did not converge or failed a sanity check.
     message : str
         Why a fit failed or what is doubtful about it.
+    joint_t : JointNomotoT or None
+        T of the joint second-order fit of the trial's records, where one was made and is to be used
+        (None otherwise).
     """
 
     segment: Segment
@@ -516,6 +539,7 @@ class SegmentFit:
     bic: float
     success: bool
     message: str = ""
+    joint_t: JointNomotoT | None = None
 
     def to_fit_result(self) -> "FitResult":
         """This fit as a :class:`FitResult` (units from ``PARAMETER_UNITS`` and the channel)."""

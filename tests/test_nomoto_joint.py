@@ -18,13 +18,14 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from pipeline.fit.nomoto_joint import JOINT_T_NOT_USED, joint_step_note
+from pipeline.fit.nomoto_joint import JOINT_T_NOT_USED, joint_step_fit
 from pipeline.fit.nomoto_joint_value import JOINT_T
 from pipeline.fit.nomoto_oe import fit_nomoto
 from pipeline.fit.nomoto_quality import STRUCTURE_UNDECIDED, judge_nomoto
 from pipeline.fit.nomoto_records import NomotoRecord
+from pipeline.fit.nomoto_structure import PendingJoint, with_joint_fit
 from pipeline.fit.segment_fit import failed_segment_fit
-from pipeline.records import Estimate, Segment
+from pipeline.records import Estimate, JointNomotoT, Segment
 
 K, T1T2, T12, T3 = -0.0057, 276.5, 30.2, 20.88
 T_EQ = T12 - T3
@@ -68,7 +69,8 @@ def test_the_joint_second_order_fit_reads_t_of_a_tanker_shaped_ship(seed):
     firsts = _firsts(recs)
     # What the first order gives per step: far off (the missing pole-zero pair).
     assert max(abs(f.T / T_EQ - 1) for f in firsts) > 0.05
-    note = joint_step_note(recs, firsts, ("psi", "r"), (), "undecided")
+    note, joint = joint_step_fit(recs, firsts, ("psi", "r"), (), "undecided")
+    assert joint is not None and joint.note == note
     assert note.startswith(f"{JOINT_T} 6 rudder steps (undecided"), note
     assert "; " not in note  # one part of a message joined by "; "
     value, se = (float(x) for x in note.split(": T = ")[1].split(" s ")[0].split(" +- "))
@@ -80,8 +82,8 @@ def test_the_joint_second_order_fit_reads_t_of_a_tanker_shaped_ship(seed):
 def test_a_servo_lag_fitted_with_t_gives_their_sum_not_t():
     recs = _records(2, servo_lag=1.0)
     firsts = _firsts(recs, ("t_servo",))
-    note = joint_step_note(recs, firsts, ("psi", "r"), ("t_servo",), "undecided")
-    assert note.startswith(JOINT_T_NOT_USED), note
+    note, joint = joint_step_fit(recs, firsts, ("psi", "r"), ("t_servo",), "undecided")
+    assert note.startswith(JOINT_T_NOT_USED) and joint is None, note
     assert "T + t_servo = " in note
     total = float(note.split("T + t_servo = ")[1].split(" ")[0])
     assert total == pytest.approx(T_EQ + 1.0, rel=0.02)
@@ -89,10 +91,10 @@ def test_a_servo_lag_fitted_with_t_gives_their_sum_not_t():
     assert corr < -0.95
 
 
-def _fit(message):
+def _fit(message, joint=None):
     seg = Segment("rudder_step", "yaw", 0.0, 180.0, "delta", 0.0, math.radians(10.0))
     return replace(failed_segment_fit(seg, "nomoto_oe", "", ""), success=True, params={"K": K, "T": 7.0},
-                   stderr={"K": 2e-5, "T": 0.3}, message=message)
+                   stderr={"K": 2e-5, "T": 0.3}, message=message, joint_t=joint)
 
 
 def _estimates():
@@ -104,26 +106,57 @@ def test_the_combined_t_is_the_joint_fits_where_the_fits_carry_it():
                  f"first order 7 s, second order 9.3 s")
     note = (f"{JOINT_T} 6 rudder steps (undecided, one K, T1 + T2, T1 T2, T3, rudder bias): T = 9.41 +- 0.14 s "
             f"(T1 + T2 = 30 s, T1 T2 = 270 s^2, T3 = 20.6 s, K = -0.0057 1/s, white noise)")
-    fits = [_fit(f"a; {undecided}; {note}"), _fit(f"b; {undecided}; {note}")]
+    joint = JointNomotoT(9.41, 0.14, note)
+    fits = [_fit(f"a; {undecided}; {note}", joint), _fit(f"b; {undecided}; {note}", joint)]
     t = judge_nomoto(_estimates(), fits)["T_nomoto"]
     assert t.value == pytest.approx(9.41) and t.stderr == pytest.approx(0.3)   # the fits' larger error kept
     assert t.success, t.message
     assert "the fits' combination gave 7 +- 0.3 s" in t.message
-    # Without the note the structure left undecided marks the fits' T unsure, as before.
-    bare = [_fit(f"a; {undecided}"), _fit(f"b; {undecided}")]
-    t0 = judge_nomoto(_estimates(), bare)["T_nomoto"]
-    assert t0.value == 7.0 and not t0.success
+    # Without it the structure left undecided marks the fits' T unsure, as before; the note in a message is
+    # not read (the value comes from the fits' joint_t field).
+    for bare in ([_fit(f"a; {undecided}"), _fit(f"b; {undecided}")],
+                 [_fit(f"a; {undecided}; {note}"), _fit(f"b; {undecided}; {note}")]):
+        t0 = judge_nomoto(_estimates(), bare)["T_nomoto"]
+        assert t0.value == 7.0 and not t0.success
+
+
+def test_the_joint_t_is_read_from_the_structured_field_not_from_the_message():
+    note = f"{JOINT_T} 6 rudder steps (undecided, one K, T1 + T2, T1 T2, T3, rudder bias): T = 9.41 s as printed"
+    fits = [_fit(f"a; {note}", JointNomotoT(9.41234, 0.123, note))] * 2
+    t = judge_nomoto(_estimates(), fits)["T_nomoto"]
+    assert t.value == pytest.approx(9.41234) and t.stderr == pytest.approx(0.3)
+    assert t.message.startswith(note)
+
+
+def test_the_pending_joint_fit_is_made_once_with_its_note_before_later_notes():
+    recs = _records(0)
+    firsts = _firsts(recs[:3])
+    pending = PendingJoint((4, 7, 9), ("m4", "m7; x", "m9"), tuple(recs[:3]), tuple(firsts), ("psi", "r"), (),
+                           "undecided").keyed(list(range(10)))
+    seg = Segment("rudder_step", "yaw", 0.0, 180.0, "delta", 0.0, math.radians(10.0))
+    base = failed_segment_fit(seg, "nomoto_oe", "", "")
+    fits = {4: replace(base, message="m4; later"), 7: replace(base, message="m7; x"),
+            9: replace(base, message="replaced since"), 1: replace(base, message="other")}
+    out = with_joint_fit(fits, pending)
+    note = out[7].message.split("; ", 2)[2]
+    assert note.startswith(f"{JOINT_T} 3 rudder steps (undecided"), note
+    assert out[4].message == f"m4; {note}; later"
+    assert out[4].joint_t == out[7].joint_t and out[4].joint_t.note == note
+    assert out[4].joint_t.value == float(note.split(": T = ")[1].split(" ")[0])
+    assert out[9] is fits[9] and out[1] is fits[1]
+    assert with_joint_fit(fits, None) is fits
 
 
 def test_steps_into_and_out_of_a_turn_that_disagree_still_mark_the_joint_t_unsure():
     note = (f"{JOINT_T} 4 rudder steps (undecided, one K, T1 + T2, T1 T2, T3, rudder bias): T = 9.41 +- 0.14 s "
             f"(T1 + T2 = 30 s, T1 T2 = 270 s^2, T3 = 20.6 s, K = -0.0057 1/s, white noise)")
     fits = []
+    joint = JointNomotoT(9.41, 0.14, note)
     for k, (before, after, t) in enumerate([(0, 10, 7.0), (10, 0, 9.0), (0, -10, 7.1), (-10, 0, 9.1)]):
         seg = Segment("rudder_step", "yaw", 180.0 * k, 180.0 * (k + 1), "delta", math.radians(before),
                       math.radians(after))
         fits.append(replace(failed_segment_fit(seg, "nomoto_oe", "", ""), success=True, params={"K": K, "T": t},
-                            stderr={"K": 2e-5, "T": 0.1}, message=f"m; {note}"))
+                            stderr={"K": 2e-5, "T": 0.1}, message=f"m; {note}", joint_t=joint))
     est = {"T_nomoto": Estimate("T_nomoto", 8.0, 0.5, (7.0, 9.0), "s", 4, "m", per_segment=(7.0, 9.0, 7.1, 9.1))}
     t = judge_nomoto(est, fits)["T_nomoto"]
     assert t.value == pytest.approx(9.41)

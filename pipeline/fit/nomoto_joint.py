@@ -7,8 +7,9 @@ Fitted to every step at once (K, T1 + T2, T1 T2, T3, the rudder bias and, with a
 servo lag shared; per step the initial heading, yaw rate and yaw acceleration), the second order's
 first-order equivalent ``T = T1 + T2 - T3`` is the low-frequency lag of the response: the heading's
 asymptote in a steady turn lags ``K delta (t - T)`` whatever the structure, so the value holds for a
-first-order ship too (``T3 = T2`` cancels). :func:`joint_step_note` writes it in a ``JOINT_T`` note,
-which :func:`pipeline.fit.nomoto_joint_value.joint_t_value` reads in place of the fits' combination.
+first-order ship too (``T3 = T2`` cancels). :func:`joint_step_fit` gives it as a
+:class:`pipeline.records.JointNomotoT` (with its ``JOINT_T`` note for the user), which
+:func:`pipeline.fit.nomoto_joint_value.joint_t_value` uses in place of the fits' combination.
 
 Measured (PythonVehicleSimulator's tanker at 20 m, six 5 and 10 deg steps, measured rudder, no waves,
 seeds 0-2): T +1.9, +1.7, +2.5 % with standard errors of 1.1-1.5 % (the best linear fit to the
@@ -35,6 +36,7 @@ import numpy as np
 from ..errors import FitError
 from ..model.nomoto import ORDER2_SUM_PRODUCT
 from ..model.waves import WaveParams
+from ..records import JointNomotoT
 from .nomoto_joint_value import JOINT_T
 from .nomoto_oe import fit_nomoto
 from .nomoto_problem import SERVO_PARAMS
@@ -141,10 +143,10 @@ def joint_fit(recs: Sequence[NomotoRecord], channels: tuple[str, ...], servo: tu
                       robust=noise == "white", **kw)
 
 
-def joint_step_note(recs: Sequence[NomotoRecord], firsts: Sequence[NomotoFit], channels: tuple[str, ...],
-                    servo: tuple[str, ...], why: str) -> str:
-    """The ``JOINT_T`` note of the trial's rudder steps fitted with one second-order model ('' when the
-    fit fails; a ``JOINT_T_NOT_USED`` note when its T is not to be used).
+def joint_step_fit(recs: Sequence[NomotoRecord], firsts: Sequence[NomotoFit], channels: tuple[str, ...],
+                   servo: tuple[str, ...], why: str) -> tuple[str, JointNomotoT | None]:
+    """The ``JOINT_T`` note of the trial's rudder steps fitted with one second-order model and its T ('' and
+    None when the fit is not made; a ``JOINT_T_NOT_USED`` note and None when its T is not to be used).
 
     The steps into a turn and those out of one were also fitted apart, to add their spread to the
     error; dropped: on a linear ship of the tanker's shape (tests/test_nomoto_joint.py, seed 1) the two
@@ -163,9 +165,16 @@ def joint_step_note(recs: Sequence[NomotoRecord], firsts: Sequence[NomotoFit], c
         Servo parameters fitted (the same for every record: a logged command).
     why : str
         Why the structure is undecided, for the note.
+
+    Returns
+    -------
+    note : str
+        For the segment fits' messages.
+    value : JointNomotoT or None
+        T [s] and its standard error where it is to be used.
     """
     if len(recs) < 2 or not channels:
-        return ""
+        return "", None
     noise, kw = shared_noise(firsts)
     # The note is one part of a message joined by "; " (read back by splitting on it).
     why = why.replace("; ", ", ")
@@ -173,12 +182,13 @@ def joint_step_note(recs: Sequence[NomotoRecord], firsts: Sequence[NomotoFit], c
     try:
         fit = joint_fit(recs, channels, servo, noise, kw)
     except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        return f"{JOINT_T_NOT_USED} the fit of {head} failed ({exc})"
+        return f"{JOINT_T_NOT_USED} the fit of {head} failed ({exc})", None
     if not usable(fit):
-        return f"{JOINT_T_NOT_USED} the fit of {head} did not converge in range ({', '.join(fit.at_bound) or 'not converged'})"
+        return (f"{JOINT_T_NOT_USED} the fit of {head} did not converge in range "
+                f"({', '.join(fit.at_bound) or 'not converged'})"), None
     t, st = t_and_error(fit)
     if not (math.isfinite(st) and st > 0 and t > 0):
-        return f"{JOINT_T_NOT_USED} the fit of {head} gave T = {t:.4g} s, not positive or without a finite error"
+        return f"{JOINT_T_NOT_USED} the fit of {head} gave T = {t:.4g} s, not positive or without a finite error", None
     cov = reported_covariance(fit)
     if "t_servo" in fit.names:
         j = fit.names.index("t_servo")
@@ -192,7 +202,9 @@ def joint_step_note(recs: Sequence[NomotoRecord], firsts: Sequence[NomotoFit], c
                 f"{lag:.3g} +- {slag:.2g} s, correlated {corr:+.3f}: a first-order servo lag adds to the response's "
                 f"lag as T does, so the steps identify their sum, T + t_servo = {t + lag:.4g} +- {s_sum:.2g} s, and "
                 f"the split between them rests on the servo's assumed shape (a rate-limited servo is not a "
-                f"first-order lag)")
-    return (f"{JOINT_T} {head}: T = {t:.6g} +- {st:.3g} s (T1 + T2 = {fit.value('T12'):.4g} s, T1 T2 = "
+                f"first-order lag)"), None
+    note = (f"{JOINT_T} {head}: T = {t:.6g} +- {st:.3g} s (T1 + T2 = {fit.value('T12'):.4g} s, T1 T2 = "
             f"{fit.value('T1T2'):.4g} s^2, T3 = {fit.value('T3'):.4g} s, K = {fit.K:.5g} 1/s, "
             f"{fit.noise_model} noise)")
+    # The value as the note prints it (T to 6 digits, its error to 3), so that the estimate and the note agree.
+    return note, JointNomotoT(float(f"{t:.6g}"), float(f"{st:.3g}"), note)

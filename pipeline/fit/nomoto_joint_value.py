@@ -1,28 +1,28 @@
 """T read from the joint second-order fit of a trial's rudder steps, in place of the fits' combination.
 
-The note is written by :func:`pipeline.fit.nomoto_joint.joint_step_note` (kept free of the fitters'
-imports here, so that :mod:`pipeline.fit.nomoto_quality` can read it without an import cycle).
+The fit is made by :func:`pipeline.fit.nomoto_joint.joint_step_fit`, which hands its T on as the segment
+fits' ``joint_t`` field (:class:`pipeline.records.JointNomotoT`, with the user-facing ``JOINT_T`` note in their
+messages); this module is kept free of the fitters' imports, so that :mod:`pipeline.fit.nomoto_quality` can
+read it without an import cycle.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import replace
 from typing import Sequence
 
-from ..records import Estimate, SegmentFit
+from ..records import Estimate, JointNomotoT, SegmentFit
 from .least_squares import confidence_interval
 
 #: Start of the note with T from the joint second-order fit of the rudder steps
 #: (``JOINT_T <n> rudder steps (...): T = <v> +- <se> s (...)``).
 JOINT_T = "T from the joint second-order fit of"
-_VALUE = re.compile(r": T = (\S+) \+- (\S+) s ")
 
 
 def joint_t_value(est: Estimate, fits: Sequence[SegmentFit]) -> Estimate | None:
     """T from the joint second-order fit of the rudder steps, in place of the fits' combination (None when
-    the segment fits carry no such note).
+    the segment fits carry none).
 
     Where the first-order Nomoto model is kept with the structure undecided, the per-step first-order
     T is biased by the pole-zero pair it lacks (PythonVehicleSimulator's tanker at 20 m, noise-free: -9
@@ -33,7 +33,7 @@ def joint_t_value(est: Estimate, fits: Sequence[SegmentFit]) -> Estimate | None:
     order is chosen, the vector pooled from the per-step fits carries each step's nonlinear-estimator
     bias (the same tanker, measured rudder without waves, seeds 0-2: T +3.7, +8.0, +10.2 % with errors of
     3.4-4.2 %, marked success), which one fit of all the steps does not.
-    :func:`pipeline.fit.nomoto_joint.joint_step_note` writes it with its error (Newey-West where the
+    :func:`pipeline.fit.nomoto_joint.joint_step_fit` gives it with its error (Newey-West where the
     residuals are coloured). That error assumes one linear model for every step; the ship's own misfit
     (the tanker's speed loss in its turns: the best linear fit to the noise-free record is +2.7 % off) is a
     bias common to the steps, so the fits' combined error (with the between-step spread of the pooled
@@ -46,9 +46,12 @@ def joint_t_value(est: Estimate, fits: Sequence[SegmentFit]) -> Estimate | None:
     est : Estimate
         The combined T.
     fits : sequence of SegmentFit
-        The segment fits behind it (their messages carry the ``JOINT_T`` note).
+        The segment fits behind it (their ``joint_t`` field carries the joint fit's T).
     """
-    note, value, se = joint_note(fits)
+    joint = joint_of(fits)
+    if joint is None:
+        return None
+    note, value, se = joint.note, joint.value, joint.stderr
     if not (math.isfinite(est.value) and value > 0 and se > 0 and math.isfinite(value + se)):
         return None
     own = se
@@ -63,18 +66,12 @@ def joint_t_value(est: Estimate, fits: Sequence[SegmentFit]) -> Estimate | None:
                    message=f"{head}; {est.message}" if est.message else head)
 
 
-def joint_note(fits: Sequence[SegmentFit]) -> tuple[str, float, float]:
-    """The ``JOINT_T`` note among the fits' messages ('' when none), its T and T's standard error [s]
-    (nan when not given).
+def joint_of(fits: Sequence[SegmentFit]) -> JointNomotoT | None:
+    """The joint fit's T carried by the fits (the first ``joint_t`` field set; None when none is).
 
     Parameters
     ----------
     fits : sequence of SegmentFit
-        Segment fits whose messages may carry the note.
+        Segment fits of one trial.
     """
-    note = next((p for f in fits for p in f.message.split("; ") if p.startswith(JOINT_T)), "")
-    m = _VALUE.search(note)
-    try:
-        return note, float(m.group(1)), float(m.group(2))
-    except (AttributeError, ValueError):
-        return note, math.nan, math.nan
+    return next((j for j in (getattr(f, "joint_t", None) for f in fits) if j is not None), None)

@@ -45,6 +45,11 @@ fit materially and beyond its errors is marked unsure
    values. Measured on PythonVehicleSimulator's tanker at 20 m (steps, measured rudder, waves): the
    first order was kept at +0.1 % shrink (p = 5e-6) with T +14.5 % marked success, 0 % coverage.
 
+A lone zig-zag whose record's held-out end leaves the structures on a near-tie, their K or T differing
+materially, keeps the first order with the difference as that term (:func:`near_tie_zigzag_fit`) rather than
+failing. Where every segment is a rudder step, T comes from one second-order fit of all of them
+(:mod:`pipeline.fit.nomoto_joint`), made only for the fits that are kept (:func:`with_joint_fit`).
+
 The losing structure's held-out error is reported beside the winner's in every segment fit's
 message (and so in ``K_nomoto``/``T_nomoto``), prefixed ``STRUCTURE_PREFIX``. When the segments'
 K or T then disagree beyond their errors, :func:`disagreement_note` says what the spread points to:
@@ -77,7 +82,7 @@ from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_oe import fit_nomoto
 from .nomoto_pool import JOINT_FOLLOWER
 from .nomoto_steady import steady_level_note
-from .nomoto_joint import joint_step_note, shared_noise
+from .nomoto_joint import joint_step_fit, shared_noise
 from .nomoto_segment import (LEAD_SPEED_SECONDS, MEASURED_RUDDER, ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order,
                              equivalent_t_stderr, fit_nomoto_window, fit_window, fit_window_order, first_order_start_values, prepare_window,
                              rec_channel, segment_fit_of, slow_noise_note, speed_range_note, stack_rows,
@@ -128,8 +133,85 @@ class StructureChoice:
     p_value: float = math.nan
 
 
+@dataclass(frozen=True)
+class PendingJoint:
+    """The joint second-order fit of a trial's rudder steps (:func:`pipeline.fit.nomoto_joint.joint_step_fit`),
+    not yet made: it is made only for the fits that are kept (:func:`with_joint_fit`).
+
+    Attributes
+    ----------
+    indices : tuple of int
+        The segment fits that get its note and its T (keys of the fits' dict).
+    bases : tuple of str
+        Each fit's message up to where the note goes (notes added later follow it).
+    recs, firsts, channels, servo, why
+        The arguments of :func:`pipeline.fit.nomoto_joint.joint_step_fit`.
+    """
+
+    indices: tuple[int, ...]
+    bases: tuple[str, ...]
+    recs: tuple[NomotoRecord, ...]
+    firsts: tuple[NomotoFit, ...]
+    channels: tuple[str, ...]
+    servo: tuple[str, ...]
+    why: str
+
+    def keyed(self, keys: Sequence[int]) -> "PendingJoint":
+        """The same fit with its indices mapped through ``keys`` (index ``j`` becomes ``keys[j]``).
+
+        Parameters
+        ----------
+        keys : sequence of int
+            New key of each old index.
+        """
+        return replace(self, indices=tuple(keys[i] for i in self.indices))
+
+
+def with_joint_fit(fits: dict[int, SegmentFit], pending: PendingJoint | None) -> dict[int, SegmentFit]:
+    """``fits`` with the pending joint second-order fit made: its note in the messages of the fits it
+    concerns (where the notes of :func:`fit_nomoto_trial` put it) and its T in their ``joint_t`` field.
+
+    A trial whose records the end of its data cut is fitted in several passes
+    (:func:`pipeline.fit.trial._nomoto_without_unsettled_cuts`), of which one is kept: the joint fit (0.7-3 s
+    of CPU on PythonVehicleSimulator's six steps, one BLAS thread) is made for that one only.
+
+    Parameters
+    ----------
+    fits : dict
+        Segment index -> fit, as :func:`fit_nomoto_trial_deferred` returned them (later notes allowed).
+    pending : PendingJoint or None
+        The fit to make (None: ``fits`` unchanged).
+    """
+    if pending is None:
+        return fits
+    note, value = joint_step_fit(pending.recs, pending.firsts, pending.channels, pending.servo, pending.why)
+    if not note:
+        return fits
+    out = dict(fits)
+    for i, base in zip(pending.indices, pending.bases):
+        sf = out.get(i)
+        if sf is not None and sf.message.startswith(base):
+            out[i] = replace(sf, message=f"{base}; {note}{sf.message[len(base):]}", joint_t=value)
+    return out
+
+
 def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, SegmentFit]:
-    """Whole-record Nomoto fits of a trial's yaw segments with one structure chosen across them.
+    """:func:`fit_nomoto_trial_deferred` with its joint fit made (:func:`with_joint_fit`).
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    segments : sequence of Segment
+        All its segments.
+    """
+    return with_joint_fit(*fit_nomoto_trial_deferred(trial, segments))
+
+
+def fit_nomoto_trial_deferred(trial: Trial, segments: Sequence[Segment]
+                              ) -> tuple[dict[int, SegmentFit], PendingJoint | None]:
+    """Whole-record Nomoto fits of a trial's yaw segments with one structure chosen across them, and the
+    joint second-order fit of its rudder steps still to be made (:func:`with_joint_fit`).
 
     Parameters
     ----------
@@ -146,6 +228,8 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
         its own held-out end (:func:`lone_segment_fit`, with the model-structure term); sinusoids only
         are fitted jointly when their joint held-out ends choose the second order (:func:`joint_sinusoids`);
         empty when fewer than two can be fitted whole otherwise (the per-segment fitter then serves them).
+    PendingJoint or None
+        The joint second-order fit of the rudder steps (:mod:`pipeline.fit.nomoto_joint`) where one is due.
     """
     spans = []
     for i, seg in enumerate(segments):
@@ -162,29 +246,31 @@ def fit_nomoto_trial(trial: Trial, segments: Sequence[Segment]) -> dict[int, Seg
     # A sinusoid's two ends both turn: its speed loss is read against the straight run before it.
     span_of = {i: span for i, _, span in spans}
     prepared = [_straight_run_speed(trial, p, span_of[p[0]]) for p in prepared]
-    out = _fit_prepared(trial, segments, prepared)
+    out, pending = _fit_prepared(trial, segments, prepared)
     # A rudder that jumps within a sample interval leaves its jumps' times unknown to within it, as does a
     # sinusoid's servo path between samples.
     wins = {i: w for i, w, _ in prepared}
-    return {i: with_rudder_timing_note(sf, wins[i]) if i in wins else sf for i, sf in out.items()}
+    return {i: with_rudder_timing_note(sf, wins[i]) if i in wins else sf for i, sf in out.items()}, pending
 
 
-def _fit_prepared(trial: Trial, segments: Sequence[Segment], prepared: Sequence[tuple]) -> dict[int, SegmentFit]:
-    """The fits of :func:`fit_nomoto_trial` from its prepared windows ((index, window, candidate or None))."""
+def _fit_prepared(trial: Trial, segments: Sequence[Segment], prepared: Sequence[tuple]
+                  ) -> tuple[dict[int, SegmentFit], PendingJoint | None]:
+    """The fits of :func:`fit_nomoto_trial_deferred` from its prepared windows ((index, window, candidate or
+    None)), and the joint fit still to be made."""
     wins = [(i, w) for i, w, _ in prepared]
     if len(wins) == 1:
-        return lone_segment_fit(trial, segments[wins[0][0]], wins[0][0], wins[0][1])
+        return lone_segment_fit(trial, segments[wins[0][0]], wins[0][0], wins[0][1]), None
     if len(wins) < 2:
-        return {}
+        return {}, None
     cands = [c for _, _, c in prepared]
     usable = [c for c in cands if c.first is not None]
     if len(usable) < 2:
-        return {}
+        return {}, None
     joint_note = ""
     if all(c.win.segment.kind == "sinusoid" for c in usable):
         joint, joint_note = joint_sinusoids(usable)
         if joint:
-            return joint
+            return joint, None
     choice = choose_structure(usable)
     undecided = undecided_note(usable) if choice.near_tie and choice.order == 1 else ""
     clear, why = choice_is_clear(choice)
@@ -215,7 +301,8 @@ def _fit_prepared(trial: Trial, segments: Sequence[Segment], prepared: Sequence[
     amps = {c.index: float(np.max(np.abs(c.win.rec.delta))) for c in usable}
     extra = disagreement_note(ok, [amps[c.index] for c in usable if out[c.index].success])
     shared = shared_bias_note(usable) if choice.order == 1 else ""
-    steady = joint_t = ""
+    steady = ""
+    pending = None
     if choice.order == 1 and (decided != "clear" or terms):
         steady = steady_level_note([c.win for c in usable], [c.first.T for c in usable],
                                    "the transient's structure is undecided (first order kept, " + (
@@ -225,14 +312,16 @@ def _fit_prepared(trial: Trial, segments: Sequence[Segment], prepared: Sequence[
         # The first-order T is biased where the structure is undecided, and the second order pooled from
         # per-step fits carries each step's nonlinear-estimator bias: one second order fitted to every
         # step at once reads the first-order equivalent T from all of them (nomoto_joint).
+        # Made only for the fits that are kept (with_joint_fit); its note goes after the others.
         channels = tuple(ch for ch in ("psi", "r") if all(ch in c.win.channels for c in usable))
-        joint_t = joint_step_note([c.win.rec for c in usable], [c.first for c in usable], channels,
-                                  usable[0].win.servo, (why or "structure term present") if choice.order == 1 else
-                                  "second order chosen across the steps")
-    extra = "; ".join(n for n in (undecided, extra, joint_note, shared, steady, joint_t) if n)
+        pending = (tuple(c.win.rec for c in usable), tuple(c.first for c in usable), channels, usable[0].win.servo,
+                   (why or "structure term present") if choice.order == 1 else "second order chosen across the steps")
+    extra = "; ".join(n for n in (undecided, extra, joint_note, shared, steady) if n)
     if extra:
         out = {i: replace(sf, message=f"{sf.message}; {extra}") for i, sf in out.items()}
-    return out
+    if pending is not None:
+        pending = PendingJoint(tuple(out), tuple(sf.message for sf in out.values()), *pending)
+    return out, pending
 
 
 def shared_bias_note(cands: Sequence[_Candidate]) -> str:
@@ -652,6 +741,8 @@ def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) 
     except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
         return {}
     if not sf.success:
+        if seg.kind == "zigzag" and sf.message.startswith(NEAR_TIE):
+            return near_tie_zigzag_fit(index, win, sf)
         return {index: sf}
     chosen_second = "T3" in sf.params
     why = ("the second order won on the held-out end of this one record only (no other manoeuvre confirms the "
@@ -676,6 +767,59 @@ def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) 
     if not notes:
         return {index: sf}
     return {index: replace(sf, message="; ".join([sf.message] + notes) if sf.message else "; ".join(notes))}
+
+
+#: Start of the message of a record whose held-out end leaves the structure on a near-tie and whose two
+#: structures' K or T differ materially (:func:`pipeline.fit.nomoto_segment.structure_ambiguity`).
+NEAR_TIE = "unsure: the held-out data do not decide between first- and second-order Nomoto (near-tie)"
+
+
+def near_tie_zigzag_fit(index: int, win: NomotoWindow, failed: SegmentFit) -> dict[int, SegmentFit]:
+    """A lone zig-zag whose held-out end does not decide the structure: the first order kept with both
+    structures' K and T as a model-structure term (``undecided``, :func:`structure_term_notes`), in place of
+    a failed fit (``failed`` kept where either structure cannot be fitted to the whole record).
+
+    The failed fit left K and T "not identified: no usable segment", although the data give both
+    structures' values, the difference between them being the thing not known; a sinusoid's or a step
+    trial's undecided structure gives its value with that difference as a term, marked unsure where the two
+    differ beyond their errors. Measured (PythonVehicleSimulator, 10 deg zig-zags, no waves, seeds 0-2 of the
+    coordinator's baseline of efba945): Clarke83 measured rudder (first order K +19 %, T +90 %; second order
+    K -3 %, T -22 %), tanker at 20 m measured (T 11.8 s against 9.6 s, truth 9.32 s); an offline fit of the
+    second order to the zig-zag's rudder holds as separate records (each hold a step of
+    :mod:`pipeline.fit.nomoto_joint`, its own initial state) did not help: Clarke83 noise-free T -34 % +- 3.6 %
+    (-27 % re-timed on the distance sailed), the tankers' fits did not converge in range.
+
+    Parameters
+    ----------
+    index : int
+        The segment's index in the trial's segments.
+    win : NomotoWindow
+        Its prepared window.
+    failed : SegmentFit
+        Its failed fit (message starting with ``NEAR_TIE``).
+    """
+    cand = _fit_both(index, win)
+    if cand.first is not None and cand.second is None and cand.first.noise_model == "waves" and not cand.no_gain:
+        # As the structure choice does (nomoto_segment.choose_order): a second order that leaves its range
+        # under the wave noise model is fitted by output error (Clarke83, seed 0: not converged in range).
+        try:
+            second, _ = fit_window_order(win, ORDER2_SUM_PRODUCT, noise="white")
+        except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+            second = None
+        if second is not None and _usable(second):
+            cand = replace(cand, second=second)
+    if cand.first is None or cand.second is None:
+        return {index: failed}
+    why = ("the record's held-out end left the two structures on a near-tie (one record's end is a weak test of "
+           "the structure)")
+    try:
+        sf = fit_window(win, 1, f"first-order Nomoto kept: {why}", "", {1: cand.first, ORDER2_SUM_PRODUCT: cand.second})
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return {index: failed}
+    notes = structure_term_notes(structure_gaps([pair_values(cand.first, cand.second)]), "undecided", why)
+    if not (sf.success and notes):
+        return {index: failed}
+    return {index: replace(sf, message="; ".join([sf.message] + notes))}
 
 
 def undecided_note(cands: Sequence[_Candidate]) -> str:

@@ -22,7 +22,7 @@ from .nomoto import fit_rudder_step
 from .nomoto_quality import judge_nomoto
 from .nomoto_pool import is_joint_follower, samples_window
 from .nomoto_segment import EXTRA_COEFFICIENTS, WHOLE_RECORD_KINDS, fit_nomoto_segment
-from .nomoto_structure import fit_nomoto_trial, structure_note
+from .nomoto_structure import PendingJoint, fit_nomoto_trial, fit_nomoto_trial_deferred, structure_note, with_joint_fit
 from .second_order import MIN_SAMPLES_PER_PERIOD, fit_free_decay
 from .segment_fit import (SETTLED_TIME_CONSTANTS, UPPER_BOUND_Z, failed_segment_fit, settled_at_run_end,
                           slowest_time_constant)
@@ -317,7 +317,10 @@ def _nomoto_without_unsettled_cuts(trial: Trial, items: Sequence[Segment]) -> di
     change, T = 6.5 +- 59 s, the model-structure term it brought tripled K's error); else it is fitted
     alone and failed with the reason (:func:`settled_at_run_end`).
     When no uncut record gives a time constant, the cut records are judged by their own fits and the
-    records handed on again until every cut record left is a settled success.
+    records handed on again until every cut record left is a settled success. The joint second-order fit of
+    the rudder steps (:func:`pipeline.fit.nomoto_structure.with_joint_fit`) is made for the pass kept only
+    (measured, PythonVehicleSimulator's tanker at 20 m, commanded steps, seed 0, one BLAS thread: two joint fits,
+    4.8 s of the benchmark's 9.3 s CPU, one of them for a pass that was dropped; now one, 3.0 s).
 
     Parameters
     ----------
@@ -331,20 +334,25 @@ def _nomoto_without_unsettled_cuts(trial: Trial, items: Sequence[Segment]) -> di
     dict
         Segment index (into ``items``) -> its whole-record fit, as :func:`fit_nomoto_trial`.
     """
+    return with_joint_fit(*_nomoto_kept_pass(trial, items))
+
+
+def _nomoto_kept_pass(trial: Trial, items: Sequence[Segment]) -> tuple[dict[int, SegmentFit], PendingJoint | None]:
+    """The fits of :func:`_nomoto_without_unsettled_cuts` and the joint fit of the pass kept, not yet made."""
     cut = [i for i, s in enumerate(items) if s.cut_at_run_end and s.dof == "yaw" and s.input_channel]
     if not cut:
-        return fit_nomoto_trial(trial, items)
+        return fit_nomoto_trial_deferred(trial, items)
     uncut = [i for i in range(len(items)) if i not in cut]
-    first = _nomoto_subset(trial, items, uncut)
+    first, first_joint = _nomoto_subset(trial, items, uncut)
     slowest = _slowest_of(first.values())
     if slowest is None:
         return _nomoto_own_judgement(trial, items)
     upper = slowest[0] + UPPER_BOUND_Z * slowest[1] if math.isfinite(slowest[1]) else slowest[0]
     settled = [i for i in cut if items[i].t_end - items[i].t_start >= SETTLED_TIME_CONSTANTS * upper]
-    out = first
+    out, joint = first, first_joint
     failed: dict[int, SegmentFit] = {}
     while settled:
-        out = _nomoto_subset(trial, items, sorted(uncut + settled))
+        out, joint = _nomoto_subset(trial, items, sorted(uncut + settled))
         # A cut record whose own fit with the others is not a settled success leaves them too.
         judged = {i: settled_at_run_end(out[i], slowest) for i in settled if i in out}
         bad = {i: sf for i, sf in judged.items() if not sf.success}
@@ -353,7 +361,7 @@ def _nomoto_without_unsettled_cuts(trial: Trial, items: Sequence[Segment]) -> di
         failed.update(bad)
         settled = [i for i in settled if i not in bad]
         if not settled:
-            out = first
+            out, joint = first, first_joint
     for i in cut:
         if i in settled:
             continue
@@ -362,12 +370,14 @@ def _nomoto_without_unsettled_cuts(trial: Trial, items: Sequence[Segment]) -> di
             continue
         alone = fit_nomoto_trial(trial, [items[i]]).get(0) or _fit_segment(trial, items[i])
         out[i] = settled_at_run_end(alone, slowest)
-    return out
+    return out, joint
 
 
-def _nomoto_subset(trial: Trial, items: Sequence[Segment], keep: Sequence[int]) -> dict[int, SegmentFit]:
-    """:func:`fit_nomoto_trial` on ``items[keep]``, keyed by the index into ``items``."""
-    return {keep[j]: sf for j, sf in fit_nomoto_trial(trial, [items[i] for i in keep]).items()}
+def _nomoto_subset(trial: Trial, items: Sequence[Segment], keep: Sequence[int]
+                   ) -> tuple[dict[int, SegmentFit], PendingJoint | None]:
+    """:func:`fit_nomoto_trial_deferred` on ``items[keep]``, keyed by the index into ``items``."""
+    fits, joint = fit_nomoto_trial_deferred(trial, [items[i] for i in keep])
+    return {keep[j]: sf for j, sf in fits.items()}, (joint.keyed(keep) if joint is not None else None)
 
 
 def _slowest_of(fits) -> tuple[float, float, str] | None:
@@ -380,16 +390,18 @@ def _slowest_of(fits) -> tuple[float, float, str] | None:
     return tau, se, f"{what} of the trial's slowest uncut record"
 
 
-def _nomoto_own_judgement(trial: Trial, items: Sequence[Segment]) -> dict[int, SegmentFit]:
-    """The records handed on to :func:`fit_nomoto_trial` until every cut one left is a settled success by its own fit."""
+def _nomoto_own_judgement(trial: Trial, items: Sequence[Segment]
+                          ) -> tuple[dict[int, SegmentFit], PendingJoint | None]:
+    """The records handed on to :func:`fit_nomoto_trial` until every cut one left is a settled success by its own fit
+    (and the joint fit of that pass, not yet made)."""
     keep = list(range(len(items)))
     out: dict[int, SegmentFit] = {}
     while True:
-        fits = _nomoto_subset(trial, items, keep)
+        fits, joint = _nomoto_subset(trial, items, keep)
         judged = {i: settled_at_run_end(sf) for i, sf in fits.items() if sf.segment.cut_at_run_end}
         unsettled = {i: sf for i, sf in judged.items() if not sf.success}
         if not unsettled:
-            return {**fits, **out}
+            return {**fits, **out}, joint
         out.update(unsettled)
         keep = [i for i in keep if i not in unsettled]
 
