@@ -161,7 +161,7 @@ def step_line(fits: Sequence[SegmentFit]) -> AmplitudeLine | None:
     stderrs = [f.stderr.get("K", math.nan) for f in fits]
     x = [step_amplitude_sq(getattr(f.segment, "input_before", math.nan), getattr(f.segment, "input_after", math.nan))
          for f in fits]
-    return amplitude_line(values, stderrs, x, [samples_window(f) for f in fits])
+    return amplitude_line(values, stderrs, x, [samples_window(f) if hasattr(f, "model") else None for f in fits])
 
 
 def amplitude_note(line: AmplitudeLine, unit: str = "1/s") -> str:
