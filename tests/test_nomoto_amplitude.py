@@ -135,3 +135,18 @@ def test_a_window_is_re_timed_where_its_speed_departs_from_the_straight_runs():
     rec = NomotoRecord(t=rows["t"].to_numpy(), delta=rows["delta"].to_numpy(), psi=rows["psi"].to_numpy(),
                        r=rows["r"].to_numpy(), name="s")
     assert retime_window(trial, rec, rows, replace(seg, kind="sinusoid"))[2] == ""
+
+
+def test_k_from_the_steady_levels_is_not_judged_by_the_transients_amplitude_line():
+    # The transients' K undecided on the amplitude (constant and K0 1.5 % apart, slope not significant) do not mark
+    # unsure a K read from the steady levels, whose own note carries their line.
+    from pipeline.fit.nomoto_quality import STEADY_K
+    k, se, x = _steps(A_SIN2, 0.02, 1)
+    note = (f"{STEADY_K}: the transient's structure is undecided (first order kept, second order not resolved): "
+            f"K = {K0:.6g} +- {0.001 * K0:.3g} 1/s (the turn rate per rudder angle between steady holds, 6 steps)")
+    fits = [replace(_fit(v, b, c, 100.0 * i), message=f"OE; {note}") for i, (v, (b, c)) in enumerate(zip(k, LEVELS))]
+    est = {"K_nomoto": Estimate("K_nomoto", float(np.mean(k)), 0.01 * K0, (0, 1), "1/s", len(k), "m",
+                                per_segment=tuple(k))}
+    out = judge_nomoto(est, fits)["K_nomoto"]
+    assert out.success and out.value == pytest.approx(K0) and STEADY_K in out.message, out.message
+    assert "K may change with the rudder amplitude" not in out.message

@@ -244,6 +244,8 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
                 # A joint fit's T (its error at least the fits') keeps the speed trend's and the steps'
                 # superposition rules (below).
                 est, bias_why, speed_why = steady, [], (speed_why if short == "T" else [])
+                if short == "K":
+                    amp_why = []  # the steady levels' own amplitude line is in their note
                 spreads.pop(name, None)  # the steady levels' or the joint fit's own error
             else:
                 steady = None
