@@ -150,3 +150,19 @@ def test_k_from_the_steady_levels_is_not_judged_by_the_transients_amplitude_line
     out = judge_nomoto(est, fits)["K_nomoto"]
     assert out.success and out.value == pytest.approx(K0) and STEADY_K in out.message, out.message
     assert "K may change with the rudder amplitude" not in out.message
+
+
+def test_a_window_sailed_at_another_throttle_is_not_re_timed():
+    # The opening straight run at 3.26 m/s, then the throttle set 8 % higher before the same turn: the window's
+    # straight-run samples are not at U0, so its speed is not the turn's (the project's own simulator).
+    trial = _trial(0.029)
+    t = trial.data["t"].to_numpy()
+    trial.data.loc[t >= 30.0, "u"] = trial.data.loc[t >= 30.0, "u"] * 1.08
+    trial.data.loc[(t >= 30.0) & (t < 40.0), "delta"] = math.radians(3.0)  # a manoeuvre ends the opening run
+    seg = Segment("rudder_step", "yaw", 60.0, 300.0, "delta", 0.0, math.radians(10.0))
+    rows = trial.window(40.0, 300.0)
+    rec = NomotoRecord(t=rows["t"].to_numpy(), delta=rows["delta"].to_numpy(), psi=rows["psi"].to_numpy(),
+                       r=rows["r"].to_numpy(), name="s")
+    assert straight_run_speed(trial)[1] == pytest.approx(3.26, rel=2e-3)
+    new, _, note = retime_window(trial, rec, rows, seg)
+    assert note == "" and new is rec
