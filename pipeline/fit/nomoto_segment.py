@@ -238,15 +238,17 @@ def straight_run_speed(trial: Trial) -> tuple[str, float, float] | None:
     """The speed channel, the median speed [m/s] of the straight run the trial begins with, and its length [s].
 
     The run lasts until the rudder first departs from its opening level (the median of the first 10 s) by
-    more than ``RETIME_RUDDER_SHARE`` of its largest departure (and 0.5 deg); None when no ``u`` or ``sog``
-    is logged, the rudder never moves, or the run is shorter than ``RETIME_LEAD_SECONDS``.
+    more than ``RETIME_RUDDER_SHARE`` of its largest departure (and 0.5 deg); None when no surge speed ``u``
+    is logged (the speed over ground adds the sway velocity of a turn's drift: the project's own simulator, GNSS
+    only, re-timed on ``sog``, had K and T unsure), the rudder never moves, or the run is shorter than ``RETIME_LEAD_SECONDS``.
 
     Parameters
     ----------
     trial : Trial
         The trial (``delta`` and ``u`` or ``sog``).
     """
-    ch = next((c for c in ("u", "sog") if trial.has(c)), None)
+    # The surge speed only: the speed over ground adds the drift's sway velocity in a turn (and the current).
+    ch = "u" if trial.has("u") else None
     if ch is None or not trial.has("delta"):
         return None
     t = np.asarray(trial.t, float)
@@ -273,7 +275,7 @@ def retime_window(trial: Trial, rec: NomotoRecord, rows, segment: Segment) -> tu
 
     The speed-scaled Nomoto model (:func:`pipeline.model.nomoto.distance_time`: ``K = K0 u / U0``,
     ``T = T0 U0 / u``) is the constant model at ``U0`` in the distance-sailed time; a window whose speed
-    (a ``RETIME_SMOOTH_SECONDS`` moving mean of ``u``, else ``sog``) departs from ``U0``, the median speed
+    (a ``RETIME_SMOOTH_SECONDS`` moving mean of the surge speed ``u``) departs from ``U0``, the median speed
     of the straight run the trial begins with (:func:`straight_run_speed`), by more than ``SPEED_RETIME``
     of it is resampled on that time (:func:`pipeline.fit.nomoto_retime.retime_record`), so its K and T are
     those at ``U0``, provided the window's own straight-run samples (rudder at the trial's opening level)
