@@ -114,7 +114,8 @@ def _trial(gain: float) -> Trial:
 def test_a_window_is_re_timed_where_its_speed_departs_from_the_straight_runs():
     seg = Segment("rudder_step", "yaw", 60.0, 300.0, "delta", 0.0, math.radians(10.0))
     # A speed that rises 2.9 % is re-timed; one that rises by half the threshold, or falls (the tanker), is not.
-    for gain, timed in ((0.029, True), (0.5 * SPEED_RETIME, False), (-0.029, False)):
+    # A rise of 50 % is a throttle or a start from rest, not a turn.
+    for gain, timed in ((0.029, True), (0.5 * SPEED_RETIME, False), (-0.029, False), (0.5, False)):
         trial = _trial(gain)
         ch, u0, lead = straight_run_speed(trial)
         assert ch == "u" and u0 == pytest.approx(3.26, rel=2e-3) and lead == pytest.approx(60.0, abs=0.3)

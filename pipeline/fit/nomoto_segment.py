@@ -230,6 +230,9 @@ RETIME_RUDDER_SHARE = 0.25
 #: relative to it, for the window to be re-timed [-] (Clarke83's holds after a 10 deg turn average +1.8 %:
 #: its surge has not settled in 81 s; a throttle set otherwise moves it more).
 RETIME_REST = 0.025
+#: Largest rise of the speed over ``U0`` a turn is taken to cause [-]: beyond it the throttle moved or the
+#: ship started from rest (the project's own simulator opens at rest, U0 = 0.017 m/s, +5900 %).
+RETIME_MAX = 0.10
 #: Note head of a re-timed window.
 RETIMED = "re-timed on the distance sailed"
 
@@ -331,7 +334,7 @@ def retime_window(trial: Trial, rec: NomotoRecord, rows, segment: Segment) -> tu
     if not np.all(np.isfinite(u)) or not np.all(u > 0.5 * u0):
         return rec, t, ""
     dev = float(np.max(u - u0)) / u0
-    if not (dev > SPEED_RETIME and dev >= float(np.max(u0 - u)) / u0):
+    if not (SPEED_RETIME < dev <= RETIME_MAX and dev >= float(np.max(u0 - u)) / u0):
         return rec, t, ""
     # The window's straight-run samples (rudder at the trial's opening level) must sail at about U0: a speed
     # set elsewhere by the throttle is no turn's speed change.
