@@ -16,14 +16,13 @@ on tests/test_nomoto_retime.py's ship, whose speed rises 3 % at 60 s).
 its own (a nuisance), so that a gain that differs between rudder amplitudes does not move T through the
 correlations of the pooled (K, T1 + T2, T1 T2, T3) vector (:mod:`pipeline.fit.nomoto_pool`).
 
-Status (measured, not wired into the trial fit; benchmarks/RESULTS.md, "Speed-aware Nomoto (ident36)"): on
-PythonVehicleSimulator's Clarke83 ship the re-timing removes the speed's creep from the noise-free steps
-(per-step T -0.5 to +1.7 %, against -0.1 to +23 % at constant speed), and its measured-rudder steps
-without waves give T median +2.2 % (worst 4.5 %, 10 of 10 intervals covering, seeds 0-9); but every K
-moves by -1 to -2 %, the rudder force's ``sin 2 delta`` at 10 deg that the ship's +2.9 % speed rise in
-its turns had cancelled, and is then marked success with intervals that miss the truth (coverage 3 of
-10). Without a model of K's rudder-amplitude dependence and a held-out choice against the constant-speed
-model, the trial fit keeps the constant-speed model.
+Use: :func:`pipeline.fit.nomoto_segment.retime_window` re-times a whole-record window whose logged speed
+departs from the trial's straight-run speed by more than ``SPEED_RETIME`` (1 %). Measured by ident36 (not
+wired then): on PythonVehicleSimulator's Clarke83 ship the re-timing removes the speed's creep from the
+noise-free steps (per-step T -0.5 to +1.7 %, against -0.1 to +23 % at constant speed), but every K moves
+by -1 to -2 %, the rudder force's ``sin 2 delta`` at 10 deg that the ship's +2.9 % speed rise in its turns
+had cancelled; the combined K is therefore read at zero rudder amplitude where the steps' amplitudes
+differ (:mod:`pipeline.fit.nomoto_amplitude`; benchmarks/RESULTS.md, "Speed and rudder amplitude (ident38)").
 """
 
 from __future__ import annotations

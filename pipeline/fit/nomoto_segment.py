@@ -35,17 +35,19 @@ from typing import Sequence
 
 import numpy as np
 from scipy import stats
+from scipy.ndimage import uniform_filter1d
 
 from ..errors import FitError
 from ..records import Segment, SegmentFit, Trial
 from ..segment.rudder import is_servo_command
 from .data import noise_sigma, pick_channel, segment_label
 from .heldout_test import ALPHA, ALPHA_ROBUST, MIN_EXPLAINED, MIN_SHRINK, channel_score, is_significant
-from ..model.nomoto import ORDER2_SUM_PRODUCT, pole_time_constants
+from ..model.nomoto import ORDER2_SUM_PRODUCT, distance_time, pole_time_constants
 from .nomoto_oe import GainFloor, SecondOrderNoGain, fit_nomoto
 from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
 from .nomoto_quality import SPEED_RANGE, STRUCTURE_UNDECIDED
 from .nomoto_records import NomotoFit, NomotoRecord
+from .nomoto_retime import retime_record
 from .segment_fit import MAX_RELATIVE_STDERR
 
 
@@ -190,6 +192,9 @@ def prepare_window(trial: Trial, segment: Segment, t0: float, t1: float) -> Nomo
         drive = np.concatenate([0.5 * (delta[:-1] + delta[1:]), delta[-1:]])
     rec = NomotoRecord(t=t, delta=drive, psi=rows["psi"].to_numpy(dtype=float) if "psi" in channels else None,
                        r=rows["r"].to_numpy(dtype=float) if "r" in channels else None, name=where)
+    rec, t, retime_note = retime_window(trial, rec, rows, segment)
+    if retime_note:
+        notes.append(retime_note)
     if len(channels) > 1:
         channels, channel_note = _choose_channels(rec, channels, ("t_servo",) if command else ())
         if channel_note:
@@ -208,6 +213,144 @@ def prepare_window(trial: Trial, segment: Segment, t0: float, t1: float) -> Nomo
     if speed:
         notes.append(speed)
     return NomotoWindow(segment, rec, tuple(channels), servo, tuple(notes), t - segment.t_start)
+
+
+#: Departure of the logged speed from the straight-run speed, relative to it, above which a window is
+#: re-timed on the distance sailed [-] (the speed noise averaged over ``RETIME_SMOOTH_SECONDS`` is 0.1 %
+#: of it on the benchmark's logs; the speed term of :func:`pipeline.fit.nomoto_quality.add_speed_term`
+#: covers half the loss below this).
+SPEED_RETIME = 0.01
+#: Length of the moving mean that smooths the logged speed for the re-timing [s].
+RETIME_SMOOTH_SECONDS = 10.0
+#: Shortest straight run at the trial's start whose median speed is the reference speed [s].
+RETIME_LEAD_SECONDS = 30.0
+#: Share of the trial's largest rudder excursion that ends its opening straight run [-].
+RETIME_RUDDER_SHARE = 0.25
+#: Largest departure of a window's straight-run speed (rudder at the trial's opening level) from ``U0``,
+#: relative to it, for the window to be re-timed [-] (Clarke83's holds after a 10 deg turn average +1.8 %:
+#: its surge has not settled in 81 s; a throttle set otherwise moves it more).
+RETIME_REST = 0.025
+#: Largest rise of the speed over ``U0`` a turn is taken to cause [-]: beyond it the throttle moved or the
+#: ship started from rest (the project's own simulator opens at rest, U0 = 0.017 m/s, +5900 %).
+RETIME_MAX = 0.10
+#: Note head of a re-timed window.
+RETIMED = "re-timed on the distance sailed"
+
+
+def straight_run_speed(trial: Trial) -> tuple[str, float, float] | None:
+    """The speed channel, the median speed [m/s] of the straight run the trial begins with, and its length [s].
+
+    The run lasts until the rudder first departs from its opening level (the median of the first 10 s) by
+    more than ``RETIME_RUDDER_SHARE`` of its largest departure (and 0.5 deg); None when no surge speed ``u``
+    is logged (the speed over ground adds the sway velocity of a turn's drift: the project's own simulator, GNSS
+    only, re-timed on ``sog``, had K and T unsure), the rudder never moves, or the run is shorter than ``RETIME_LEAD_SECONDS``.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial (``delta`` and ``u`` or ``sog``).
+    """
+    # The surge speed only: the speed over ground adds the drift's sway velocity in a turn (and the current).
+    ch = "u" if trial.has("u") else None
+    if ch is None or not trial.has("delta"):
+        return None
+    t = np.asarray(trial.t, float)
+    d = trial.data["delta"].to_numpy(dtype=float)
+    u = np.abs(trial.data[ch].to_numpy(dtype=float))
+    first = t < t[0] + 10.0
+    d0 = float(np.nanmedian(d[first])) if np.isfinite(d[first]).any() else math.nan
+    dev = np.abs(d - d0)
+    span = float(np.nanmax(dev)) if np.isfinite(dev).any() else math.nan
+    if not (math.isfinite(d0) and span > 0):
+        return None
+    moved = np.flatnonzero(dev > max(RETIME_RUDDER_SHARE * span, math.radians(0.5)))
+    if not moved.size:
+        return None
+    end = float(t[moved[0]])
+    lead = (t < end) & np.isfinite(u)
+    if end - t[0] < RETIME_LEAD_SECONDS or lead.sum() < MIN_SAMPLES:
+        return None
+    return ch, float(np.median(u[lead])), end - float(t[0])
+
+
+def retime_window(trial: Trial, rec: NomotoRecord, rows, segment: Segment) -> tuple[NomotoRecord, np.ndarray, str]:
+    """``rec`` re-timed on the distance sailed where its logged speed departs from the straight-run speed.
+
+    The speed-scaled Nomoto model (:func:`pipeline.model.nomoto.distance_time`: ``K = K0 u / U0``,
+    ``T = T0 U0 / u``) is the constant model at ``U0`` in the distance-sailed time; a window whose speed
+    (a ``RETIME_SMOOTH_SECONDS`` moving mean of the surge speed ``u``) departs from ``U0``, the median speed
+    of the straight run the trial begins with (:func:`straight_run_speed`), by more than ``SPEED_RETIME``
+    of it is resampled on that time (:func:`pipeline.fit.nomoto_retime.retime_record`), so its K and T are
+    those at ``U0``, provided the window's own straight-run samples (rudder at the trial's opening level)
+    sail within ``RETIME_REST`` of ``U0`` (a trial whose throttle changes between its manoeuvres, as the
+    project's own simulator's, is not re-timed). Only a speed that *rises* above ``U0`` (by more than it falls below it) is re-timed: a
+    ship that slows in its turns at constant propeller speed keeps its rudder force (the rudder in the
+    propeller race) while its damping falls, so its K does not scale with ``u`` (measured,
+    PythonVehicleSimulator's tanker, seed 0: re-timed, K at 20 m with a commanded rudder +1.2 -> +2.2 %
+    with its interval missing, T at 25 m +0.2 -> -5.9 %; ident32: its steps' K scaled by the speed move
+    the wrong way). Its speed loss is left to the amplitude model and the speed rules. Measured (benchmarks/RESULTS.md, "Speed and rudder amplitude (ident38)"):
+    PythonVehicleSimulator's Clarke83 ship speeds up 2.9 % in its 10 deg turns, and its steps' T into a
+    turn are +15 to +34 % at constant speed against +0.7 to +1.7 % re-timed. Unchanged elsewhere.
+
+    Rudder steps only: re-timed, K carries the rudder force's own nonlinearity, which the speed change
+    had partly cancelled, and only steps of different amplitudes give the zero-amplitude K
+    (:mod:`pipeline.fit.nomoto_amplitude`); a zig-zag or sinusoid has one amplitude (measured by ident36:
+    Clarke83's measured-rudder sinusoids re-timed, K -0.9 to -1.0 % marked success with intervals missing
+    on 3 of 3 seeds, against +0.06 to +0.40 %, 3 of 3 covering, at constant speed).
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    rec : NomotoRecord
+        The window's record.
+    rows : pandas.DataFrame
+        The window's rows of the trial (``t`` and the speed channel).
+    segment : Segment
+        The segment (its start maps to the new time).
+
+    Returns
+    -------
+    (NomotoRecord, numpy.ndarray, str)
+        The record, its times [s, trial clock or the distance-sailed time from the window's start] and a
+        note ('' when not re-timed).
+    """
+    t = np.asarray(rec.t, float)
+    if segment.kind != "rudder_step":
+        return rec, t, ""
+    ref = straight_run_speed(trial)
+    if ref is None or ref[1] <= 0:
+        return rec, t, ""
+    ch, u0, lead = ref
+    u_all = np.abs(trial.data[ch].to_numpy(dtype=float))
+    t_all = np.asarray(trial.t, float)
+    ok = np.isfinite(u_all)
+    if ok.sum() < MIN_SAMPLES:
+        return rec, t, ""
+    h = float(np.median(np.diff(t_all)))
+    n = max(1, int(round(RETIME_SMOOTH_SECONDS / h)))
+    smooth = uniform_filter1d(u_all[ok], n, mode="nearest")
+    u = np.interp(t, t_all[ok], smooth)
+    if not np.all(np.isfinite(u)) or not np.all(u > 0.5 * u0):
+        return rec, t, ""
+    dev = float(np.max(u - u0)) / u0
+    if not (SPEED_RETIME < dev <= RETIME_MAX and dev >= float(np.max(u0 - u)) / u0):
+        return rec, t, ""
+    # The window's straight-run samples (rudder at the trial's opening level) must sail at about U0: a speed
+    # set elsewhere by the throttle is no turn's speed change.
+    d0 = float(np.nanmedian(trial.data["delta"].to_numpy(dtype=float)[t_all < t_all[0] + 10.0]))
+    rest = np.abs(np.asarray(rows["delta"].to_numpy(dtype=float)) - d0) <= math.radians(0.5)
+    if rest.sum() < MIN_SAMPLES or not abs(float(np.median(u[rest])) / u0 - 1.0) <= RETIME_REST:
+        return rec, t, ""
+    new = retime_record(rec, u, u0)
+    tau = distance_time(t, u, u0)
+    start = float(np.interp(segment.t_start, t, tau))
+    note = (f"{RETIMED}: the logged speed ({ch}, {RETIME_SMOOTH_SECONDS:g} s mean) departs from the straight-run "
+            f"speed U0 = {u0:.4g} m/s (median of the trial's first {lead:.0f} s, rudder steady) by up to +{dev:.2%} "
+            f"(above {SPEED_RETIME:.0%}, a speed that rises in the turns): fitted in tau = integral of u / U0 dt, K and T are the speed-scaled "
+            f"model's at U0 (K = K0 u / U0, T = T0 U0 / u)")
+    # Times from the segment's start in tau, on the trial clock's origin.
+    return new, np.asarray(new.t, float) - start + float(segment.t_start), note
 
 
 def fit_window_order(win: NomotoWindow, order: int, noise: str = "auto", **kwargs) -> tuple[NomotoFit, str]:

@@ -30,6 +30,8 @@ from typing import Sequence
 import numpy as np
 
 from .combine import Contribution, combine
+from ..model.nomoto import step_amplitude_sq
+from .nomoto_amplitude import amplitude_line, amplitude_note
 from .data import segment_label
 from .nomoto_quality import (STEADY_BROKEN, STEADY_K, SUPERPOSITION_MATERIAL, SUPERPOSITION_SPREAD,
                              SUPERPOSITION_T)
@@ -161,8 +163,18 @@ def steady_level_note(wins: Sequence[NomotoWindow], taus: Sequence[float], why: 
         return ""
     per = ", ".join(f"{c.value:.4g}" for c in parts if c.ok)
     broken = secant_superposition(parts, wins, abs(est.value))
-    return (f"{STEADY_K}: {why}: K = {est.value:.6g} +- {est.stderr:.3g} 1/s (the turn rate per rudder angle between "
-            f"steady holds, {sum(c.ok for c in parts)} steps: {per} 1/s, {est.message.replace('; ', ', ')})"
+    # The secants of steps of different amplitudes: K at zero amplitude where their slope is significant.
+    line = amplitude_line([c.value if c.ok else math.nan for c in parts], [c.stderr for c in parts],
+                          [step_amplitude_sq(w.segment.input_before, w.segment.input_after) for w in wins],
+                          [c.window if c.ok else None for c in parts])
+    value, se, amp = est.value, est.stderr, ""
+    if line is not None:
+        amp = f", {amplitude_note(line).replace('; ', ', ')}"
+        if line.kept:
+            value, se, amp = line.k0, line.se_k0, f" from the secants: {amplitude_note(line).replace('; ', ', ')}"
+    return (f"{STEADY_K}: {why}: K = {value:.6g} +- {se:.3g} 1/s{amp if line is not None and line.kept else ''} (the "
+            f"turn rate per rudder angle between steady holds, {sum(c.ok for c in parts)} steps: {per} 1/s, "
+            f"{est.message.replace('; ', ', ')}{amp if line is not None and not line.kept else ''})"
             + (f"{STEADY_BROKEN}{broken}" if broken else ""))
 
 

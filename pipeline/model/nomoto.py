@@ -333,6 +333,51 @@ def distance_time(t: np.ndarray, u: np.ndarray, u_ref: float) -> np.ndarray:
     return tau
 
 
+def rudder_secant_factor(delta_before, delta_after, a: float):
+    """Gain of a rudder step relative to ``K0`` under the rudder-amplitude model ``K(delta) = K0 (1 + a delta^2)``.
+
+    The rudder's effect on the steady turn rate is written as a general odd expansion (a Taylor series,
+    not any one ship's law)::
+
+        r_ss = K0 f(delta),    f(delta) = delta (1 + a delta^2) + O(delta^5)
+
+    so the steady gain at a held angle is ``K0 (1 + a delta^2)`` and ``K0`` is the linearisation
+    (``delta -> 0``). A step from ``delta_before`` to ``delta_after`` changes the steady turn rate by
+    ``K0 (f(d2) - f(d1))``, its secant gain ``K0 (1 + a (d1^2 + d1 d2 + d2^2))``: a step into a turn, the
+    step back out of it and a reversal ``d -> -d`` all read ``1 + a d^2``. A rudder force that goes with
+    ``sin 2 delta`` (PythonVehicleSimulator's Clarke83 ship) has ``a = -2/3``; a speed that settles at
+    a level set by the rudder angle (a ship slowing in its turns) adds its own even term.
+
+    Parameters
+    ----------
+    delta_before, delta_after : float or numpy.ndarray
+        Rudder angles held before and after the step [rad].
+    a : float
+        Curvature of the gain [1/rad^2].
+
+    Returns
+    -------
+    float or numpy.ndarray
+        ``1 + a (d1^2 + d1 d2 + d2^2)`` [-].
+    """
+    return 1.0 + a * step_amplitude_sq(delta_before, delta_after)
+
+
+def step_amplitude_sq(delta_before, delta_after):
+    """The squared amplitude ``d1^2 + d1 d2 + d2^2`` [rad^2] a rudder step's secant gain is linear in
+    (:func:`rudder_secant_factor`).
+
+    Parameters
+    ----------
+    delta_before, delta_after : float or numpy.ndarray
+        Rudder angles held before and after the step [rad].
+    """
+    d1 = np.asarray(delta_before, float)
+    d2 = np.asarray(delta_after, float)
+    out = d1 * d1 + d1 * d2 + d2 * d2
+    return float(out) if out.ndim == 0 else out
+
+
 def heading_model_matrices(K: float, T: float, waves: WaveParams
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(A, B, E, C)`` of the augmented heading model, states ``HEADING_MODEL_STATES``.
