@@ -107,3 +107,34 @@ def test_steady_levels_not_linear_in_the_rudder_mark_k_unsure():
     fits = [_fit(-0.0057, 0, 10, f"OE; {note}"), _fit(-0.0057, 10, 0, f"OE; {note}")]
     k = judge_nomoto(_estimates([-0.0057, -0.0057], se=1e-3), fits)["K_nomoto"]
     assert not k.success and k.message.startswith("unsure: nonlinear: 2 steps into a turn"), k.message
+
+
+def _curved_window(seed: int, before_deg: float, after_deg: float, t_start: float) -> NomotoWindow:
+    """:func:`_window` of a rudder whose effect saturates, ``delta (1 + a delta^2)`` with ``a = -0.656 1/rad^2``
+    (the secant -2.0 % at 10 deg, -0.5 % at 5 deg: PythonVehicleSimulator's Clarke83 ``sin 2 delta``)."""
+    win = _window(seed, before_deg, after_deg, t_start)
+    t = win.t_rel
+    d0, d1 = math.radians(before_deg), math.radians(after_deg)
+    f = lambda d: d * (1 - 0.656 * d * d)  # noqa: E731
+    _, r_dev, _ = signal.lsim(signal.TransferFunction([K * T3, K], [T1T2, T12, 1.0]),
+                              np.where(t < 0, 0.0, f(d1) - f(d0)), t - t[0])
+    r = K * f(d0) + r_dev
+    psi = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) / FS)])
+    rng = np.random.default_rng(seed)
+    rec = replace(win.rec, psi=psi + math.radians(0.2) * rng.standard_normal(t.size),
+                  r=r + math.radians(0.05) * rng.standard_normal(t.size))
+    return replace(win, rec=rec)
+
+
+def test_steady_levels_that_lean_to_a_rudder_curvature_mark_k_unsure():
+    # Steps of 10 and 5 deg whose secants follow the curvature, the slope test short of significance (p = 0.11):
+    # the constant K (-1.3 % at these amplitudes) and K0 differ by 2.5 %, so the constant is not marked success
+    # (measured on PythonVehicleSimulator's Clarke83 re-timed with waves: the secants' K -1.2 to -1.9 % marked
+    # success with the interval missing on 8 of 10 seeds before this test read them).
+    steps = [(0, 10), (10, 0), (0, -10), (-10, 0), (0, 5), (5, 0)]
+    wins = [_curved_window(30 + i, b, a, 360.0 * i) for i, (b, a) in enumerate(steps)]
+    note = steady_level_note(wins, [8.0] * 6, "undecided")
+    assert "rudder-amplitude model not kept" in note and "superposition broken: K may change with the rudder amplitude" in note, note
+    fits = [_fit(-0.0057, 0, 10, f"OE; {note}"), _fit(-0.0057, 10, 0, f"OE; {note}")]
+    k = judge_nomoto(_estimates([-0.0057, -0.0057], se=1e-3), fits)["K_nomoto"]
+    assert not k.success and k.message.startswith("unsure: nonlinear: K may change with the rudder amplitude"), k.message

@@ -40,6 +40,13 @@ AMPLITUDE_NOT_KEPT = "rudder-amplitude model not kept"
 AMPLITUDE_ALPHA = 0.05
 #: Largest over smallest squared amplitude of the steps needed to identify ``a`` [-].
 MIN_SPREAD = 1.5
+#: Difference between the zero-amplitude K and the constant model's, relative to the latter, above which a
+#: K whose amplitude slope is not significant is unsure [-] (the data can neither keep nor rule out a
+#: curvature that matters).
+AMPLITUDE_UNDECIDED = 0.01
+#: ... and by more than this many standard errors of the difference (the data lean towards the curvature;
+#: a K0 whose extrapolation error dwarfs the gap says nothing: a linear ship's steps, K0 +- 6.5 %).
+AMPLITUDE_LEAN = 1.0
 
 
 @dataclass(frozen=True)
@@ -183,3 +190,32 @@ def amplitude_note(line: AmplitudeLine, unit: str = "1/s") -> str:
     return (f"{AMPLITUDE_NOT_KEPT}: across {line.x.size} steps of {amps} the slope of K on the squared "
             f"amplitude is not significant ({test}, level {AMPLITUDE_ALPHA:g}); K0 would be {line.k0:.4g} +- "
             f"{line.se_k0:.2g} {unit}")
+
+
+def undecided_reason(line: AmplitudeLine, unit: str = "1/s") -> str:
+    """Why a constant K kept by the slope test is unsure ('' when it is not, or the line was kept).
+
+    The constant model kept whose K lies more than ``AMPLITUDE_UNDECIDED`` of it and ``AMPLITUDE_LEAN``
+    standard errors of the difference from the line's ``K0``: the test could not decide a difference that
+    matters. The same test judges the steps' own K and their steady levels' secants (measured:
+    PythonVehicleSimulator's Clarke83 steps re-timed with waves, seed 1: the secants' constant K -1.6 %
+    with its interval missing, marked success before this test read them).
+
+    Parameters
+    ----------
+    line : AmplitudeLine
+        The fitted line.
+    unit : str
+        K's unit.
+    """
+    if line.kept or line.mean == 0:
+        return ""
+    gap = abs(line.k0 - line.mean) / abs(line.mean)
+    # The difference's error (nested estimators, Hausman's form, at least the constant's).
+    sd = math.sqrt(max(line.se_k0**2 - line.se_mean**2, line.se_mean**2))
+    if not (gap > AMPLITUDE_UNDECIDED and abs(line.k0 - line.mean) > AMPLITUDE_LEAN * sd):
+        return ""
+    return (f"K may change with the rudder amplitude: the steps' constant K {line.mean:.4g} and the "
+            f"zero-amplitude K0 {line.k0:.4g} +- {line.se_k0:.2g} {unit} differ by {gap:.1%} (above "
+            f"{AMPLITUDE_UNDECIDED:.0%}, {abs(line.k0 - line.mean) / sd:.1f} times the difference's error), and "
+            f"the slope test cannot decide between them (p = {line.p:.2g})")

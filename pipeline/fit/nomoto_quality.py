@@ -94,7 +94,7 @@ from typing import Sequence
 from ..records import Estimate, SegmentFit
 from .combine import CONSISTENCY_ALPHA
 from .least_squares import confidence_interval
-from .nomoto_amplitude import AMPLITUDE_K, AMPLITUDE_NOT_KEPT, amplitude_note, step_line
+from .nomoto_amplitude import AMPLITUDE_K, AMPLITUDE_NOT_KEPT, amplitude_note, step_line, undecided_reason
 from .nomoto_joint_value import JOINT_T, joint_t_value
 from .nomoto_pool import POOLED_NOTE, is_joint_follower, pool_second_order
 from .segment_fit import MAX_RELATIVE_STDERR
@@ -350,13 +350,6 @@ def without_spread(est: Estimate, prediction: float, mean: float) -> Estimate:
                    message="; ".join(parts[:lead] + [note] + parts[lead:]))
 
 
-#: Difference between the zero-amplitude K and the constant model's, relative to the latter, above which a
-#: K whose amplitude slope is not significant is unsure [-] (the data can neither keep nor rule out a
-#: curvature that matters).
-AMPLITUDE_UNDECIDED = 0.01
-#: ... and by more than this many standard errors of the difference (the data lean towards the curvature;
-#: a K0 whose extrapolation error dwarfs the gap says nothing: a linear ship's steps, K0 +- 6.5 %).
-AMPLITUDE_LEAN = 1.0
 
 
 def amplitude_k_value(est: Estimate, fits: Sequence[SegmentFit]) -> tuple[Estimate | None, list[str]]:
@@ -367,7 +360,7 @@ def amplitude_k_value(est: Estimate, fits: Sequence[SegmentFit]) -> tuple[Estima
     where its slope is significant the estimate is ``K0`` with the extrapolation's error, else ``est`` with
     a note (its first part) that the constant model was kept. A constant model kept whose K lies more than
     ``AMPLITUDE_UNDECIDED`` of it and ``AMPLITUDE_LEAN`` standard errors of the difference from the line's
-    ``K0`` is unsure: the test could not decide a difference
+    ``K0`` is unsure (:func:`pipeline.fit.nomoto_amplitude.undecided_reason`): the test could not decide a difference
     that matters (measured: PythonVehicleSimulator's Clarke83 steps re-timed, seeds 4 and 8 of 0-9, slope
     p = 0.06 and 0.12, the constant K -1.8 % off with an error of 0.3 %, K0 -0.1 and -0.6 %).
 
@@ -385,15 +378,8 @@ def amplitude_k_value(est: Estimate, fits: Sequence[SegmentFit]) -> tuple[Estima
         return None, []
     note = amplitude_note(line, est.unit)
     if not line.kept:
-        why = []
-        gap = abs(line.k0 - line.mean) / abs(line.mean) if line.mean != 0 else math.inf
-        # The difference's error (nested estimators, Hausman's form, at least the constant's).
-        sd = math.sqrt(max(line.se_k0**2 - line.se_mean**2, line.se_mean**2))
-        if gap > AMPLITUDE_UNDECIDED and abs(line.k0 - line.mean) > AMPLITUDE_LEAN * sd:
-            why = [f"unsure: K may change with the rudder amplitude: the steps' constant K {line.mean:.4g} and the "
-                   f"zero-amplitude K0 {line.k0:.4g} +- {line.se_k0:.2g} {est.unit} differ by {gap:.1%} (above "
-                   f"{AMPLITUDE_UNDECIDED:.0%}, {abs(line.k0 - line.mean) / sd:.1f} times the difference's error), and "
-                   f"the slope test cannot decide between them (p = {line.p:.2g})"]
+        reason = undecided_reason(line, est.unit)
+        why = [f"unsure: {reason}"] if reason else []
         return replace(est, message="; ".join([note] + ([est.message] if est.message else []))), why
     msg = [note, f"the steps' combination gave {est.value:.4g} +- {est.stderr:.2g} {est.unit}"]
     return replace(est, value=line.k0, stderr=line.se_k0, ci95=confidence_interval(line.k0, line.se_k0, math.inf),
