@@ -350,8 +350,6 @@ def without_spread(est: Estimate, prediction: float, mean: float) -> Estimate:
                    message="; ".join(parts[:lead] + [note] + parts[lead:]))
 
 
-
-
 def amplitude_k_value(est: Estimate, fits: Sequence[SegmentFit]) -> tuple[Estimate | None, list[str]]:
     """K at zero rudder amplitude from the rudder steps' own K, and why K is unsure ((None, []) where the
     amplitude model is not identified).
