@@ -415,11 +415,13 @@ def choose_retiming(rec: NomotoRecord, new: NomotoRecord, u: np.ndarray, u0: flo
     (the drift's autocorrelation outlasts the held-out part), and on PythonVehicleSimulator's tanker (20 m,
     measured rudder, seed 1) the heading chose each way on different steps of one trial at p ~ 1e-8 while the
     yaw rate chose neither (p 0.25-0.86). Without a gyro the heading is used. The two candidates have the same
-    parameters (the speed is logged, not fitted): the one with the smaller held-out sum of squares wins when it
-    passes the project's shared held-out rule against the other (:func:`pipeline.fit.heldout_test.is_significant`:
-    :func:`pipeline.fit.heldout_test.channel_score`'s F test with one degree of freedom and the effective
-    sample size under its lag-1 autocorrelation, p < ``ALPHA``, a held-out gap shrink of at least
-    ``MIN_SHRINK`` % and an explained error of at least ``MIN_EXPLAINED`` of the channel's scale). The
+    parameters (the speed is logged, not fitted): the one with the smaller held-out sum of squares wins when
+    :func:`pipeline.fit.heldout_test.channel_score`'s F test of it against the other (one degree of freedom, the
+    effective sample size under its lag-1 autocorrelation) gives a p-value below the shared rule's ``ALPHA``
+    (1e-4). The shared rule's shrink and explained-error parts are not applied: they guard a larger model's
+    extra parameters, which neither candidate has, and read the total held-out error, which the gyro noise
+    dominates (tests/test_nomoto_retime_choice.py's ship: a speed-scaled ship whose speed changes 9 % is
+    re-timed at p 5e-10 to 3e-5 with shrinks of 2-4 %; at 3 % nothing is decided). The
     constant-speed record is the default: when neither wins it is kept, and the two training fits' difference
     in K and in T is carried as a model term (``RETIME_TERM`` notes, added in quadrature to the combined K and
     T by :func:`pipeline.fit.nomoto_quality.judge_nomoto`): the data cannot tell which model of the speed
@@ -492,15 +494,19 @@ def choose_retiming(rec: NomotoRecord, new: NomotoRecord, u: np.ndarray, u0: flo
     cs = channel_score(ch, *((a, b) if retimed_better else (b, a)), 1, 1, math.nan)
     pv = cs.p_value if math.isfinite(cs.p_value) else 1.0
     shrink = 100.0 * (1.0 - cs.gap_after / cs.gap_before) if cs.gap_before > 0 else 0.0
-    wins = is_significant(pv, math.nan, shrink, cs.explained)
+    # The shared rule's p-value threshold; its shrink and explained-error parts guard a larger model's extra
+    # parameters (these two have the same) and read the total error, which the gyro noise dominates here.
+    wins = pv < ALPHA
     k_p, k_r = fits[0].value("K"), fits[1].value("K")
     t_p, t_r = fits[0].T, fits[1].T
+    sk = math.hypot(fits[0].error("K"), fits[1].error("K"))
+    st = math.hypot(equivalent_t_stderr(fits[0]), equivalent_t_stderr(fits[1]))
     unit = "rad/s" if ch == "r" else "rad"
     text = (f"held-out {'yaw rate' if ch == 'r' else 'heading'} ({HOLDOUT_FRACTION:.0%} of the window, first-order "
             f"output error): RMS {math.sqrt(sse_a / a.size) * scale:.4g} {unit} at constant speed, "
             f"{math.sqrt(sse_b / b.size) * scale:.4g} {unit} re-timed ({shrink:.1f} % shrink for the better, "
-            f"p = {pv:.2g}, shared rule p < {ALPHA:g} and shrink >= {MIN_SHRINK:g} %, training K {k_p:.4g} vs "
-            f"{k_r:.4g} 1/s, T {t_p:.4g} vs {t_r:.4g} s)")
+            f"p = {pv:.2g}, rule p < {ALPHA:g}, training K {k_p:.4g} vs "
+            f"{k_r:.4g} 1/s (errors in quadrature {sk:.2g}), T {t_p:.4g} vs {t_r:.4g} s ({st:.2g}))")
     if wins:
         if retimed_better:
             return RetimeChoice(True, f"re-timed chosen: {text}; K and T are the speed-scaled model's at U0 "
