@@ -1,11 +1,11 @@
 """Re-timing on the distance sailed chosen by the held-out data, not by the sign of the speed change.
 
 A first-order Nomoto ship whose speed changes in a 10 deg turn (settling in 60 s) is fitted plain and re-timed on
-the first 65 % of the step's window; the one that predicts the held-out heading better by the F test wins
+the first 65 % of the step's window; the one that predicts the held-out yaw rate better by the F test wins
 (:func:`pipeline.fit.nomoto_segment.choose_retiming`). A ship whose K and T scale with the speed is re-timed
 whether its speed rises (Clarke83) or falls (by 9 %); a ship whose K and T do not scale with the speed, while its
-logged speed falls (the tanker: rudder in the propeller race), is not; at 3 % the held-out end decides nothing. Where neither wins, the two fits' difference is
-carried into the combined K and T as a model term.
+logged speed falls (the tanker: rudder in the propeller race), is not; at 3 % the held-out end decides nothing.
+Where neither wins, the two fits' difference is carried into the combined K and T as a model term.
 """
 
 from __future__ import annotations

@@ -54,7 +54,10 @@ Before these rules, a model-structure term (``STRUCTURE_TERM`` notes in the segm
 messages: the difference between the first- and second-order values where the structure was not
 decided clearly or the two disagree) is added in quadrature to the combined standard error and the
 95 % interval is widened to match (:func:`add_structure_term`): a structure bias is common to all
-segments, so it is added after combining, never averaged down. T gets a rudder-timing term the same way
+segments, so it is added after combining, never averaged down. K and T get a re-timing term the same way
+(:func:`retime_term`, ``RETIME_TERM`` notes): the largest difference between a rudder step's fits at constant
+speed and re-timed on the distance sailed where its held-out end chose neither
+(:func:`pipeline.fit.nomoto_segment.choose_retiming`; a speed change is common to the steps). T gets a rudder-timing term the same way
 where a measured rudder angle jumps within a sample interval or drives a sinusoid (:func:`rudder_timing_term`,
 ``h / sqrt(12)``: the jumps' moments, or the servo's path between the samples, are known only to within the
 interval), and is unsure where half that interval exceeds
