@@ -279,7 +279,7 @@ def retime_window(trial: Trial, rec: NomotoRecord, rows, segment: Segment,
     :func:`choose_retiming`).
 
     A rudder step whose logged surge speed departs from the trial's straight-run speed (either way) is fitted
-    both plain and re-timed on its first ``1 - HOLDOUT_FRACTION``; the one whose heading predicts the held-out
+    both plain and re-timed on its first ``1 - HOLDOUT_FRACTION``; the one whose yaw rate predicts the held-out
     end better, by the rule of :func:`choose_retiming`, is kept. When neither wins, the plain record is kept
     and the two fits' difference in K and T is carried as a model term (a ``RETIME_TERM`` note, added to the
     combined K and T by :func:`pipeline.fit.nomoto_quality.judge_nomoto`).
@@ -338,6 +338,17 @@ def retime_candidate(trial: Trial, rec: NomotoRecord, rows, segment: Segment
     force's own nonlinearity, which only steps of different amplitudes resolve
     (:mod:`pipeline.fit.nomoto_amplitude`; ident36: Clarke83's measured-rudder sinusoids re-timed, K -0.9
     to -1.0 % with intervals missing on 3 of 3 seeds).
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial (``delta`` and the surge speed ``u``).
+    rec : NomotoRecord
+        The window's record.
+    rows : pandas.DataFrame
+        The window's rows of the trial (``t`` and ``delta``).
+    segment : Segment
+        The segment (a ``rudder_step`` is a candidate; other kinds are not).
 
     Returns
     -------
