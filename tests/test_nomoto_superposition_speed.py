@@ -5,8 +5,8 @@ constant of its length in seconds), and its steps into a turn give T 18-27 % abo
 (noise-free), so the combined T is rightly unsure; the reason named only "a nonlinearity, or an estimator
 bias". Here a first-order Nomoto ship whose K and T scale with a speed that rises with the rudder (K = K0 U /
 U0, T = T0 U0 / U; the speed settles at 60 s towards U0 (1 + 0.3 sin^2 delta)), logged with its speed, through
-the user's path (CSV -> segments -> fits): its steps are re-timed on the distance sailed (ident38), so K and T
-are the straight-run ones; a ship of constant speed (Norrbin's cubic term instead) must not get the clause that
+the user's path (CSV -> segments -> fits): its steps are candidates for the re-timing on the distance sailed, which
+their held-out ends cannot decide at 3 % (ident40), so T is unsure with the speed clause; a ship of constant speed (Norrbin's cubic term instead) must not get the clause that
 names a logged speed change.
 """
 
@@ -64,16 +64,17 @@ def _estimates(speed_gain: float, n3: float, tmp_path, **kw):
     return fit_trial(trial, detect_segments(trial), parse_vessel({"name": "speedy"}), extend=False).estimates
 
 
-def test_a_speed_change_in_the_turns_is_modelled_by_re_timing_the_steps(tmp_path):
-    # Before ident38 T was unsure here (steps into a turn against out of one, the clause naming the logged
-    # speed change); the steps are now re-timed on the distance sailed (their speed departs from the straight
-    # run's by up to 3 %), which is this ship's own speed scaling: K and T are those at U0.
+def test_a_speed_change_in_the_turns_the_held_out_end_cannot_judge_is_not_hidden(tmp_path):
+    # ident38 re-timed these steps because their speed rises (by up to 3 %); ident40 lets each step's held-out
+    # yaw rate choose (tests/test_nomoto_retime_choice.py), which at 3 % decides nothing: the steps stay at
+    # constant speed with the difference as a term, and T is unsure by the steps' superposition, the clause naming
+    # the logged speed change (as before ident38). Nothing marked success misses its interval.
     est = _estimates(1.0, 0.0, tmp_path)
     t, k = est["T_nomoto"], est["K_nomoto"]
-    assert t.success and abs(t.value / T0 - 1.0) < 0.015, t.message
-    assert k.success and abs(k.value / K0 - 1.0) < 0.01, k.message
-    assert "rudder steps into a turn give T" not in t.message, t.message
-    assert t.ci95[0] <= T0 <= t.ci95[1] and k.ci95[0] <= K0 <= k.ci95[1], (t, k)
+    for e, ref in ((t, T0), (k, K0)):
+        assert not e.success or e.ci95[0] <= ref <= e.ci95[1], e.message
+    assert not t.success and "logged speed" in t.message, t.message
+    assert "re-timing term" in t.message or "re-timing term" in k.message, (t.message, k.message)
 
 
 def test_a_ship_of_constant_speed_gets_no_speed_clause(tmp_path):

@@ -54,7 +54,10 @@ Before these rules, a model-structure term (``STRUCTURE_TERM`` notes in the segm
 messages: the difference between the first- and second-order values where the structure was not
 decided clearly or the two disagree) is added in quadrature to the combined standard error and the
 95 % interval is widened to match (:func:`add_structure_term`): a structure bias is common to all
-segments, so it is added after combining, never averaged down. T gets a rudder-timing term the same way
+segments, so it is added after combining, never averaged down. K and T get a re-timing term the same way
+(:func:`retime_term`, ``RETIME_TERM`` notes): the largest difference between a rudder step's fits at constant
+speed and re-timed on the distance sailed where its held-out end chose neither
+(:func:`pipeline.fit.nomoto_segment.choose_retiming`; a speed change is common to the steps). T gets a rudder-timing term the same way
 where a measured rudder angle jumps within a sample interval or drives a sinusoid (:func:`rudder_timing_term`,
 ``h / sqrt(12)``: the jumps' moments, or the servo's path between the samples, are known only to within the
 interval), and is unsure where half that interval exceeds
@@ -106,6 +109,10 @@ UNSURE_RELATIVE_STDERR = 0.10
 #: Start of the note a trial-level near-tie between the Nomoto structures leaves in segment-fit
 #: messages, followed by the coefficients it leaves undecided (``K``, ``T``).
 STRUCTURE_UNDECIDED = "unsure: model structure undecided for"
+#: Start of the note that carries the difference between a rudder step's fits at constant speed and re-timed on
+#: the distance sailed where the held-out data chose neither (``RETIME_TERM <K|T>: +-<value> <unit>``, written by
+#: :func:`pipeline.fit.nomoto_segment.choose_retiming`; read by :func:`retime_term`).
+RETIME_TERM = "re-timing term for"
 #: Start of the note that carries a model-structure term (``STRUCTURE_TERM <K|T>: +-<value> <unit>``);
 #: the same text as ``pipeline.fit.nomoto_structure.STRUCTURE_TERM_PREFIX``.
 STRUCTURE_TERM = "model-structure term for"
@@ -249,6 +256,8 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
                 spreads.pop(name, None)  # the steady levels' or the joint fit's own error
             else:
                 steady = None
+        est = add_structure_term(est, retime_term(fits, short), "re-timing term (the held-out end chose neither the "
+                                 "constant-speed nor the re-timed fit)")
         est = add_structure_term(est, rudder_timing_term(fits, short),
                                  "rudder-timing term" + (" (K's slope on T in the fit times T's)" if short == "K" else ""))
         out[name] = est
@@ -945,6 +954,23 @@ def structure_term(fits: Sequence[SegmentFit], short: str) -> float:
         ``K`` or ``T``.
     """
     return largest_noted(fits, f"{STRUCTURE_TERM} {short}: +-")
+
+
+def retime_term(fits: Sequence[SegmentFit], short: str) -> float:
+    """The largest re-timing term for ``K`` or ``T`` in the fits' messages (0 when none) [unit of it].
+
+    A rudder step whose speed departed and whose held-out end chose neither the constant-speed nor the re-timed
+    fit carries their difference (:func:`pipeline.fit.nomoto_segment.choose_retiming`); the speed change is
+    common to the steps, so the largest step's difference is added to the combined K or T, not a mean.
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Nomoto segment fits.
+    short : str
+        ``K`` or ``T``.
+    """
+    return largest_noted(fits, f"{RETIME_TERM} {short}: +-")
 
 
 def largest_noted(fits: Sequence[SegmentFit], head: str) -> float:

@@ -16,8 +16,10 @@ on tests/test_nomoto_retime.py's ship, whose speed rises 3 % at 60 s).
 its own (a nuisance), so that a gain that differs between rudder amplitudes does not move T through the
 correlations of the pooled (K, T1 + T2, T1 T2, T3) vector (:mod:`pipeline.fit.nomoto_pool`).
 
-Use: :func:`pipeline.fit.nomoto_segment.retime_window` re-times a whole-record window whose logged speed
-departs from the trial's straight-run speed by more than ``SPEED_RETIME`` (1 %). Measured by ident36 (not
+Use: :func:`pipeline.fit.nomoto_segment.retime_window` re-times a rudder step's window whose logged speed
+departs from the trial's straight-run speed by more than ``SPEED_RETIME`` (1 %) where its held-out yaw rate
+chooses the re-timed fit (:func:`pipeline.fit.nomoto_segment.choose_retiming`; when neither wins, the
+difference is a term of K's and T's errors). Measured by ident36 (not
 wired then): on PythonVehicleSimulator's Clarke83 ship the re-timing removes the speed's creep from the
 noise-free steps (per-step T -0.5 to +1.7 %, against -0.1 to +23 % at constant speed), but every K moves
 by -1 to -2 %, the rudder force's ``sin 2 delta`` at 10 deg that the ship's +2.9 % speed rise in its turns

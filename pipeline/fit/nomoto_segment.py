@@ -45,7 +45,7 @@ from .heldout_test import ALPHA, ALPHA_ROBUST, MIN_EXPLAINED, MIN_SHRINK, channe
 from ..model.nomoto import ORDER2_SUM_PRODUCT, distance_time, pole_time_constants
 from .nomoto_oe import GainFloor, SecondOrderNoGain, fit_nomoto
 from .nomoto_problem import MIN_SAMPLES, SERVO_PARAMS, Problem, prepare, unwrap_heading
-from .nomoto_quality import SPEED_RANGE, STRUCTURE_UNDECIDED
+from .nomoto_quality import RETIME_TERM, SPEED_RANGE, STRUCTURE_UNDECIDED
 from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_retime import retime_record
 from .segment_fit import MAX_RELATIVE_STDERR
@@ -192,7 +192,7 @@ def prepare_window(trial: Trial, segment: Segment, t0: float, t1: float) -> Nomo
         drive = np.concatenate([0.5 * (delta[:-1] + delta[1:]), delta[-1:]])
     rec = NomotoRecord(t=t, delta=drive, psi=rows["psi"].to_numpy(dtype=float) if "psi" in channels else None,
                        r=rows["r"].to_numpy(dtype=float) if "r" in channels else None, name=where)
-    rec, t, retime_note = retime_window(trial, rec, rows, segment)
+    rec, t, retime_note = retime_window(trial, rec, rows, segment, ("t_servo",) if command else ())
     if retime_note:
         notes.append(retime_note)
     if len(channels) > 1:
@@ -273,30 +273,16 @@ def straight_run_speed(trial: Trial) -> tuple[str, float, float] | None:
     return ch, float(np.median(u[lead])), end - float(t[0])
 
 
-def retime_window(trial: Trial, rec: NomotoRecord, rows, segment: Segment) -> tuple[NomotoRecord, np.ndarray, str]:
-    """``rec`` re-timed on the distance sailed where its logged speed departs from the straight-run speed.
+def retime_window(trial: Trial, rec: NomotoRecord, rows, segment: Segment,
+                  servo: tuple[str, ...] = ()) -> tuple[NomotoRecord, np.ndarray, str]:
+    """``rec`` re-timed on the distance sailed where the data choose it (:func:`retime_candidate`,
+    :func:`choose_retiming`).
 
-    The speed-scaled Nomoto model (:func:`pipeline.model.nomoto.distance_time`: ``K = K0 u / U0``,
-    ``T = T0 U0 / u``) is the constant model at ``U0`` in the distance-sailed time; a window whose speed
-    (a ``RETIME_SMOOTH_SECONDS`` moving mean of the surge speed ``u``) departs from ``U0``, the median speed
-    of the straight run the trial begins with (:func:`straight_run_speed`), by more than ``SPEED_RETIME``
-    of it is resampled on that time (:func:`pipeline.fit.nomoto_retime.retime_record`), so its K and T are
-    those at ``U0``, provided the window's own straight-run samples (rudder at the trial's opening level)
-    sail within ``RETIME_REST`` of ``U0`` (a trial whose throttle changes between its manoeuvres, as the
-    project's own simulator's, is not re-timed). Only a speed that *rises* above ``U0`` (by more than it falls below it) is re-timed: a
-    ship that slows in its turns at constant propeller speed keeps its rudder force (the rudder in the
-    propeller race) while its damping falls, so its K does not scale with ``u`` (measured,
-    PythonVehicleSimulator's tanker, seed 0: re-timed, K at 20 m with a commanded rudder +1.2 -> +2.2 %
-    with its interval missing, T at 25 m +0.2 -> -5.9 %; ident32: its steps' K scaled by the speed move
-    the wrong way). Its speed loss is left to the amplitude model and the speed rules. Measured (benchmarks/RESULTS.md, "Speed and rudder amplitude (ident38)"):
-    PythonVehicleSimulator's Clarke83 ship speeds up 2.9 % in its 10 deg turns, and its steps' T into a
-    turn are +15 to +34 % at constant speed against +0.7 to +1.7 % re-timed. Unchanged elsewhere.
-
-    Rudder steps only: re-timed, K carries the rudder force's own nonlinearity, which the speed change
-    had partly cancelled, and only steps of different amplitudes give the zero-amplitude K
-    (:mod:`pipeline.fit.nomoto_amplitude`); a zig-zag or sinusoid has one amplitude (measured by ident36:
-    Clarke83's measured-rudder sinusoids re-timed, K -0.9 to -1.0 % marked success with intervals missing
-    on 3 of 3 seeds, against +0.06 to +0.40 %, 3 of 3 covering, at constant speed).
+    A rudder step whose logged surge speed departs from the trial's straight-run speed (either way) is fitted
+    both plain and re-timed on its first ``1 - HOLDOUT_FRACTION``; the one whose yaw rate predicts the held-out
+    end better, by the rule of :func:`choose_retiming`, is kept. When neither wins, the plain record is kept
+    and the two fits' difference in K and T is carried as a model term (a ``RETIME_TERM`` note, added to the
+    combined K and T by :func:`pipeline.fit.nomoto_quality.judge_nomoto`).
 
     Parameters
     ----------
@@ -308,49 +294,238 @@ def retime_window(trial: Trial, rec: NomotoRecord, rows, segment: Segment) -> tu
         The window's rows of the trial (``t`` and the speed channel).
     segment : Segment
         The segment (its start maps to the new time).
+    servo : tuple of str
+        Servo parameters the comparison's fits estimate (a logged command: ``("t_servo",)``).
 
     Returns
     -------
     (NomotoRecord, numpy.ndarray, str)
         The record, its times [s, trial clock or the distance-sailed time from the window's start] and a
-        note ('' when not re-timed).
+        note ('' when no re-timing was considered).
+    """
+    t = np.asarray(rec.t, float)
+    cand = retime_candidate(trial, rec, rows, segment)
+    if cand is None:
+        return rec, t, ""
+    new, u, u0, note = cand
+    choice = choose_retiming(rec, new, u, u0, servo)
+    if choice.retime:
+        tau = distance_time(t, u, u0)
+        start = float(np.interp(segment.t_start, t, tau))
+        # Times from the segment's start in tau, on the trial clock's origin.
+        return new, np.asarray(new.t, float) - start + float(segment.t_start), f"{RETIMED}: {note}; {choice.note}"
+    return rec, t, f"{NOT_RETIMED}: {note}; {choice.note}"
+
+
+def retime_candidate(trial: Trial, rec: NomotoRecord, rows, segment: Segment
+                     ) -> tuple[NomotoRecord, np.ndarray, float, str] | None:
+    """The re-timed record of a rudder step whose logged speed departs from the straight-run speed, or None.
+
+    The speed-scaled Nomoto model (:func:`pipeline.model.nomoto.distance_time`: ``K = K0 u / U0``,
+    ``T = T0 U0 / u``) is the constant model at ``U0`` in the distance-sailed time. A window whose speed
+    (a ``RETIME_SMOOTH_SECONDS`` moving mean of the surge speed ``u``) departs from ``U0``, the median speed
+    of the straight run the trial begins with (:func:`straight_run_speed`), by more than ``SPEED_RETIME``
+    and at most ``RETIME_MAX`` of it, either way, is a candidate, provided its own straight-run samples
+    (rudder at the trial's opening level) sail within ``RETIME_REST`` of ``U0`` (a trial whose throttle
+    changes between its manoeuvres, as the project's own simulator's, is not re-timed). Whether the
+    speed-scaled model describes the ship is left to the data (:func:`choose_retiming`): a ship that slows
+    in its turns at constant propeller speed may keep its rudder force (the rudder in the propeller race)
+    while its damping falls, so its K need not scale with ``u`` (PythonVehicleSimulator's tanker, ident32,
+    ident38); Clarke83 speeds up 2.9 % in its 10 deg turns, and its steps' T into a turn are +15 to +34 % at
+    constant speed against +0.7 to +1.7 % re-timed (benchmarks/RESULTS.md, "Speed and rudder amplitude").
+
+    Rudder steps only: zig-zags and sinusoids have one amplitude, and re-timed their K carries the rudder
+    force's own nonlinearity, which only steps of different amplitudes resolve
+    (:mod:`pipeline.fit.nomoto_amplitude`; ident36: Clarke83's measured-rudder sinusoids re-timed, K -0.9
+    to -1.0 % with intervals missing on 3 of 3 seeds).
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial (``delta`` and the surge speed ``u``).
+    rec : NomotoRecord
+        The window's record.
+    rows : pandas.DataFrame
+        The window's rows of the trial (``t`` and ``delta``).
+    segment : Segment
+        The segment (a ``rudder_step`` is a candidate; other kinds are not).
+
+    Returns
+    -------
+    (NomotoRecord, numpy.ndarray, float, str) or None
+        The re-timed record, the smoothed speed at ``rec.t`` [m/s], ``U0`` [m/s] and a note on the speed.
     """
     t = np.asarray(rec.t, float)
     if segment.kind != "rudder_step":
-        return rec, t, ""
+        return None
     ref = straight_run_speed(trial)
     if ref is None or ref[1] <= 0:
-        return rec, t, ""
+        return None
     ch, u0, lead = ref
     u_all = np.abs(trial.data[ch].to_numpy(dtype=float))
     t_all = np.asarray(trial.t, float)
     ok = np.isfinite(u_all)
     if ok.sum() < MIN_SAMPLES:
-        return rec, t, ""
+        return None
     h = float(np.median(np.diff(t_all)))
     n = max(1, int(round(RETIME_SMOOTH_SECONDS / h)))
     smooth = uniform_filter1d(u_all[ok], n, mode="nearest")
     u = np.interp(t, t_all[ok], smooth)
     if not np.all(np.isfinite(u)) or not np.all(u > 0.5 * u0):
-        return rec, t, ""
-    dev = float(np.max(u - u0)) / u0
-    if not (SPEED_RETIME < dev <= RETIME_MAX and dev >= float(np.max(u0 - u)) / u0):
-        return rec, t, ""
+        return None
+    rise, fall = float(np.max(u - u0)) / u0, float(np.max(u0 - u)) / u0
+    dev = max(rise, fall)
+    if not SPEED_RETIME < dev <= RETIME_MAX:
+        return None
     # The window's straight-run samples (rudder at the trial's opening level) must sail at about U0: a speed
     # set elsewhere by the throttle is no turn's speed change.
     d0 = float(np.nanmedian(trial.data["delta"].to_numpy(dtype=float)[t_all < t_all[0] + 10.0]))
     rest = np.abs(np.asarray(rows["delta"].to_numpy(dtype=float)) - d0) <= math.radians(0.5)
     if rest.sum() < MIN_SAMPLES or not abs(float(np.median(u[rest])) / u0 - 1.0) <= RETIME_REST:
-        return rec, t, ""
-    new = retime_record(rec, u, u0)
+        return None
+    try:
+        new = retime_record(rec, u, u0)
+    except FitError:
+        return None
+    signed = rise if rise >= fall else -fall
+    note = (f"the logged speed ({ch}, {RETIME_SMOOTH_SECONDS:g} s mean) departs from the straight-run speed U0 = "
+            f"{u0:.4g} m/s (median of the trial's first {lead:.0f} s, rudder steady) by up to {signed:+.2%}")
+    return new, u, u0, note
+
+
+#: Note head of a window whose speed departed but was fitted at constant speed.
+NOT_RETIMED = "not re-timed on the distance sailed"
+
+
+@dataclass(frozen=True)
+class RetimeChoice:
+    """The held-out choice between a window fitted at constant speed and re-timed on the distance sailed.
+
+    Attributes
+    ----------
+    retime : bool
+        The re-timed record is kept.
+    note : str
+        The comparison, the rule and, when neither wins, the ``RETIME_TERM`` notes.
+    """
+
+    retime: bool
+    note: str
+
+
+def choose_retiming(rec: NomotoRecord, new: NomotoRecord, u: np.ndarray, u0: float,
+                    servo: tuple[str, ...] = ()) -> RetimeChoice:
+    """Plain or re-timed by the held-out yaw-rate error of the window's end.
+
+    Both records are fitted by the first-order output-error model (compass and gyro, the servo lag for a
+    logged command) on the samples before the real time at ``1 - HOLDOUT_FRACTION`` of the window, and run
+    on through the rest. They are compared on the logged yaw rate of the held-out samples: the re-timed fit's
+    simulated rate (per distance-sailed second) is read at the logged samples' distance-sailed times and scaled
+    back by ``u / U0`` (its record is interpolated, which averages the sensor noise: its own errors would flatter
+    it). The yaw rate, not the heading: a heading predicted on from a training fit drifts with the fit's K error
+    (the drift's autocorrelation outlasts the held-out part), and on PythonVehicleSimulator's tanker (20 m,
+    measured rudder, seed 1) the heading chose each way on different steps of one trial at p ~ 1e-8 while the
+    yaw rate chose neither (p 0.25-0.86). Without a gyro the heading is used. The two candidates have the same
+    parameters (the speed is logged, not fitted): the one with the smaller held-out sum of squares wins when
+    :func:`pipeline.fit.heldout_test.channel_score`'s F test of it against the other (one degree of freedom, the
+    effective sample size under its lag-1 autocorrelation) gives a p-value below the shared rule's ``ALPHA``
+    (1e-4). The shared rule's shrink and explained-error parts are not applied: they guard a larger model's
+    extra parameters, which neither candidate has, and read the total held-out error, which the gyro noise
+    dominates (tests/test_nomoto_retime_choice.py's ship: a speed-scaled ship whose speed changes 9 % is
+    re-timed at p 5e-10 to 3e-5 with shrinks of 2-4 %; at 3 % nothing is decided). The
+    constant-speed record is the default: when neither wins it is kept, and the two training fits' difference
+    in K and in T is carried as a model term (``RETIME_TERM`` notes, added in quadrature to the combined K and
+    T by :func:`pipeline.fit.nomoto_quality.judge_nomoto`): the data cannot tell which model of the speed
+    change holds, so the difference is part of the error.
+
+    Parameters
+    ----------
+    rec, new : NomotoRecord
+        The window's record and the same re-timed (:func:`pipeline.fit.nomoto_retime.retime_record`).
+    u : numpy.ndarray
+        Smoothed speed at ``rec.t`` [m/s].
+    u0 : float
+        Straight-run speed [m/s].
+    servo : tuple of str
+        Servo parameters estimated in both fits.
+    """
+    t = np.asarray(rec.t, float)
+    if rec.psi is None or t.size < 2 * MIN_SAMPLES:
+        return RetimeChoice(False, "not compared (no compass or too short a record): fitted at constant speed")
     tau = distance_time(t, u, u0)
-    start = float(np.interp(segment.t_start, t, tau))
-    note = (f"{RETIMED}: the logged speed ({ch}, {RETIME_SMOOTH_SECONDS:g} s mean) departs from the straight-run "
-            f"speed U0 = {u0:.4g} m/s (median of the trial's first {lead:.0f} s, rudder steady) by up to +{dev:.2%} "
-            f"(above {SPEED_RETIME:.0%}, a speed that rises in the turns): fitted in tau = integral of u / U0 dt, K and T are the speed-scaled "
-            f"model's at U0 (K = K0 u / U0, T = T0 U0 / u)")
-    # Times from the segment's start in tau, on the trial clock's origin.
-    return new, np.asarray(new.t, float) - start + float(segment.t_start), note
+    nf = int(round((1.0 - HOLDOUT_FRACTION) * t.size))
+    t_split = float(t[nf])
+    grid = np.asarray(new.t, float)
+    t_of = np.interp(grid, tau, t)
+    nf_new = int(np.searchsorted(t_of, t_split))
+    fits = []
+    fit_ch = ("psi", "r") if rec.r is not None else ("psi",)
+    for r, k in ((rec, nf), (new, nf_new)):
+        part = NomotoRecord(t=r.t[:k], delta=r.delta[:k], psi=r.psi[:k], r=None if r.r is None else r.r[:k],
+                            name=r.name)
+        try:
+            f = fit_nomoto(part, order=1, noise="white", channels=fit_ch, servo=servo)
+        except FitError:
+            f = None
+        if f is None or not _usable(f):
+            return RetimeChoice(False, "not compared (a training fit failed): fitted at constant speed")
+        fits.append(f)
+    if "r" in fit_ch:
+        e_plain = _heldout_errors(fits[0], [rec], fit_ch, servo, [nf], None)[0]["r"]
+        e_grid = _heldout_errors(fits[1], [new], fit_ch, servo, [nf_new], None)[0]["r"]
+        sim_grid = np.asarray(new.r, float) - e_grid
+        ok_grid = np.isfinite(sim_grid)
+        e_new = np.full(t.size, np.nan)
+        if ok_grid.sum() >= 2:
+            inside = (tau >= grid[ok_grid][0]) & (tau <= grid[ok_grid][-1])
+            e_new[inside] = np.asarray(rec.r, float)[inside] - np.interp(tau[inside], grid[ok_grid],
+                                                                         sim_grid[ok_grid]) * u[inside] / u0
+    else:
+        e_plain = _heldout_errors(fits[0], [rec], ("psi",), servo, [nf], None)[0]["psi"]
+        e_grid = _heldout_errors(fits[1], [new], ("psi",), servo, [nf_new], None)[0]["psi"]
+        # The re-timed fit's simulated heading, read at the logged samples' distance-sailed times (the re-timed
+        # record's heading is interpolated, which would average the compass noise out of its own errors).
+        sim_grid = np.asarray(new.psi, float) - e_grid
+        ok_grid = np.isfinite(sim_grid)
+        e_new = np.full(t.size, np.nan)
+        if ok_grid.sum() >= 2:
+            inside = (tau >= grid[ok_grid][0]) & (tau <= grid[ok_grid][-1])
+            e_new[inside] = unwrap_heading(np.asarray(rec.psi, float))[inside] - np.interp(tau[inside], grid[ok_grid],
+                                                                                            sim_grid[ok_grid])
+    both = np.isfinite(e_plain) & np.isfinite(e_new)
+    both[:nf] = False
+    if both.sum() < 10:
+        return RetimeChoice(False, "not compared (too few held-out samples): fitted at constant speed")
+    ch = fit_ch[-1]
+    y = np.asarray(rec.r if ch == "r" else unwrap_heading(np.asarray(rec.psi, float)), float)
+    scale = max(float(np.nanstd(y)), 1e-12)
+    a, b = e_plain[both][None, :] / scale, e_new[both][None, :] / scale
+    sse_a, sse_b = float(np.sum(a**2)), float(np.sum(b**2))
+    retimed_better = sse_b < sse_a
+    cs = channel_score(ch, *((a, b) if retimed_better else (b, a)), 1, 1, math.nan)
+    pv = cs.p_value if math.isfinite(cs.p_value) else 1.0
+    shrink = 100.0 * (1.0 - cs.gap_after / cs.gap_before) if cs.gap_before > 0 else 0.0
+    # The shared rule's p-value threshold; its shrink and explained-error parts guard a larger model's extra
+    # parameters (these two have the same) and read the total error, which the gyro noise dominates here.
+    wins = pv < ALPHA
+    k_p, k_r = fits[0].value("K"), fits[1].value("K")
+    t_p, t_r = fits[0].T, fits[1].T
+    sk = math.hypot(fits[0].error("K"), fits[1].error("K"))
+    st = math.hypot(equivalent_t_stderr(fits[0]), equivalent_t_stderr(fits[1]))
+    unit = "rad/s" if ch == "r" else "rad"
+    text = (f"held-out {'yaw rate' if ch == 'r' else 'heading'} ({HOLDOUT_FRACTION:.0%} of the window, first-order "
+            f"output error): RMS {math.sqrt(sse_a / a.size) * scale:.4g} {unit} at constant speed, "
+            f"{math.sqrt(sse_b / b.size) * scale:.4g} {unit} re-timed ({shrink:.1f} % shrink for the better, "
+            f"p = {pv:.2g}, rule p < {ALPHA:g}, training K {k_p:.4g} vs "
+            f"{k_r:.4g} 1/s (errors in quadrature {sk:.2g}), T {t_p:.4g} vs {t_r:.4g} s ({st:.2g}))")
+    if wins:
+        if retimed_better:
+            return RetimeChoice(True, f"re-timed chosen: {text}; K and T are the speed-scaled model's at U0 "
+                                      f"(K = K0 u / U0, T = T0 U0 / u)")
+        return RetimeChoice(False, f"constant speed chosen: {text}")
+    return RetimeChoice(False, f"neither wins: {text}, constant speed kept with the training fits' difference as "
+                               f"a model term; {RETIME_TERM} K: +-{abs(k_r - k_p):.6g} 1/s; "
+                               f"{RETIME_TERM} T: +-{abs(t_r - t_p):.6g} s")
 
 
 def fit_window_order(win: NomotoWindow, order: int, noise: str = "auto", **kwargs) -> tuple[NomotoFit, str]:
