@@ -47,7 +47,8 @@ fit materially and beyond its errors is marked unsure
 
 A lone zig-zag whose record's held-out end leaves the structures on a near-tie, their K or T differing
 materially, keeps the first order with the difference as that term (:func:`near_tie_zigzag_fit`) rather than
-failing. Where every segment is a rudder step, T comes from one second-order fit of all of them
+failing; one whose speed rises in its turns is first fitted on the distance sailed, second order, where its
+held-out end chooses that (:mod:`pipeline.fit.nomoto_zigzag`). Where every segment is a rudder step, T comes from one second-order fit of all of them
 (:mod:`pipeline.fit.nomoto_joint`), made only for the fits that are kept (:func:`with_joint_fit`).
 
 The losing structure's held-out error is reported beside the winner's in every segment fit's
@@ -82,6 +83,7 @@ from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_oe import fit_nomoto
 from .nomoto_pool import JOINT_FOLLOWER
 from .nomoto_steady import steady_level_note
+from .nomoto_zigzag import retimed_zigzag_fit, retimed_zigzag_window
 from .nomoto_joint import joint_step_fit, shared_noise
 from .nomoto_segment import (LEAD_SPEED_SECONDS, MEASURED_RUDDER, ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order,
                              equivalent_t_stderr, fit_nomoto_window, fit_window, fit_window_order, first_order_start_values, prepare_window,
@@ -719,6 +721,10 @@ def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) 
     """A lone whole-record segment: its own structure choice (:func:`pipeline.fit.nomoto_segment.fit_nomoto_window`)
     plus the other structure fitted to the whole record for the model-structure term.
 
+    A zig-zag whose speed rises in its turns is first fitted on the distance sailed
+    (:func:`pipeline.fit.nomoto_zigzag.retimed_zigzag_fit`, its rudder-timing note as a step trial's), where its
+    held-out end chooses that; otherwise as below.
+
     The per-segment choice holds out the record's end: a second order selected there is a ``weak``
     decision, a first order kept an ``undecided`` one (:func:`structure_term_notes`). A zig-zag or a sinusoid
     only (a rudder step keeps its own fitter and fallbacks): empty otherwise.
@@ -736,6 +742,11 @@ def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) 
     """
     if seg.kind not in ("zigzag", "sinusoid"):
         return {}
+    retimed = retimed_zigzag_window(trial, win) if seg.kind == "zigzag" else None
+    if retimed is not None:
+        sf = retimed_zigzag_fit(trial, win, retimed)
+        if sf is not None:
+            return {index: with_rudder_timing_note(sf, retimed)}
     try:
         sf = fit_nomoto_window(trial, seg, seg.t_start, seg.t_end)
     except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
