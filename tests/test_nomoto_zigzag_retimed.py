@@ -6,7 +6,8 @@ scale with ``U0 / u`` and gain with ``u / U0`` (a linear manoeuvring model with 
 quadratic in the speed), whose rudder lift grows as ``sin(2 delta) / 2`` and whose speed rises towards
 ``U0 (1 + sin^2 delta)`` in the turns (+3 % at 10 deg, as PythonVehicleSimulator's Clarke83 ship), with a
 1 s servo lag, the rudder logged as measured. At constant time the record mixes faster and slower dynamics;
-re-timed on the distance sailed it is the model at ``U0``.
+re-timed on the distance sailed it is the model at ``U0``. The same ship slowing 6 % in its turns is not
+re-timed: its K and T carry the loss as a model term.
 """
 
 from __future__ import annotations
@@ -21,8 +22,10 @@ import pytest
 
 from pipeline.fit import fit_trial
 from pipeline.fit.nomoto_segment import prepare_window
-from pipeline.fit.nomoto_zigzag import (CURVATURE_NOTE, retimed_zigzag_fit, retimed_zigzag_window,
-                                        rudder_curvature_term)
+from pipeline.fit.nomoto_quality import STRUCTURE_TERM
+from pipeline.fit.nomoto_structure import lone_segment_fit
+from pipeline.fit.nomoto_zigzag import (CURVATURE_NOTE, SPEED_LOSS_FACTOR, SPEED_LOSS_TERM, retimed_zigzag_fit,
+                                        retimed_zigzag_window, rudder_curvature_term)
 from pipeline.flow import load_trial
 from pipeline.model.nomoto import nomoto2_sum_product
 from pipeline.segment import detect_segments
@@ -110,3 +113,23 @@ def test_the_re_timed_second_order_gives_k_within_3_percent_and_t_with_a_coverin
     assert k.ci95[0] <= K0 <= k.ci95[1]
     assert t.ci95[0] <= T_EQ <= t.ci95[1], (t.value, t.ci95, t.message)
     assert t.success or t.message.startswith("unsure")
+
+
+def test_a_zigzag_that_slows_in_its_turns_carries_the_speed_loss_as_a_term_on_k_and_t():
+    with tempfile.TemporaryDirectory() as tmp:
+        trial, segs, win = _trial_and_window(-2.0, tmp)   # 6 % slower at 10 deg
+        assert retimed_zigzag_window(trial, win) is None
+        zz = [i for i, s in enumerate(segs.items) if s.kind == "zigzag"][0]
+        sf = lone_segment_fit(trial, segs.items[zz], zz, win)[zz]
+    loss = 1.0 - float(np.min(_zigzag_log(-2.0)["u"])) / U0
+    assert 0.04 < loss < 0.08
+    for name in ("K", "T"):
+        notes = [p for p in sf.message.split("; ") if p.startswith(f"{STRUCTURE_TERM} {name}: +-")]
+        assert any(SPEED_LOSS_TERM in p for p in notes), sf.message
+        term = max(float(p.split("+-")[1].split(" ")[0]) for p in notes)
+        assert term >= SPEED_LOSS_FACTOR * 0.9 * loss * abs(sf.params[name])
+    with tempfile.TemporaryDirectory() as tmp:
+        trial, segs, win = _trial_and_window(0.0, tmp)
+        zz = [i for i, s in enumerate(segs.items) if s.kind == "zigzag"][0]
+        sf = lone_segment_fit(trial, segs.items[zz], zz, win)[zz]
+    assert SPEED_LOSS_TERM not in sf.message

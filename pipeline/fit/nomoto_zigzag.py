@@ -45,12 +45,14 @@ from ..records import Segment, SegmentFit, Trial
 from .heldout_test import MIN_SHRINK
 from .nomoto_oe import fit_nomoto
 from .nomoto_problem import unwrap_heading
-from .nomoto_quality import STRUCTURE_TERM, STRUCTURE_UNDECIDED
+from .nomoto_quality import STRUCTURE_TERM, STRUCTURE_UNDECIDED, largest_noted
 from .nomoto_records import NomotoFit
 from .nomoto_retime import retime_record
 from .nomoto_segment import (LEAD_SPEED_SECONDS, MIN_SAMPLES, RETIME_MAX, RETIME_SMOOTH_SECONDS, RETIMED, SPEED_RETIME,
                              NomotoWindow, fit_window, fit_window_order)
 
+#: Words of the speed-loss term of a zig-zag that slows in its turns (:func:`speed_loss_terms`).
+SPEED_LOSS_TERM = "the zig-zag lost"
 #: Note head of the rudder-curvature correction of a re-timed zig-zag's K.
 CURVATURE_NOTE = "K corrected for the rudder force's curvature"
 
@@ -266,7 +268,8 @@ def servo_t_note(sf: SegmentFit) -> str:
     return (f"{STRUCTURE_UNDECIDED} T: T = T1 + T2 - T3 = {sf.params['T']:.4g} s is the small difference of "
             f"T1 + T2 = {t12:.4g} s and T3 = {sf.params['T3']:.4g} s, and the servo lag fitted with it from the "
             f"logged command ({sf.params['t_servo']:.3g} s) moves it beyond its standard error (measured on a "
-            f"simulated ship: T 12 % short with the lag fitted, 2.7 % with the rudder angle logged): log the rudder angle")
+            f"simulated ship: T 12 % short with the lag fitted, 2.7 % with the rudder angle logged): log the "
+            f"rudder angle")
 
 
 def retimed_zigzag_fit(trial: Trial, win: NomotoWindow, retimed: NomotoWindow) -> SegmentFit | None:
@@ -354,3 +357,60 @@ def retimed_zigzag_fit(trial: Trial, win: NomotoWindow, retimed: NomotoWindow) -
     sf = replace(sf, params=dict(sf.params, K=k0),
                  stderr=dict(sf.stderr, K=sf.stderr.get("K", math.nan) * k0 / k_fit))
     return replace(sf, message="; ".join([sf.message] + notes) if sf.message else "; ".join(notes))
+
+
+#: Model term on K and T of a zig-zag that slows in its turns, per unit of its relative speed loss [-].
+SPEED_LOSS_FACTOR = 3.0
+
+
+def speed_loss_terms(trial: Trial, win: NomotoWindow, sf: SegmentFit) -> list[str]:
+    """Model terms on K and T of a zig-zag that slows in its turns (not re-timed), as notes ([] otherwise).
+
+    A 10/10 zig-zag sails at its one rudder amplitude and the drift that goes with it; the speed it loses is the
+    drag of that drift (quadratic in the sway velocity), and the hull's nonlinear sway and yaw forces grow the
+    same way, so K and T read at that amplitude depart from the linearised ones at zero rudder by an amount the
+    speed loss measures but one amplitude cannot give (re-timing on the distance sailed moves them the wrong
+    way, :mod:`pipeline.fit.nomoto_zigzag`'s docstring; fitting the record's halves, at 3.0 and 5.7 % loss,
+    and extrapolating to the straight-run speed left K +7.7 %, T -10 %: the departure is not the speed's). The
+    term is ``SPEED_LOSS_FACTOR`` times the loss, of the value; measured on PythonVehicleSimulator's tanker,
+    10/10 zig-zags, seeds 0-2 (benchmarks/RESULTS.md, ident41): at 25 m (6.0 % loss) K 7 to 12 % and T 11 to
+    18 % off, 1.2 to 3.0 times the loss, intervals missing on 9 of 12 without it; at 20 m (2.7 %) K 2.2 to 7.7 %.
+    Combined in quadrature with a model-structure term the fit already carries (the largest such note is the
+    one read, :func:`pipeline.fit.nomoto_quality.structure_term`).
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial (``u`` logged).
+    win : NomotoWindow
+        The zig-zag's window.
+    sf : SegmentFit
+        Its segment fit (``K``, ``T``).
+    """
+    if win.segment.kind != "zigzag" or not sf.success:
+        return []
+    sp = zigzag_speed(trial, win)
+    if sp is None:
+        return []
+    _, u0, u = sp
+    if not np.all(np.isfinite(u)):
+        return []
+    loss = float(np.max(u0 - u)) / u0
+    rise = float(np.max(u - u0)) / u0
+    if not (loss > SPEED_RETIME and loss > rise):
+        return []
+    out = []
+    for name, unit in (("K", "1/s"), ("T", "s")):
+        value = sf.params.get(name, math.nan)
+        if not math.isfinite(value):
+            continue
+        term = SPEED_LOSS_FACTOR * loss * abs(value)
+        before = largest_noted([sf], f"{STRUCTURE_TERM} {name}: +-")
+        total = math.hypot(term, before)
+        out.append(f"{STRUCTURE_TERM} {name}: +-{total:.6g} {unit} added in quadrature to its standard error"
+                   + (f" (with the model-structure term {before:.4g} {unit} above)" if before > 0 else "")
+                   + f": {SPEED_LOSS_TERM} {loss:.2%} of the straight-run speed U0 = {u0:.4g} m/s in its turns, "
+                   f"the drift's drag at its one rudder amplitude, where the hull's nonlinear forces move {name} "
+                   f"from its value at zero rudder by an amount one amplitude cannot give: {SPEED_LOSS_FACTOR:g} "
+                   f"times the loss, {term:.4g} {unit}")
+    return out
