@@ -22,10 +22,10 @@ import pytest
 
 from pipeline.fit import fit_trial
 from pipeline.fit.nomoto_segment import prepare_window
-from pipeline.fit.nomoto_quality import STRUCTURE_TERM
+from pipeline.fit.nomoto_quality import STRUCTURE_TERM, STRUCTURE_UNDECIDED
 from pipeline.fit.nomoto_structure import lone_segment_fit
-from pipeline.fit.nomoto_zigzag import (CURVATURE_NOTE, SPEED_LOSS_FACTOR, SPEED_LOSS_TERM, retimed_zigzag_fit,
-                                        retimed_zigzag_window, rudder_curvature_term)
+from pipeline.fit.nomoto_zigzag import (CURVATURE_NOTE, SERVO_T_SHARE, SPEED_LOSS_FACTOR, SPEED_LOSS_TERM,
+                                        retimed_zigzag_fit, retimed_zigzag_window, rudder_curvature_term)
 from pipeline.flow import load_trial
 from pipeline.model.nomoto import nomoto2_sum_product
 from pipeline.segment import detect_segments
@@ -38,8 +38,9 @@ AMP = math.radians(10.0)
 H, FS = 0.05, 5.0
 
 
-def _zigzag_log(speed_gain: float, seed: int = 0) -> pd.DataFrame:
-    """The ship's 10/10 zig-zag (30 s straight run first) logged at 5 Hz with the benchmark's sensor noise."""
+def _zigzag_log(speed_gain: float, seed: int = 0, commanded: bool = False) -> pd.DataFrame:
+    """The ship's 10/10 zig-zag (30 s straight run first) logged at 5 Hz with the benchmark's sensor noise (the
+    rudder's measured angle, or its command)."""
     a1, a0, b1, b0 = nomoto2_sum_product(K0, T12, T1T2, T3)
     x = np.zeros(3)          # psi, r U0 / u, x2 in the distance-sailed time
     u, d, dc = U0, 0.0, 0.0
@@ -54,7 +55,7 @@ def _zigzag_log(speed_gain: float, seed: int = 0) -> pd.DataFrame:
                     dc = -AMP
                 elif dc < 0 and x[0] < -AMP:
                     dc = AMP
-            rows.append((t, x[0], x[1] * u / U0, u, d))
+            rows.append((t, x[0], x[1] * u / U0, u, dc if commanded else d))
         v = 0.5 * math.sin(2.0 * d)
         scale = u / U0
         xdot = scale * np.array([x[1], -a1 * x[1] + x[2] + b1 * v, -a0 * x[1] + b0 * v])
@@ -65,14 +66,15 @@ def _zigzag_log(speed_gain: float, seed: int = 0) -> pd.DataFrame:
     rng = np.random.default_rng(1000 * seed + 17)
     psi = psi + math.radians(0.2) * rng.standard_normal(t.size)
     r = r + math.radians(0.05) * rng.standard_normal(t.size)
-    delta = delta + math.radians(0.1) * rng.standard_normal(t.size)
+    if not commanded:
+        delta = delta + math.radians(0.1) * rng.standard_normal(t.size)
     psi = (psi + math.pi) % (2 * math.pi) - math.pi
     return pd.DataFrame({"t": t, "psi": psi, "r": r, "u": u, "delta": delta})
 
 
-def _trial_and_window(speed_gain: float, tmp: str):
+def _trial_and_window(speed_gain: float, tmp: str, commanded: bool = False):
     path = Path(tmp) / "zigzag.csv"
-    _zigzag_log(speed_gain).to_csv(path, index=False)
+    _zigzag_log(speed_gain, commanded=commanded).to_csv(path, index=False)
     trial = load_trial([path])
     segs = detect_segments(trial)
     zz = [s for s in segs.items if s.dof == "yaw" and s.kind == "zigzag"]
@@ -133,3 +135,19 @@ def test_a_zigzag_that_slows_in_its_turns_carries_the_speed_loss_as_a_term_on_k_
         zz = [i for i, s in enumerate(segs.items) if s.kind == "zigzag"][0]
         sf = lone_segment_fit(trial, segs.items[zz], zz, win)[zz]
     assert SPEED_LOSS_TERM not in sf.message
+
+
+def test_with_the_rudder_logged_as_a_command_t_is_unsure_and_carries_the_servo_term():
+    with tempfile.TemporaryDirectory() as tmp:
+        trial, segs, win = _trial_and_window(1.0, tmp, commanded=True)
+        assert win.servo
+        sf = retimed_zigzag_fit(trial, win, retimed_zigzag_window(trial, win))
+        assert sf is not None and "t_servo" in sf.params
+        fits = fit_trial(trial, segs, parse_vessel({"name": "zz"}), extend=False)
+    assert f"{STRUCTURE_UNDECIDED} T:" in sf.message
+    terms = [float(p.split("+-")[1].split(" ")[0]) for p in sf.message.split("; ")
+             if p.startswith(f"{STRUCTURE_TERM} T: +-")]
+    assert terms and max(terms) >= SERVO_T_SHARE * abs(sf.params["T"]) * 0.999
+    t = fits.estimates["T_nomoto"]
+    assert not t.success
+    assert t.ci95[0] <= T_EQ <= t.ci95[1], (t.value, t.ci95)
