@@ -250,7 +250,7 @@ def rudder_noise_terms(trial: Trial, win: NomotoWindow, fit: NomotoFit) -> tuple
 
 
 #: Model term on T of a re-timed zig-zag fitted with a servo lag, as a share of T [-] (:func:`servo_t_note`).
-SERVO_T_SHARE = 0.12
+SERVO_T_SHARE = 0.2
 
 
 def servo_t_note(sf: SegmentFit) -> str:
@@ -259,8 +259,9 @@ def servo_t_note(sf: SegmentFit) -> str:
     The lag fitted with the ship trades with ``T = T1 + T2 - T3``, on a ship with a pole-zero pair the small
     difference of two large numbers: measured, Clarke83's noise-free 10/10 zig-zag re-timed, T -12.4 % +- 0.4 %
     with the lag fitted from the command (1.05 s against the servo's 1.0 s) against -2.7 % +- 0.2 % driven by the
-    measured rudder angle; on seeds 0-7 of the benchmark's noise -26 to +2 %, relative standard errors 8-12 %,
-    the intervals missing on 2 of 8. That shift, ``SERVO_T_SHARE`` of T, is added as a model term to T's error
+    measured rudder angle; on seeds 0-7 of the benchmark's noise -26 to +2 % (mean -14 %), relative standard errors
+    8-12 %, the intervals missing on 2 of 8 (on 2 of 8 still, at z = -1.97, with 12 % of T as a term). A shift of
+    ``SERVO_T_SHARE`` of T, the largest seen less the standard error, is added as a model term to T's error
     (:func:`retimed_zigzag_fit`).
 
     Parameters
@@ -361,8 +362,8 @@ def retimed_zigzag_fit(trial: Trial, win: NomotoWindow, retimed: NomotoWindow) -
     if servo_t:
         term = SERVO_T_SHARE * abs(sf.params["T"])
         notes += [servo_t, f"{STRUCTURE_TERM} T: +-{term:.6g} s added in quadrature to its standard error: the "
-                           f"servo lag fitted with it moved T by {SERVO_T_SHARE:.0%} of its value on a simulated ship "
-                           f"with the rudder logged as a command ({SERVO_T_SHARE:g} of T)"]
+                           f"servo lag fitted with it moved T by up to {SERVO_T_SHARE:.0%} of its value, beyond its "
+                           f"standard error, on a simulated ship with the rudder logged as a command"]
     sf = replace(sf, params=dict(sf.params, K=k0),
                  stderr=dict(sf.stderr, K=sf.stderr.get("K", math.nan) * k0 / k_fit))
     return replace(sf, message="; ".join([sf.message] + notes) if sf.message else "; ".join(notes))
