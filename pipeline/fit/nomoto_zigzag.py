@@ -187,7 +187,13 @@ RUDDER_NOISE_DRAWS = 3
 
 
 def second_order_kt(fit: NomotoFit) -> tuple[float, float]:
-    """K [1/s] and the first-order equivalent T = T1 + T2 - T3 [s] of a second-order fit (sum-product form)."""
+    """K [1/s] and the first-order equivalent T = T1 + T2 - T3 [s] of a second-order fit (sum-product form).
+
+    Parameters
+    ----------
+    fit : NomotoFit
+        A fit of order ``ORDER2_SUM_PRODUCT`` (``K``, ``T12``, ``T1T2``, ``T3``).
+    """
     v = dict(zip(fit.names, fit.values))
     return float(v["K"]), float(v["T12"] - v["T3"])
 
