@@ -47,7 +47,8 @@ fit materially and beyond its errors is marked unsure
 
 A lone zig-zag whose record's held-out end leaves the structures on a near-tie, their K or T differing
 materially, keeps the first order with the difference as that term (:func:`near_tie_zigzag_fit`) rather than
-failing. Where every segment is a rudder step, T comes from one second-order fit of all of them
+failing; one whose speed rises in its turns is first fitted on the distance sailed, second order, where its
+held-out end chooses that (:mod:`pipeline.fit.nomoto_zigzag`). Where every segment is a rudder step, T comes from one second-order fit of all of them
 (:mod:`pipeline.fit.nomoto_joint`), made only for the fits that are kept (:func:`with_joint_fit`).
 
 The losing structure's held-out error is reported beside the winner's in every segment fit's
@@ -82,11 +83,13 @@ from .nomoto_records import NomotoFit, NomotoRecord
 from .nomoto_oe import fit_nomoto
 from .nomoto_pool import JOINT_FOLLOWER
 from .nomoto_steady import steady_level_note
+from .nomoto_zigzag import retimed_zigzag_fit, retimed_zigzag_window, speed_loss_terms
 from .nomoto_joint import joint_step_fit, shared_noise
 from .nomoto_segment import (LEAD_SPEED_SECONDS, MEASURED_RUDDER, ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order,
                              equivalent_t_stderr, fit_nomoto_window, fit_window, fit_window_order, first_order_start_values, prepare_window,
                              rec_channel, segment_fit_of, slow_noise_note, speed_range_note, stack_rows,
                              structure_ambiguity)
+from .nomoto_segment import RETIMED
 from .nomoto_segment import structure_note as per_segment_structure_note
 from .segment_fit import failed_segment_fit
 
@@ -719,6 +722,37 @@ def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) 
     """A lone whole-record segment: its own structure choice (:func:`pipeline.fit.nomoto_segment.fit_nomoto_window`)
     plus the other structure fitted to the whole record for the model-structure term.
 
+    A zig-zag whose speed rises in its turns is first fitted on the distance sailed
+    (:func:`pipeline.fit.nomoto_zigzag.retimed_zigzag_fit`, its rudder-timing note as a step trial's), where its
+    held-out end chooses that; one that slows in its turns carries the speed loss as a model term on K and T
+    (:func:`pipeline.fit.nomoto_zigzag.speed_loss_terms`). Otherwise see :func:`_lone_segment_fit`.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial.
+    seg : Segment
+        The segment.
+    index : int
+        Its index in the trial's segments.
+    win : NomotoWindow
+        Its prepared window.
+    """
+    out = _lone_segment_fit(trial, seg, index, win)
+    sf = out.get(index)
+    if sf is None or seg.kind != "zigzag" or RETIMED in sf.message:
+        return out
+    notes = speed_loss_terms(trial, win, sf)
+    if not notes:
+        return out
+    return {**out, index: replace(sf, message="; ".join([sf.message] + notes) if sf.message else "; ".join(notes))}
+
+
+def _lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) -> dict[int, SegmentFit]:
+    """:func:`lone_segment_fit` before the speed-loss terms: the re-timed zig-zag where it is chosen, else the
+    segment's own structure choice plus the other structure fitted to the whole record for the model-structure
+    term.
+
     The per-segment choice holds out the record's end: a second order selected there is a ``weak``
     decision, a first order kept an ``undecided`` one (:func:`structure_term_notes`). A zig-zag or a sinusoid
     only (a rudder step keeps its own fitter and fallbacks): empty otherwise.
@@ -736,6 +770,11 @@ def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) 
     """
     if seg.kind not in ("zigzag", "sinusoid"):
         return {}
+    retimed = retimed_zigzag_window(trial, win) if seg.kind == "zigzag" else None
+    if retimed is not None:
+        sf = retimed_zigzag_fit(trial, win, retimed)
+        if sf is not None:
+            return {index: with_rudder_timing_note(sf, retimed)}
     try:
         sf = fit_nomoto_window(trial, seg, seg.t_start, seg.t_end)
     except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
