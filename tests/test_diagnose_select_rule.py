@@ -56,16 +56,3 @@ def test_on_top_a_channel_at_its_floor_keeps_the_gap_shrink():
     rob = (1e-10, 0.5)
     assert channel_significant(chans, rob, 1.5, on_top=True)
     assert not channel_significant(chans, rob, 1.5, on_top=True, floors={"r": 1.271, "psi": 1.107})
-
-
-def test_on_top_the_robustness_clause_asks_the_channels_own_p_value():
-    # Randomised seed 48 r008 (AAUSHIP's N_v coupling under waves, on top of the waves): r's p-value 3e-38,
-    # 9.3e-4 with its most favourable fold left out. The Bonferroni factor of two channels is paid by the
-    # main test (the choice of channel); the robustness clause is one question of that channel.
-    chans = (_chan("r", 6.31, 4.73, 3e-38), _chan("psi", 10.26, 8.53, 1e-20))
-    rob = (9.3e-4, 2e-3)
-    assert channel_significant(chans, rob, 20.0, on_top=True)
-    # The first round keeps the calibrated rule (robust p-value times the channels), and a channel whose own
-    # p-value without its best fold is above 1e-3 stays refused on top.
-    assert not channel_significant(chans, rob, 20.0)
-    assert not channel_significant(chans, (1.1e-3, 2e-3), 20.0, on_top=True)

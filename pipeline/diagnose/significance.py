@@ -226,20 +226,6 @@ ON_TOP_RULE = (
     f"held-out floor; the p-value, robustness and scale conditions stay")
 
 
-#: The robustness clause's multiplicity on top, in words. A candidate passes when some channel passes
-#: every condition; under the null the chance of that is at most the sum over the k channels of the chance
-#: that the channel's p-value is under ALPHA / k, i.e. ALPHA, whatever the robustness clause asks. The
-#: factor k pays for choosing the channel once, in the main test. The clause guards another failure (one
-#: fold's training set pinning a gain badly) of the channel already chosen, a single question per channel:
-#: multiplying its p-value by k again asked a two-channel DOF (yaw: r and psi) for 5e-4 where a one-channel
-#: DOF is asked for 1e-3. Randomised seed 48 r008 (an N_v coupling under waves, on top of them): p = 3e-38,
-#: 25.1 % of r's gap, its most favourable fold left out 9.3e-4, refused by the factor 2 alone.
-ROBUST_MULTIPLICITY = (
-    f"once an effect is selected, the robustness clause is asked of the passing channel's own p-value with its "
-    f"most favourable fold left out (below {ALPHA_ROBUST:g}, no Bonferroni factor: the main test pays for the "
-    f"choice of channel)")
-
-
 def channel_significant(chans: tuple[ChannelScore, ...], p_robust: tuple[float, ...], dof_shrink: float,
                         on_top: bool = False, floors: Mapping[str, float] | None = None) -> bool:
     """The per-channel rule (module docstring): one channel passes :func:`is_significant` on its
@@ -255,10 +241,6 @@ def channel_significant(chans: tuple[ChannelScore, ...], p_robust: tuple[float, 
     floor (``floors``, the gap a correct model leaves; 1 when missing) counts that way: below it nothing
     is left that a correct model would not leave (seed 34 r006: on top of waves, a rudder rate limit
     took r from 1.18 to 1.11 noise units, under r's floor of 1.27, and was selected for a true delay).
-
-    ``on_top`` also takes the robustness clause per channel without the Bonferroni factor
-    (:data:`ROBUST_MULTIPLICITY`): the channel must stay below ``ALPHA_ROBUST`` with its most favourable
-    fold left out, not below ``ALPHA_ROBUST / k``.
 
     Parameters
     ----------
@@ -286,10 +268,7 @@ def channel_significant(chans: tuple[ChannelScore, ...], p_robust: tuple[float, 
         shrink = 100.0 * (1.0 - c.gap_after / c.gap_before)
         if on_top and c.gap_before > max(float((floors or {}).get(c.channel, 1.0)), 1.0):
             shrink = float(np.nanmax([shrink, excess_shrink(c.gap_before, c.gap_after)]))
-        # On top, the robustness clause asks the channel's own p-value without its best fold (no factor k):
-        # the factor k pays for choosing the channel, and the main test already pays it (ROBUST_MULTIPLICITY).
-        pr_k = pr if (on_top or not np.isfinite(pr)) else min(pr * k, 1.0)
-        if is_significant(min(c.p_value * k, 1.0), pr_k, shrink, c.explained):
+        if is_significant(min(c.p_value * k, 1.0), min(pr * k, 1.0) if np.isfinite(pr) else pr, shrink, c.explained):
             return True
     return False
 

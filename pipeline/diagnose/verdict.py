@@ -321,8 +321,7 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         gap_before=gb, gap_after=ga if winner else gb, candidates=tuple(ranked), places=places,
         dofs=tuple(summaries), traces=tuple(all_traces), spectra=tuple(spectra), thresholds=thresholds,
         notes=tuple(notes), effects=effects, gap_final=gap_final, unexplained=unexplained,
-        ranking_rule=f"{RANKING_RULE}; significance: {sig.SIGNIFICANCE_RULE}; {sig.ON_TOP_RULE}; {sig.ROBUST_MULTIPLICITY}",
-        unexplained_test=sel.UNEXPLAINED_TEST)
+        ranking_rule=f"{RANKING_RULE}; significance: {sig.SIGNIFICANCE_RULE}; {sig.ON_TOP_RULE}", unexplained_test=sel.UNEXPLAINED_TEST)
 
 
 #: A composed delay counts only when it exceeds this many jackknife standard errors (a delay of zero
