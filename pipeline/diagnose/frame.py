@@ -16,9 +16,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Mapping
 
+import numpy as np
+
 from ..records import Segments, Trial
 from ..vessel import Vessel
 from .actuators import actuator_key
+from .candidates import Candidate
 from .gridfit import grid_data
 from .problem import DofProblem, Window, build_problems
 from .segments import diagnose_segments
@@ -50,6 +53,27 @@ class DofFrame:
     noise_unit: Mapping[str, float] = field(default_factory=dict)
 
 
+def first_pass_time_constants(trial: Trial, segments: Segments, vessel: Vessel | None) -> dict[str, float]:
+    """First pass of a diagnosis: the baseline fitted on every window of each DOF, its T [s] per DOF, which
+    sizes the analysis step and the blocks.
+
+    Parameters
+    ----------
+    trial : Trial
+        Aligned trial.
+    segments : Segments
+        Its segments.
+    vessel : Vessel, optional
+        Vessel config.
+    """
+    out = {}
+    for p in build_problems(trial, segments, vessel):
+        d = grid_data(p)
+        fitted = Candidate(p, d).fit(np.arange(len(p.windows)))
+        out[p.dof] = float(fitted.params["T"])
+    return out
+
+
 def diagnosis_frame(trial: Trial, vessel: Vessel | None = None, segments: Segments | None = None
                     ) -> dict[str, DofFrame]:
     """The frame a diagnosis of ``trial`` uses, per DOF (the steps of
@@ -69,11 +93,9 @@ def diagnosis_frame(trial: Trial, vessel: Vessel | None = None, segments: Segmen
     dict[str, DofFrame]
         DOF name -> its frame (roll and pitch are not framed).
     """
-    from .verdict import _refine_time_constants
-
     segs = segments if segments is not None else diagnose_segments(trial)
     out = {}
-    for p in build_problems(trial, segs, vessel, time_constants=_refine_time_constants(trial, segs, vessel)):
+    for p in build_problems(trial, segs, vessel, time_constants=first_pass_time_constants(trial, segs, vessel)):
         timed, advance = input_timing(p)
         d = grid_data(timed)
         units = {p.channel: float(d.sigma_y)}
@@ -115,4 +137,4 @@ def on_frame(p: DofProblem, f: DofFrame) -> DofProblem:
                    noise_unit=dict(f.noise_unit))
 
 
-__all__ = ["DofFrame", "diagnosis_frame", "on_frame"]
+__all__ = ["DofFrame", "diagnosis_frame", "first_pass_time_constants", "on_frame"]

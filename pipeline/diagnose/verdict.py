@@ -31,7 +31,7 @@ from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, Eff
 from .replay import default_band, rank_places, replay, traces, where
 from .segments import diagnose_segments
 from .timing import input_timing
-from .frame import DofFrame, on_frame
+from .frame import DofFrame, first_pass_time_constants, on_frame
 
 
 def _unit(name: str, p: DofProblem, run: CandidateRun) -> str:
@@ -73,13 +73,9 @@ def _input_of(run: CandidateRun) -> str | None:
 
 
 def _refine_time_constants(trial: Trial, segments: Segments, vessel: Vessel | None) -> dict[str, float]:
-    """First pass: fit the baseline on every window to size the analysis step and blocks."""
-    out = {}
-    for p in build_problems(trial, segments, vessel):
-        d = grid_data(p)
-        fitted = Candidate(p, d).fit(np.arange(len(p.windows)))
-        out[p.dof] = float(fitted.params["T"])
-    return out
+    """First pass: fit the baseline on every window to size the analysis step and blocks
+    (:func:`pipeline.diagnose.frame.first_pass_time_constants`)."""
+    return first_pass_time_constants(trial, segments, vessel)
 
 
 def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | None = None, fits: Fits | None = None,
