@@ -1183,11 +1183,17 @@ def _channel_gaps(rep) -> dict:
     return chan
 
 
-def power_off(case: RandomCase, i: int | None) -> dict:
+def power_off(case: RandomCase, i: int | None, framed: bool = True) -> dict:
     """The trial diagnosed again with its ``i``-th effect switched off, every draw (vessel, schedule, log
     rate, sensor noise) as in the trial: what the data show of that effect is the difference between
     the two diagnoses (:func:`perfect_shrink`). ``i`` None: the trial as it was (:func:`add_power`, for a
     run saved without ``dof_noise``).
+
+    ``framed`` (default): the trial without the effect is diagnosed on the frame of the trial with it
+    (:func:`pipeline.diagnose.frame.diagnosis_frame`: the same windows, analysis step, input timing and
+    noise units per DOF), so the two diagnoses differ by the effect alone and not by their windowing
+    (diag24: seed 46 r005's trial without its GNSS lag was cut into 24 surge windows against 22, its
+    sog noise unit 11 % apart). False: on its own frame, as before (``"framed": false`` in the record).
 
     Returns
     -------
@@ -1196,12 +1202,20 @@ def power_off(case: RandomCase, i: int | None) -> dict:
         noise unit of its response, SI) and ``selected`` (labels) of the diagnosis without it.
     """
     from pipeline.diagnose import diagnose
+    from pipeline.diagnose.frame import diagnosis_frame
 
     with tempfile.TemporaryDirectory() as tmp:
-        files, vessel, truth = make_random_trial(case, Path(tmp), drop=i)
+        frame = None
+        (Path(tmp) / "on").mkdir()
+        (Path(tmp) / "off").mkdir()
+        if i is not None and framed:
+            on_files, on_vessel, on_truth = make_random_trial(case, Path(tmp) / "on")
+            on_vessel = stated_noise(case, on_truth, on_vessel)
+            frame = diagnosis_frame(load_trial(on_files, on_vessel), on_vessel)
+        files, vessel, truth = make_random_trial(case, Path(tmp) / "off", drop=i)
         vessel = stated_noise(case, truth, vessel)
-        rep = diagnose(load_trial(files, vessel), vessel)
-    return {"effect": i, "dof_gaps": {d.dof: d.gap for d in rep.dofs},
+        rep = diagnose(load_trial(files, vessel), vessel, frame=frame)
+    return {"effect": i, "framed": frame is not None, "dof_gaps": {d.dof: d.gap for d in rep.dofs},
             "dof_gaps_after": {e.dof: e.gap_after for e in rep.effects},
             "channel_gaps": _channel_gaps(rep), "dof_noise": {d.dof: float(d.noise_floor) for d in rep.dofs},
             "selected": [e.label for e in rep.effects]}
@@ -1225,8 +1239,11 @@ def perfect_shrink(r: dict) -> tuple[float, str] | None:
     (the rule's shrink on top). The DOF of the effect, or for a delay of every input the DOF and channel
     where it is largest. None when the trial has no power record.
 
-    An upper bound, not a candidate's reach: the trial without the effect is diagnosed on its own
-    windows, input timing and noise floor, which the effect can move (randomised seed 41 r009, a GNSS
+    With a framed record (``power["framed"]``, :func:`power_off`'s default) the trial without the effect is
+    diagnosed on the windows, input timing and noise unit of the trial with it, and the shrink is what a
+    perfect candidate could reach on them (seed 46 r005's GNSS lag: 3.6 % framed against 10.3 % unframed).
+    Unframed (older records) it is an upper bound, not a candidate's reach: the trial without the effect is
+    diagnosed on its own windows, input timing and noise floor, which the effect can move (randomised seed 41 r009, a GNSS
     lag of 0.18 s at 4.5 Hz: 34 surge windows with the lag, 35 without, inputs advanced 0 and 0.022 s;
     29.5 % here, while the delay candidate held at 0.066-0.18 s, the lag less or more of the log's
     timing, leaves sog's held-out gap at 1.18-1.21 noise units against 1.177 without it), and the error
@@ -1475,9 +1492,13 @@ def miss_cause(r: dict) -> str | None:
         return which + "inside the log's timing of the commands (below detection)"
     pw = perfect_shrink(r) if which == "pair, second: " else None
     if pw is not None:
+        framed = bool((r.get("power") or {}).get("framed"))
+        on = " on the same frame" if framed else ""
         if pw[0] < RULE_SHRINK:
-            return which + f"the trial without it leaves gaps less than {RULE_SHRINK:g} % smaller (below detection)"
-        return which + f"the trial without it leaves a gap {RULE_SHRINK:g} % smaller or more (an upper bound of power)"
+            return which + f"the trial without it{on} leaves gaps less than {RULE_SHRINK:g} % smaller (below detection)"
+        return which + (f"the trial without it on the same frame leaves a gap {RULE_SHRINK:g} % smaller or more "
+                        f"(within a perfect candidate's reach)" if framed else
+                        f"the trial without it leaves a gap {RULE_SHRINK:g} % smaller or more (an upper bound of power)")
     fl = at_floor(r, dof)
     if fl:
         return which + "at the floor (below detection)"

@@ -196,9 +196,11 @@ def grid_data(p: DofProblem, inputs: Mapping[str, np.ndarray] | None = None) -> 
     if angle is not None:
         w_angle = 1.0 / channel_scale(angle - _first(angle), smask & np.isfinite(angle))
     stated = p.stated_noise
-    sigma_y = block_noise(p.raw[p.channel], w, p.m, trapezoid=True, stated=stated.get(p.channel))
-    sigma_a = (block_noise(p.raw[p.angle], w, p.m, trapezoid=True, stated=stated.get(p.angle)) if p.angle
-               else float("nan"))
+    unit = p.noise_unit
+    sigma_y = (unit[p.channel] if p.channel in unit else
+               block_noise(p.raw[p.channel], w, p.m, trapezoid=True, stated=stated.get(p.channel)))
+    sigma_a = (float("nan") if not p.angle else unit[p.angle] if p.angle in unit else
+               block_noise(p.raw[p.angle], w, p.m, trapezoid=True, stated=stated.get(p.angle)))
     # Its standard error: a line's end point through 2m + 1 samples carries about 4 / (2m + 1) of a
     # sample's noise variance, i.e. about twice a block mean's; taken Y0_PRIOR_WIDTH times wider,
     # since the noise between samples is rarely as white as that count assumes, and a prior that

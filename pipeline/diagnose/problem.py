@@ -138,6 +138,10 @@ class DofProblem:
         Actuators that drive the DOF's inputs (actuator space, :mod:`pipeline.diagnose.actuators`),
         their gains restricted to these inputs; their signals are in ``raw`` under
         :func:`pipeline.diagnose.actuators.actuator_key`. Empty when the candidates act on the inputs.
+    noise_unit : Mapping[str, float]
+        Output channel -> noise per analysis step [SI] to use as the channel's noise unit instead of
+        measuring it (:func:`pipeline.diagnose.gridfit.grid_data`); empty (the default): measured. Set
+        only by a diagnosis on another trial's frame (:mod:`pipeline.diagnose.frame`).
     """
 
     dof: str
@@ -156,6 +160,7 @@ class DofProblem:
     derived_from: str | None = None
     stated_noise: Mapping[str, float] = field(default_factory=dict)
     actuators: tuple = ()
+    noise_unit: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def outputs(self) -> tuple[str, ...]:

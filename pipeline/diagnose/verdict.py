@@ -31,6 +31,7 @@ from ..records import RANKING_RULE, CandidateResult, ChannelGap, DofSummary, Eff
 from .replay import default_band, rank_places, replay, traces, where
 from .segments import diagnose_segments
 from .timing import input_timing
+from .frame import DofFrame, first_pass_time_constants, on_frame
 
 
 def _unit(name: str, p: DofProblem, run: CandidateRun) -> str:
@@ -72,18 +73,14 @@ def _input_of(run: CandidateRun) -> str | None:
 
 
 def _refine_time_constants(trial: Trial, segments: Segments, vessel: Vessel | None) -> dict[str, float]:
-    """First pass: fit the baseline on every window to size the analysis step and blocks."""
-    out = {}
-    for p in build_problems(trial, segments, vessel):
-        d = grid_data(p)
-        fitted = Candidate(p, d).fit(np.arange(len(p.windows)))
-        out[p.dof] = float(fitted.params["T"])
-    return out
+    """First pass: fit the baseline on every window to size the analysis step and blocks
+    (:func:`pipeline.diagnose.frame.first_pass_time_constants`)."""
+    return first_pass_time_constants(trial, segments, vessel)
 
 
 def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | None = None, fits: Fits | None = None,
              progress: Callable[[int], Callable[[], None]] | None = None, jobs: int = 1,
-             detected: Segments | None = None) -> GapReport:
+             detected: Segments | None = None, frame: Mapping[str, DofFrame] | None = None) -> GapReport:
     """Diagnose the sim-to-real gap of a trial.
 
     Parameters
@@ -106,6 +103,11 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         Without ``segments``: the segment stage's detection on this trial, ``segment_trial(trial)``
         with no manifest segments, so that it is not run again (see
         :func:`pipeline.diagnose.segments.diagnose_segments`).
+    frame : Mapping[str, DofFrame], optional
+        Another trial's frame (:func:`pipeline.diagnose.frame.diagnosis_frame`, a trial of the same
+        schedule and log): each DOF is diagnosed on its windows, analysis step, input timing and noise
+        units instead of this trial's own, and only its DOFs are diagnosed (roll and pitch as usual).
+        For measuring what an effect changes (the benchmark's power), not for a real trial.
 
     Returns
     -------
@@ -122,16 +124,20 @@ def diagnose(trial: Trial, vessel: Vessel | None = None, segments: Segments | No
         raise DiagnoseError(f"{trial.name}: expected at least one manoeuvre segment (coast-down, step, zig-zag, "
                             f"decay) or a logged input to replay, found none in channels "
                             f"{[c for c in trial.data.columns if c != 't']}")
-    t_consts = _refine_time_constants(trial, segs, vessel)
+    t_consts = (_refine_time_constants(trial, segs, vessel) if frame is None
+                else {dof: f.t_guess for dof, f in frame.items()})
     space_note = actuator_space(trial, vessel).note
     if space_note:
         notes.append(space_note)
     problems = build_problems(trial, segs, vessel, time_constants=t_consts)
+    if frame is not None:
+        problems = [on_frame(p, frame[p.dof]) for p in problems if p.dof in frame]
     osc_problems = [q for q in (osc.build_oscillatory(trial, segs, dof) for dof in ("roll", "pitch")) if q is not None]
     # Independent units, side by side in worker processes when ``jobs`` allows: the roll and pitch
     # cross-validations (their results are used below, in the same order as before) and each DOF's input
     # timing and grid data.
-    early = ordered_map(_early_unit, [("osc", q) for q in osc_problems] + [("timing", p) for p in problems],
+    early = ordered_map(_early_unit, [("osc", q) for q in osc_problems]
+                        + [("timing", p) if frame is None else ("framed", (p, frame[p.dof].advance)) for p in problems],
                         jobs=jobs)
     osc_done, timed = early[:len(osc_problems)], early[len(osc_problems):]
     logged = {p.dof: {c: p.raw[c] for c in p.inputs} for p in problems}
@@ -388,10 +394,14 @@ def _stated_noise_notes(p: DofProblem) -> list[str]:
 def _early_unit(_, job):
     """A unit of :func:`pipeline.parallel.ordered_map` in :func:`diagnose`: ``("osc", q)`` ->
     :func:`_oscillatory_dof` of ``q``; ``("timing", p)`` -> ``(problem, advance, grid data)``, the
-    problem with its input timing (:func:`pipeline.diagnose.timing.input_timing`) and its grid data."""
+    problem with its input timing (:func:`pipeline.diagnose.timing.input_timing`) and its grid data;
+    ``("framed", (p, advance))`` -> ``(p, advance, grid data)`` (a problem on another trial's frame)."""
     kind, problem = job
     if kind == "osc":
         return _oscillatory_dof(problem)
+    if kind == "framed":  # on another trial's frame: its timing is already applied (:func:`on_frame`)
+        p, advance = problem
+        return p, advance, grid_data(p)
     timed, advance = input_timing(problem)
     return timed, advance, grid_data(timed)
 
