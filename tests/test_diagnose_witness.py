@@ -120,3 +120,16 @@ def test_witness_estimates_most_precise_first():
     got = witness_estimates(s, "actuator_delay", [_damping(), own])
     assert [w[0] for w in got] == ["its own selected delay", "first round"]
     assert got[0][1:] == (0.07, 0.01) and not math.isnan(got[1][2])
+
+
+@pytest.mark.slow  # 60-150 s: a 50 Hz twin-thruster trial diagnosed end to end (make test-ci)
+def test_seed_50_r014_gnss_lag_beside_a_yaw_damping_is_the_sensors():
+    """The benchmark's trial itself: before, ``actuator_delay`` in surge (4.7 %, "yaw shows a delay too")."""
+    from test_diagnose_benchmark_thinning import _bench
+
+    bench = _bench()
+    out = bench.run_random_case(bench.random_cases(16, 50, ("pair",))[14])
+    assert [e["effect"] for e in out["effects"]] == ["sensor_delay", "nonlinear_damping"]
+    sel = [(s["effect"], s["dof"], s["label"]) for s in out["selected"]]
+    assert ("sensor_delay", "surge", "sensor_delay[gnss]") in sel, sel
+    assert not any(e == "actuator_delay" for e, _, _ in sel), sel
