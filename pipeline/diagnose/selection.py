@@ -30,7 +30,10 @@ pair only when each is significant on top of the other.
 Sensor or actuator: an input delay and an output (sensor) delay look the same in one channel of a
 linear model. When another DOF, driven by inputs that change at the same instants and measured by a
 different sensor group, shows no such delay, the delay is in the first channel's sensor group, not
-in the actuators: :func:`sensor_or_actuator` renames it ``sensor_delay``.
+in the actuators: :func:`sensor_or_actuator` renames it ``sensor_delay``. Each witness DOF's delay
+estimates (first round, on top of its other effect, its own selected delay) are read as "none", "the
+delay" or "cannot tell", the most precise that tells decides, and a delay that no estimate tells about is
+reported unsure (:func:`witness_reading`).
 
 Unexplained (:func:`unexplained`): a channel whose held-out gap ``g`` (noise units) after the
 selected effects fails the test "only what a correct model leaves is left",
