@@ -30,7 +30,10 @@ pair only when each is significant on top of the other.
 Sensor or actuator: an input delay and an output (sensor) delay look the same in one channel of a
 linear model. When another DOF, driven by inputs that change at the same instants and measured by a
 different sensor group, shows no such delay, the delay is in the first channel's sensor group, not
-in the actuators: :func:`sensor_or_actuator` renames it ``sensor_delay``.
+in the actuators: :func:`sensor_or_actuator` renames it ``sensor_delay``. Each witness DOF's delay
+estimates (first round, on top of its other effect, its own selected delay) are read as "none", "the
+delay" or "cannot tell", the most precise that tells decides, and a delay that no estimate tells about is
+reported unsure (:func:`witness_reading`).
 
 Unexplained (:func:`unexplained`): a channel whose held-out gap ``g`` (noise units) after the
 selected effects fails the test "only what a correct model leaves is left",
@@ -746,26 +749,56 @@ def _witness_delay(results: list, label: str) -> CandidateResult | None:
         next((r for r, _ in results if r.effect == "actuator_delay" and r.input_channel is None), None)
 
 
-def _stderr(r: CandidateResult | None) -> float:
-    tb = _param(r, "tau_d") if r is not None else None
-    if tb is None or not math.isfinite(tb.value):
-        return math.inf
-    return tb.stderr if math.isfinite(tb.stderr) else 0.0
+#: Where a witness estimate comes from when it is the witness DOF's own selected delay.
+OWN_DELAY = "its own selected delay"
+#: Standard errors by which a witness must stand apart from a hypothesis to rule it out
+#: (:func:`witness_reading`).
+WITNESS_Z = 2.0
 
 
-def witness_delay(s: DofState, label: str) -> CandidateResult | None:
-    """A DOF's delay candidate that witnesses another DOF's delay (:func:`sensor_or_actuator`): the
-    more precise (smaller jackknife error) of its first round's and, when another effect (not a delay
-    or rate limit) was selected in it, its last round's (on top of that effect).
+def witness_reading(tau: float, tau_se: float, tb: float, tb_se: float, selected: bool = False) -> str:
+    """What one witness estimate says of a delay ``tau`` selected in another DOF: ``"none"`` (the
+    witness shows no such delay: a sensor delay), ``"delay"`` (it shows the delay too: the inputs act
+    late) or ``""`` (it cannot tell).
 
-    Once this DOF's own delay or rate limit is selected, its last round's delay is what is left over,
-    so only the first round speaks. Once another effect is selected in it (a quadratic yaw damping),
-    the delay fitted on top of that effect can be the better witness: in the first round it was
-    fitted beside the damping's large error (randomised seed 30 r012: a GNSS lag of 0.15 s in surge;
-    yaw's delay 0.024 +- 0.032 s in the first round, not clearly under half the surge delay, so the
-    lag was called ``actuator_delay``; 0.012 +- 0.015 s on top of the damping). On other data the
-    first round is the sharper one (every fold at zero while the damping's misfit leaves a small
-    delay on top of it), hence the smaller error decides.
+    ``"none"`` when the witness' delay plus ``WITNESS_Z`` errors stays under ``NO_DELAY_FRACTION``
+    of ``tau``, or when it is within ``WITNESS_Z`` of its own errors of zero and more than
+    ``WITNESS_Z`` combined errors under ``tau`` (a witness that sees no delay and rules the full one
+    out; randomised seed 50 r014, a GNSS lag of 0.15 s in surge: surge 0.128 +- 0.013 s, yaw
+    0.022 +- 0.034 s in the first round). ``"delay"`` when the witness' delay less ``WITNESS_Z``
+    errors is at least ``NO_DELAY_FRACTION`` of ``tau``, or (``selected``: the witness DOF's own
+    delay, significant there) when it is more than ``WITNESS_Z`` errors above zero.
+
+    Parameters
+    ----------
+    tau, tau_se : float
+        The selected delay and its jackknife error [s].
+    tb, tb_se : float
+        The witness' delay and its jackknife error [s] (0: none stated).
+    selected : bool
+        The witness estimate is a delay selected in the witness DOF.
+    """
+    se = math.hypot(tau_se if math.isfinite(tau_se) else 0.0, tb_se)
+    if tb + WITNESS_Z * tb_se < NO_DELAY_FRACTION * tau or (
+            tb <= WITNESS_Z * tb_se and tau - tb > WITNESS_Z * se):
+        return "none"
+    if tb - WITNESS_Z * tb_se >= NO_DELAY_FRACTION * tau or (selected and tb > WITNESS_Z * tb_se):
+        return "delay"
+    return ""
+
+
+def witness_estimates(s: DofState, label: str, selected: list[CandidateResult] = ()) -> list[tuple[str, float, float]]:
+    """Every delay of a witness DOF that speaks to another DOF's delay ``label``, most precise first:
+    ``(where, tau_d, stderr)`` [s].
+
+    Its first round's delay. Its last round's when another effect (not a delay or rate limit) was
+    selected in it: fitted on top of that effect, it can be the sharper one (randomised seed 30
+    r012, a GNSS lag of 0.15 s in surge: yaw's delay 0.024 +- 0.032 s in the first round, beside the
+    quadratic damping's large error; 0.012 +- 0.015 s on top of the damping); once its own delay or
+    rate limit is selected, its last round's delay is what is left over and does not speak. And its
+    own selected delay of the same actuator or of every input, from the round in which it was
+    selected (randomised seed 50 r015, both thrusters late: yaw's delay selected on top of its
+    damping, 0.066 +- 0.009 s against surge's 0.098 s, while its first round's was 0.078 +- 0.068 s).
 
     Parameters
     ----------
@@ -773,18 +806,42 @@ def witness_delay(s: DofState, label: str) -> CandidateResult | None:
         The witness DOF's state after the selection.
     label : str
         Label of the delay to witness.
+    selected : list[CandidateResult]
+        Every selected effect (the witness DOF's own delays among them).
     """
+    found = []
     first = _witness_delay(s.first_results or s.results, label)
+    found.append(("first round", first))
     timing = any(lab.split("[")[0].split(" ")[0] in ("actuator_delay", "actuator_rate_limit", "sensor_delay")
                  for lab in s.selected)
-    if timing or not s.selected or not s.results:
-        return first
-    last = _witness_delay(s.results, label)
-    return last if _stderr(last) < _stderr(first) else first
+    if not timing and s.selected and s.results:
+        found.append(("on top of " + " + ".join(s.selected), _witness_delay(s.results, label)))
+    dof = s.problem.dof
+    own = [r for r in selected if r.dof == dof and r.effect == "actuator_delay" and " after " not in r.label]
+    pick = next((r for r in own if r.label == label), None) or next((r for r in own if r.input_channel is None), None)
+    if pick is not None:
+        found.append((OWN_DELAY, pick))
+    out = []
+    for where, r in found:
+        tb = _param(r, "tau_d") if r is not None else None
+        if tb is None or not math.isfinite(tb.value):
+            continue
+        out.append((where, float(tb.value), float(tb.stderr) if math.isfinite(tb.stderr) else 0.0))
+    return sorted(out, key=lambda w: w[2])
 
 
-def sensor_or_actuator(res: CandidateResult, states: Mapping[str, DofState]) -> tuple[str, str | None, str]:
-    """Name a selected delay: ``actuator_delay`` or ``sensor_delay`` (with the sensor group).
+def sensor_or_actuator(res: CandidateResult, states: Mapping[str, DofState],
+                       selected: list[CandidateResult] = ()) -> tuple[str, str | None, str]:
+    """Name a selected delay: ``actuator_delay`` or ``sensor_delay`` (with the sensor group), or
+    ``actuator_delay`` reported unsure when the witnesses cannot tell.
+
+    Witnesses are the other DOFs driven by the same inputs through another sensor group; each gives
+    its delay estimates (:func:`witness_estimates`) and the most precise estimate that tells
+    (:func:`witness_reading`) decides: no delay there -> the first channel's sensor lags; the delay
+    there too -> the inputs act late. When no estimate tells, the delay keeps its name and is
+    reported unsure, with the witness' figures (randomised seed 50 r014 before: yaw's delay on top of
+    its damping, 0.066 +- 0.027 s against surge's 0.128 s, neither none nor the delay, was read as
+    "a delay too").
 
     Parameters
     ----------
@@ -792,11 +849,14 @@ def sensor_or_actuator(res: CandidateResult, states: Mapping[str, DofState]) -> 
         A selected candidate.
     states : Mapping[str, DofState]
         Every analysed DOF (their delay candidates are the witnesses).
+    selected : list[CandidateResult]
+        Every selected effect (a witness DOF's own selected delay is one of its estimates).
 
     Returns
     -------
     (effect, input_channel, why)
-        The effect name to report, the input or sensor group, and the reason.
+        The effect name to report, the input or sensor group, and the reason ("unsure: ..." when the
+        witnesses cannot tell).
     """
     if res.effect != "actuator_delay":
         return res.effect, res.input_channel, ""
@@ -805,7 +865,7 @@ def sensor_or_actuator(res: CandidateResult, states: Mapping[str, DofState]) -> 
         return res.effect, res.input_channel, ""
     pa = states[res.dof].problem
     group_a = SENSOR_GROUPS.get(pa.channel, pa.channel)
-    witnesses = []
+    told, unclear = [], []
     for dof, s in states.items():
         pb = s.problem
         if dof == res.dof or not pb.inputs or SENSOR_GROUPS.get(pb.channel, pb.channel) == group_a:
@@ -813,28 +873,28 @@ def sensor_or_actuator(res: CandidateResult, states: Mapping[str, DofState]) -> 
         if not same_input(pa, pb):
             continue
         # The same actuator's delay (actuator space) when the other DOF has it, else every input's.
-        other = witness_delay(s, res.label)
-        if other is None:
-            continue
-        tb = _param(other, "tau_d")
-        if tb is None or not math.isfinite(tb.value):
-            continue
-        se = tb.stderr if math.isfinite(tb.stderr) else 0.0
-        witnesses.append((dof, pb.channel, tb.value, se))
-    if not witnesses:
+        for where, v, se in witness_estimates(s, res.label, selected):
+            reading = witness_reading(tau.value, tau.stderr, v, se, where == OWN_DELAY)
+            (told if reading else unclear).append((se, reading, dof, pb.channel, where, v))
+    if not told and not unclear:
         return res.effect, res.input_channel, (
             f"no other channel driven by the same inputs through another sensor, so a delay of the "
             f"{group_a} sensor cannot be told from an actuator delay")
-    quiet = [w for w in witnesses if w[2] + 2 * w[3] < NO_DELAY_FRACTION * tau.value]
-    if quiet:
-        dof, ch, v, se = quiet[0]
-        return "sensor_delay", group_a, (
-            f"{dof} ({ch}, another sensor) is driven by the same inputs and shows no such delay "
-            f"({v:.3g} +- {se:.2g} s against {tau.value:.3g} s): the {group_a} measurement lags")
-    dof, ch, v, se = witnesses[0]
+    ts = f"{tau.value:.3g} +- {tau.stderr:.2g} s" if math.isfinite(tau.stderr) else f"{tau.value:.3g} s"
+    if told:
+        se, reading, dof, ch, where, v = min(told, key=lambda w: w[0])
+        if reading == "none":
+            return "sensor_delay", group_a, (
+                f"{dof} ({ch}, another sensor) is driven by the same inputs and shows no such delay "
+                f"({where}: {v:.3g} +- {se:.2g} s against {ts}): the {group_a} measurement lags")
+        return res.effect, res.input_channel, (
+            f"{dof} ({ch}), driven by the same inputs through another sensor, shows a delay too "
+            f"({where}: {v:.3g} +- {se:.2g} s): the inputs act late")
+    se, _, dof, ch, where, v = min(unclear, key=lambda w: w[0])
     return res.effect, res.input_channel, (
-        f"{dof} ({ch}), driven by the same inputs through another sensor, shows a delay too "
-        f"({v:.3g} +- {se:.2g} s): the inputs act late")
+        f"unsure: actuator_delay or sensor_delay[{group_a}]: {dof} ({ch}), driven by the same inputs through "
+        f"another sensor, shows {v:.3g} +- {se:.2g} s ({where}) against {ts}, neither clearly none nor "
+        f"clearly the delay, so a late {group_a} measurement cannot be told from late inputs")
 
 
 def by_channel(res: CandidateResult) -> str:
@@ -874,7 +934,7 @@ def selected_effects(chosen, states: Mapping[str, DofState],
     """
     out = []
     for i, (res, _run, tg, *joint) in enumerate(chosen):
-        effect, inp, why = sensor_or_actuator(res, states)
+        effect, inp, why = sensor_or_actuator(res, states, [c[0] for c in chosen])
         unsure = confused_with(res, [c[0] for c in chosen[:i]])
         if not unsure and res.dof in states and not any(c[0].dof == res.dof for c in chosen[:i]):
             unsure = close_rival(res, getattr(states[res.dof], "first_results", None) or [])
