@@ -538,8 +538,6 @@ def exact_fit_k_term(fit: NomotoFit, n_records: int, k_without_servo: float | No
     noise-free best linear fit +0.2 %), 95 % coverage 7 of 10 seeds marked success with the error
     alone, 9 of 10 with the term.
 
-    Parameters
-    ----------
     With a servo lag the sinusoids do not fix (``k_without_servo`` given, :func:`servo_trade_k`), the difference
     between K with the lag fitted and K with the command taken as the rudder angle is added in quadrature: the
     lag trades off against the pole-zero pair and carries K with it.
