@@ -137,6 +137,10 @@ EXACT_FIT = "sinusoids fix the second order's constants exactly"
 #: :func:`pipeline.fit.nomoto_structure.with_rudder_timing_note` where the rudder jumps within a sample interval
 #: or drives a sinusoid.
 RUDDER_TIMING = "rudder-timing term for T:"
+#: Start of the note of a lone zig-zag's rudder-delay term (``RUDDER_DELAY_TERM K: +-<value> 1/s ...``), written by
+#: :func:`pipeline.fit.nomoto_rudder_delay.with_rudder_delay`: the error of the rudder-to-heading delay fitted with
+#: K and T, carried into each.
+RUDDER_DELAY_TERM = "rudder-delay term for"
 #: Relative difference between the combined and the one-bias K or T that is material [-].
 SHARED_BIAS_MATERIAL = 0.02
 #: |z| of that difference (Hausman's) beyond which the two disagree.
@@ -260,6 +264,8 @@ def judge_nomoto(estimates: dict[str, Estimate], fits: Sequence[SegmentFit] = ()
                                  "constant-speed nor the re-timed fit)")
         est = add_structure_term(est, rudder_timing_term(fits, short),
                                  "rudder-timing term" + (" (K's slope on T in the fit times T's)" if short == "K" else ""))
+        delay, delay_why = rudder_delay_term(fits, short)
+        est = add_structure_term(est, delay, f"rudder-delay term ({delay_why})")
         out[name] = est
         why = amp_why + bias_why + speed_why + unsure_reasons(est, kinds)
         if name == "K_nomoto":
@@ -1051,6 +1057,32 @@ def rudder_timing_reason(est: Estimate, fits: Sequence[SegmentFit], short: str) 
     return [f"unsure: {cause}, and T moves one for one with the rudder's timing: up to h / 2 = {0.5 * h:.3g} s, "
             f"{shift:.0%} of T (> {UNSURE_RELATIVE_STDERR:.0%}), which the data cannot show (log the rudder faster, "
             f"or its servo's ramp)"]
+
+
+def rudder_delay_term(fits: Sequence[SegmentFit], short: str) -> tuple[float, str]:
+    """The largest rudder-delay term of ``K`` or ``T`` in the fits' messages [unit of it] and its note's reason
+    ((0, '') when none).
+
+    A lone zig-zag's rudder-to-heading delay is fitted with its K and T
+    (:func:`pipeline.fit.nomoto_rudder_delay.with_rudder_delay`); the segment's error is the one at the fitted
+    delay, and the delay's own error, carried through the slope of K (T) on it, is this term.
+
+    Parameters
+    ----------
+    fits : sequence of SegmentFit
+        Nomoto segment fits.
+    short : str
+        ``K`` or ``T``.
+    """
+    head = f"{RUDDER_DELAY_TERM} {short}: +-"
+    term = largest_noted(fits, head)
+    if not term > 0:
+        return 0.0, ""
+    for f in fits:
+        for part in f.message.split("; "):
+            if part.startswith(head) and ": " in part[len(head):]:
+                return term, part[len(head):].split(": ", 1)[1]
+    return term, ""
 
 
 def rudder_timing_term(fits: Sequence[SegmentFit], short: str) -> float:

@@ -84,6 +84,7 @@ from .nomoto_oe import fit_nomoto
 from .nomoto_pool import JOINT_FOLLOWER
 from .nomoto_steady import steady_level_note
 from .nomoto_zigzag import retimed_zigzag_fit, retimed_zigzag_window, speed_loss_terms
+from .nomoto_rudder_delay import RUDDER_DELAY_TERM, with_rudder_delay
 from .nomoto_joint import joint_step_fit, shared_noise
 from .nomoto_segment import (LEAD_SPEED_SECONDS, MEASURED_RUDDER, ORDER2_EXTRA_PARAMS, NomotoWindow, choose_order,
                              equivalent_t_stderr, fit_nomoto_window, fit_window, fit_window_order, first_order_start_values, prepare_window,
@@ -469,7 +470,8 @@ def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit],
                   f"linear second order (a nonlinearity at this amplitude, a speed change) goes into T1 + T2 - T3 "
                   f"unseen by its error (add a rudder step, a zig-zag or a sinusoid at a third frequency)")
     if unsure:
-        terms = terms + [exact_fit_k_term(fit, len(recs))]
+        trade = servo_trade_k(fit, recs, channels) if 2 * len(recs) < 4 + n_servo else None
+        terms = terms + [exact_fit_k_term(fit, len(recs), trade)]
     lead = segment_label(wins[0].segment)
     out = {}
     for i, (c, w) in enumerate(zip(cands, wins)):
@@ -481,7 +483,42 @@ def joint_sinusoids(cands: Sequence[_Candidate]) -> tuple[dict[int, SegmentFit],
     return out, ""
 
 
-def exact_fit_k_term(fit: NomotoFit, n_records: int) -> str:
+def servo_trade_k(fit: NomotoFit, recs: Sequence[NomotoRecord], channels: tuple[str, ...]) -> float | None:
+    """K [1/s] of the same joint second-order fit with the logged command taken as the rudder angle (no servo
+    lag), or None where the fit has no lag or that fit fails.
+
+    Sinusoids at ``n`` frequencies with ``2 n < 4 + 1`` fix a one-parameter family of (servo lag, pole-zero pair)
+    that matches their gains and phases: the lag is read from the records' transients alone, and K moves with it
+    along that family. Measured on PythonVehicleSimulator's Clarke83 ship (1.0 s servo, commanded sinusoids at
+    0.037 and 0.15 rad/s, 10 deg, no waves): the lag came out 1.72 s noise-free (1.77 and 1.72 s on seeds 0-1,
+    standard errors 0.14 s), K -0.90 % (-0.88 and -0.95 % +- 0.21 % from the fit, the intervals missing); K
+    with the lag held at 0, 0.5, 1.0, 1.5, 2.0 s: +1.25, +0.74, +0.11, -0.59, -1.29 %. The transients prefer the
+    wrong lag by far (-2 log L 35 units below the true lag's on seed 0): the ship's response is not exactly a
+    linear second order behind a first-order servo, and the lag takes up that misfit. The difference between
+    the fitted lag's K and this fit's K (the servo's whole effect on K) is a model term of K
+    (:func:`exact_fit_k_term`).
+
+    Parameters
+    ----------
+    fit : NomotoFit
+        The joint second-order fit with the servo lag.
+    recs : sequence of NomotoRecord
+        The sinusoids' records (the logged command as ``delta``).
+    channels : tuple of str
+        Outputs fitted.
+    """
+    if "t_servo" not in fit.names:
+        return None
+    try:
+        plain = fit_nomoto(list(recs), order=ORDER2_SUM_PRODUCT, noise=fit.noise_model, channels=channels)
+    except (FitError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
+    if not (_usable(plain) and math.isfinite(plain.K)):
+        return None
+    return float(plain.K)
+
+
+def exact_fit_k_term(fit: NomotoFit, n_records: int, k_without_servo: float | None = None) -> str:
     """The model-structure term of K from sinusoids that fix the second order's constants exactly.
 
     ``n`` sinusoids give ``2 n`` numbers (a gain and a phase per frequency); with ``2 n`` at most
@@ -501,18 +538,32 @@ def exact_fit_k_term(fit: NomotoFit, n_records: int) -> str:
     noise-free best linear fit +0.2 %), 95 % coverage 7 of 10 seeds marked success with the error
     alone, 9 of 10 with the term.
 
+    With a servo lag the sinusoids do not fix (``k_without_servo`` given, :func:`servo_trade_k`), the difference
+    between K with the lag fitted and K with the command taken as the rudder angle is added in quadrature: the
+    lag trades off against the pole-zero pair and carries K with it.
+
     Parameters
     ----------
     fit : NomotoFit
         The joint second-order fit.
     n_records : int
         Sinusoid records fitted jointly.
+    k_without_servo : float, optional
+        K of the same fit without the servo lag [1/s] (:func:`servo_trade_k`).
     """
     se = fit.reported_error("K")
-    return (f"{STRUCTURE_TERM_PREFIX} K: +-{se:.6g} 1/s added in quadrature to its standard error: "
-            f"{n_records} {EXACT_FIT}, so a response that is not exactly a "
+    text = (f"{n_records} {EXACT_FIT}, so a response that is not exactly a "
             f"linear second order goes into K as a bias common to every repetition, taken as the size of K's own "
             f"error (the spread that misfit would give K were it noise)")
+    term = se
+    if k_without_servo is not None and math.isfinite(k_without_servo):
+        trade = abs(fit.K - k_without_servo)
+        term = math.hypot(se, trade)
+        text += (f", and the servo lag, which {n_records} sinusoids do not fix beside the pole-zero pair (its "
+                 f"{fit.value('t_servo'):.3g} s read from the transients alone), carries K with it: K "
+                 f"{fit.K:.5g} 1/s with the lag fitted, {k_without_servo:.5g} 1/s with the command taken as the "
+                 f"rudder angle, the difference {trade:.3g} 1/s in quadrature")
+    return f"{STRUCTURE_TERM_PREFIX} K: +-{term:.6g} 1/s added in quadrature to its standard error: {text}"
 
 
 def _slow_noise_check(fit: NomotoFit, recs: Sequence, channels: tuple[str, ...], servo: tuple[str, ...]
@@ -725,7 +776,9 @@ def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) 
     A zig-zag whose speed rises in its turns is first fitted on the distance sailed
     (:func:`pipeline.fit.nomoto_zigzag.retimed_zigzag_fit`, its rudder-timing note as a step trial's), where its
     held-out end chooses that; one that slows in its turns carries the speed loss as a model term on K and T
-    (:func:`pipeline.fit.nomoto_zigzag.speed_loss_terms`). Otherwise see :func:`_lone_segment_fit`.
+    (:func:`pipeline.fit.nomoto_zigzag.speed_loss_terms`). Otherwise see :func:`_lone_segment_fit`. A zig-zag
+    not re-timed, fitted first order from a measured rudder angle, has its rudder-to-heading delay fitted with
+    K and T, the delay's error a term on both (:func:`pipeline.fit.nomoto_rudder_delay.with_rudder_delay`).
 
     Parameters
     ----------
@@ -742,6 +795,9 @@ def lone_segment_fit(trial: Trial, seg: Segment, index: int, win: NomotoWindow) 
     sf = out.get(index)
     if sf is None or seg.kind != "zigzag" or RETIMED in sf.message:
         return out
+    if any(n.startswith(MEASURED_RUDDER) for n in win.notes) and not win.servo:
+        sf = with_rudder_delay(sf, win.rec, win.channels)
+        out = {**out, index: sf}
     notes = speed_loss_terms(trial, win, sf)
     if not notes:
         return out
@@ -978,6 +1034,8 @@ def with_rudder_timing_note(sf: SegmentFit, win: NomotoWindow) -> SegmentFit:
     measured = any(n.startswith(MEASURED_RUDDER) for n in win.notes)
     if not (measured and sf.success and "T" in sf.params and "t_servo" not in sf.params):
         return sf
+    if f"{RUDDER_DELAY_TERM} T: +-" in sf.message:
+        return sf  # the rudder's delay is fitted with K and T, its error a term already
     jumps = rudder_jumps(win.rec)
     if not (jumps or sf.segment.kind == "sinusoid"):
         return sf
